@@ -1,0 +1,1 @@
+"""bodebench bus drivers: CAN (python-can) and serial (pyserial)."""

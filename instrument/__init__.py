@@ -1,0 +1,1 @@
+"""bodebench instrument: sampler, stopping rules, results, sweeps and the command line."""

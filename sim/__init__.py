@@ -1,0 +1,1 @@
+"""bodebench simulator: plants and the simulated servo controller."""
