@@ -1,0 +1,133 @@
+"""Monoharmonic autointegration of one frequency point: samples in, verdicts out.
+
+Joins the per-period integrator (``instrument.fourier``) with a stopping rule
+per series (one series = one channel x one harmonic). Pure numerics: the
+caller brings timestamped samples from a simulation or a bus.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from instrument.config import AnalysisConfig
+from instrument.fourier import PeriodIntegrator
+from instrument.response import ResponsePoint
+from instrument.rules import SeriesHistory, StoppingRule, Verdict, make_rule
+
+
+@dataclass(frozen=True)
+class SeriesState:
+    """Where one series stands after the latest period (for progress displays).
+
+    estimate: the rule's current coefficient estimate P + jQ (output units);
+    uncertainty: its confidence half-width (NaN until the rule can tell).
+    """
+
+    channel: str
+    harmonic: int
+    periods: int
+    estimate: complex
+    uncertainty: float
+    verdict: Verdict | None
+
+
+class Autointegrator:
+    """Integrates period after period until every series' rule stops or ``max_periods`` is reached.
+
+    frequency_hz: excitation frequency f (Hz); amplitude: input amplitude A_i
+    (input units), for gains; channels: names of the columns fed; t0: instant
+    (s) at which the excitation sine has phase zero.
+    """
+
+    def __init__(self, frequency_hz: float, amplitude: float, channels: Sequence[str],
+                 analysis: AnalysisConfig, t0: float = 0.0) -> None:
+        self.frequency_hz = frequency_hz
+        self.amplitude = amplitude
+        self.channels = tuple(channels)
+        self.harmonics = tuple(analysis.harmonics)
+        self.max_periods = analysis.max_periods
+        self._integrator = PeriodIntegrator(frequency_hz, self.harmonics, len(self.channels), t0)
+        self._histories = [[SeriesHistory() for _ in self.harmonics] for _ in self.channels]
+        self._rules: list[list[StoppingRule]] = [
+            [make_rule(analysis.criterion, tolerance_percent=analysis.tolerance_percent,
+                       skip_periods=analysis.skip_periods, window=analysis.window,
+                       settle_periods=analysis.settle_periods, average_periods=analysis.average_periods)
+             for _ in self.harmonics] for _ in self.channels]
+        self._verdicts: list[list[Verdict | None]] = [[None] * len(self.harmonics) for _ in self.channels]
+        self.periods = 0
+        # the first harmonic (else the first listed) leads: the others are judged only once it has settled,
+        # so a small harmonic cannot stop on the calm before the transient of its channel has died out
+        self._primary = self.harmonics.index(1) if 1 in self.harmonics else 0
+        self._order = [self._primary] + [k for k in range(len(self.harmonics)) if k != self._primary]
+
+    @property
+    def done(self) -> bool:
+        """True once every series has a verdict."""
+        return all(v is not None for row in self._verdicts for v in row)
+
+    def feed(self, t: np.ndarray, y: np.ndarray) -> int:
+        """Take samples (t in s, increasing; y shaped (n, channels)); returns the periods completed."""
+        p, q = self._integrator.feed(t, y)
+        m = p.shape[0]
+        if m == 0 or self.done:
+            self.periods += m
+            return m
+        z = p + 1j * q  # (m, channel, harmonic)
+        for c, row in enumerate(self._histories):
+            for k, hist in enumerate(row):
+                hist.extend(z[:, c, k])
+        for i in range(m):
+            n = self.periods + i + 1
+            for c in range(len(self.channels)):
+                reference = float(np.max(np.abs(z[i, c, :])))
+                for k in self._order:
+                    if self._verdicts[c][k] is not None:
+                        continue
+                    if k != self._primary and self._verdicts[c][self._primary] is None:
+                        continue
+                    verdict = self._rules[c][k].check(self._histories[c][k], n, reference)
+                    if verdict is None and n >= self.max_periods:
+                        verdict = self._rules[c][k].capped(self._histories[c][k], n)
+                    self._verdicts[c][k] = verdict
+            if self.done:
+                break
+        self.periods += m
+        return m
+
+    def states(self) -> list[SeriesState]:
+        """Progress of every series at the latest period."""
+        out = []
+        for c, name in enumerate(self.channels):
+            for k, harmonic in enumerate(self.harmonics):
+                verdict = self._verdicts[c][k]
+                hist = self._histories[c][k]
+                if verdict is not None:
+                    est, unc, n = complex(verdict.p, verdict.q), verdict.uncertainty, verdict.period
+                elif hist.n:
+                    est, unc = self._rules[c][k].estimate(hist, hist.n)
+                    n = hist.n
+                else:
+                    est, unc, n = complex("nan"), float("nan"), 0
+                out.append(SeriesState(name, harmonic, n, est, unc, verdict))
+        return out
+
+    def history(self, channel: str, harmonic: int) -> np.ndarray:
+        """Per-period coefficients P(i) + jQ(i) of one series so far."""
+        return self._histories[self.channels.index(channel)][self.harmonics.index(harmonic)].values
+
+    def points(self) -> list[ResponsePoint]:
+        """The measured points, one per series (requires ``done``)."""
+        if not self.done:
+            raise RuntimeError("Autointegrator.points() before every series has a verdict")
+        pts = []
+        for c, name in enumerate(self.channels):
+            for k, harmonic in enumerate(self.harmonics):
+                v = self._verdicts[c][k]
+                assert v is not None
+                pts.append(ResponsePoint(frequency_hz=self.frequency_hz, harmonic=harmonic, channel=name,
+                                         amplitude=self.amplitude, p=v.p, q=v.q, periods=v.period,
+                                         converged=v.converged, status=v.status, uncertainty=v.uncertainty))
+        return pts

@@ -1,0 +1,272 @@
+"""Per-period Fourier coefficients by the trapezoidal rule (METHOD.md section 1).
+
+A :class:`PeriodIntegrator` takes a stream of timestamped multi-channel samples and, for every whole
+period of the reference frequency, returns the Fourier coefficients
+
+    P_k(i) = 2 f * integral over period i of y(t) sin(2 pi k f (t - t0)) dt
+    Q_k(i) = 2 f * integral over period i of y(t) cos(2 pi k f (t - t0)) dt
+
+where the integral is the trapezoidal rule applied to the product of signal and reference function.
+Period i (i = 1, 2, ...) spans [t0 + (i - 1)/f, t0 + i/f] seconds. Period edges that fall between two
+samples get a virtual sample, linearly interpolated between its neighbours, so that every period's
+integral covers exactly its own interval. Results do not depend on how the stream is split into chunks.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Sequence
+
+import numpy as np
+
+__all__ = ["PeriodIntegrator"]
+
+_TWO_PI = 2.0 * math.pi
+
+
+class PeriodIntegrator:
+    """Trapezoidal Fourier coefficients of each whole period of a sampled multi-channel signal.
+
+    Attributes:
+        frequency_hz: reference frequency f in Hz.
+        harmonics: harmonic numbers k (positive integers), in the order of the last output axis.
+        n_channels: number of signal channels.
+        t0: start of period 1 in seconds; the reference functions have zero phase at t0.
+        periods_done: number of complete periods emitted so far.
+    """
+
+    def __init__(self, frequency_hz: float, harmonics: Sequence[int], n_channels: int, t0: float = 0.0) -> None:
+        freq = float(frequency_hz)
+        if not math.isfinite(freq) or freq <= 0.0:
+            raise ValueError(f"frequency_hz must be a finite positive number of Hz, got {frequency_hz!r}")
+        if isinstance(harmonics, (str, bytes)) or not isinstance(harmonics, Sequence):
+            raise ValueError(f"harmonics must be a sequence of positive integers, got {harmonics!r}")
+        if len(harmonics) == 0:
+            raise ValueError("harmonics must contain at least one harmonic number")
+        for k in harmonics:
+            if isinstance(k, bool) or not isinstance(k, numbers.Integral) or k < 1:
+                raise ValueError(f"harmonics must be positive integers, got {k!r} in {list(harmonics)!r}")
+        if isinstance(n_channels, bool) or not isinstance(n_channels, numbers.Integral) or n_channels < 1:
+            raise ValueError(f"n_channels must be a positive integer, got {n_channels!r}")
+        start = float(t0)
+        if not math.isfinite(start):
+            raise ValueError(f"t0 must be a finite number of seconds, got {t0!r}")
+
+        self.frequency_hz: float = freq
+        self.harmonics: tuple[int, ...] = tuple(int(k) for k in harmonics)
+        self.n_channels: int = int(n_channels)
+        self.t0: float = start
+        self.periods_done: int = 0
+
+        self._k = np.asarray(self.harmonics, dtype=np.float64)
+        n_h = len(self.harmonics)
+        # State carried between feed() calls: the last sample and the partial sums of its period.
+        self._has_last = False
+        self._t_last = np.empty(1)
+        self._u_last = np.empty(1)
+        self._p_last = np.empty(1, dtype=np.int64)
+        self._y_last = np.empty((1, self.n_channels))
+        self._ws_last = np.empty((1, self.n_channels, n_h))
+        self._wc_last = np.empty((1, self.n_channels, n_h))
+        self._acc_p = np.zeros((self.n_channels, n_h))
+        self._acc_q = np.zeros((self.n_channels, n_h))
+
+    # ------------------------------------------------------------------ input checks
+
+    def _check(self, t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        t_arr = np.asarray(t, dtype=np.float64)
+        if t_arr.ndim != 1:
+            raise ValueError(f"t must be a 1-D array of seconds, got shape {t_arr.shape}")
+        n = t_arr.shape[0]
+        y_arr = np.asarray(y, dtype=np.float64)
+        if y_arr.ndim == 1 and self.n_channels == 1:
+            y_arr = y_arr.reshape(-1, 1)
+        if y_arr.shape != (n, self.n_channels):
+            expected = f"({n}, {self.n_channels})" + (f" or ({n},)" if self.n_channels == 1 else "")
+            raise ValueError(f"y must have shape {expected} to match t of length {n}, got shape {y_arr.shape}")
+        if n == 0:
+            return t_arr, y_arr
+        finite_t = np.isfinite(t_arr)
+        if not finite_t.all():
+            i = int(np.argmin(finite_t))
+            raise ValueError(f"t[{i}] = {t_arr[i]!r} is not a finite time")
+        finite_y = np.isfinite(y_arr).all(axis=1)
+        if not finite_y.all():
+            i = int(np.argmin(finite_y))
+            raise ValueError(f"y[{i}] = {y_arr[i]!r} contains a non-finite value")
+        if self._has_last:
+            if not t_arr[0] > self._t_last[0]:
+                raise ValueError(
+                    f"t[0] = {t_arr[0]!r} is not later than the last sample of the previous call "
+                    f"({self._t_last[0]!r}); t must be strictly increasing"
+                )
+        elif t_arr[0] > self.t0:
+            raise ValueError(
+                f"the first sample t[0] = {t_arr[0]!r} s is after t0 = {self.t0!r} s, so period 1 would be "
+                "incomplete; the stream must start at or before t0"
+            )
+        if n > 1:
+            bad = np.flatnonzero(~(np.diff(t_arr) > 0.0))
+            if bad.size:
+                i = int(bad[0]) + 1
+                raise ValueError(
+                    f"t[{i}] = {t_arr[i]!r} is not later than t[{i - 1}] = {t_arr[i - 1]!r}; "
+                    "t must be strictly increasing"
+                )
+        return t_arr, y_arr
+
+    def _empty(self) -> tuple[np.ndarray, np.ndarray]:
+        shape = (0, self.n_channels, len(self.harmonics))
+        return np.zeros(shape), np.zeros(shape)
+
+    # ------------------------------------------------------------------ streaming
+
+    def feed(self, t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Integrate a chunk of samples and return the coefficients of the periods it completes.
+
+        Args:
+            t: (n,) sample times in seconds, strictly increasing (also across calls). The very first
+                sample fed must be at or before t0; samples before t0 are ignored except for the part
+                of the segment straddling t0 that lies after it.
+            y: (n, n_channels) samples (or (n,) when n_channels == 1), in the signal's own units.
+
+        Returns:
+            (P, Q), each of shape (m, n_channels, n_harmonics), in the signal's units, for the m periods
+            completed by this chunk (m may be 0). Row j is period ``periods_done_before + j + 1``.
+
+        Raises:
+            ValueError: t not 1-D, not finite or not strictly increasing (the offending index is named),
+                y of the wrong shape or not finite, or a first sample later than t0.
+        """
+        t_arr, y_arr = self._check(t, y)
+        if t_arr.shape[0] == 0:
+            return self._empty()
+
+        f = self.frequency_hz
+        u_new = (t_arr - self.t0) * f  # time since t0 in periods
+        fl_new = np.floor(u_new)
+        # Phase from the fractional part of u keeps the argument small on long runs.
+        phase = (_TWO_PI * (u_new - fl_new))[:, None] * self._k[None, :]
+        # Periods before period 1 (index -1 and below) are all merged into index -1 and later discarded.
+        p_new = np.maximum(fl_new, -1.0).astype(np.int64)
+        ws_new = y_arr[:, :, None] * np.sin(phase)[:, None, :]
+        wc_new = y_arr[:, :, None] * np.cos(phase)[:, None, :]
+
+        if self._has_last:
+            tt = np.concatenate((self._t_last, t_arr))
+            uu = np.concatenate((self._u_last, u_new))
+            pp = np.concatenate((self._p_last, p_new))
+            yy = np.concatenate((self._y_last, y_arr))
+            ws = np.concatenate((self._ws_last, ws_new))
+            wc = np.concatenate((self._wc_last, wc_new))
+            acc_p, acc_q = self._acc_p, self._acc_q
+        else:
+            tt, uu, pp, yy, ws, wc = t_arr, u_new, p_new, y_arr, ws_new, wc_new
+            acc_p = np.zeros_like(self._acc_p)
+            acc_q = np.zeros_like(self._acc_q)
+
+        self._has_last = True
+        self._t_last = tt[-1:].copy()
+        self._u_last = uu[-1:].copy()
+        self._p_last = pp[-1:].copy()
+        self._y_last = yy[-1:].copy()
+        self._ws_last = ws[-1:].copy()
+        self._wc_last = wc[-1:].copy()
+
+        n_pts = tt.shape[0]
+        if n_pts < 2:
+            self._acc_p, self._acc_q = acc_p, acc_q
+            return self._empty()
+
+        du = np.diff(tt) * f  # segment lengths in periods
+        n_cross = np.diff(pp)  # period edges crossed by each segment
+        n_edges = int(n_cross.sum())
+
+        if n_edges == 0:
+            # Whole chunk inside the current period: one trapezoid sum, no output.
+            w = du[:, None, None]
+            self._acc_p = acc_p + (w * (ws[:-1] + ws[1:])).sum(axis=0)
+            self._acc_q = acc_q + (w * (wc[:-1] + wc[1:])).sum(axis=0)
+            return self._empty()
+
+        sums_p, sums_q, first_period = self._integrate_with_edges(uu, pp, yy, ws, wc, du, n_cross, n_edges)
+        sums_p[0] += acc_p
+        sums_q[0] += acc_q
+
+        # The last row is the period still in progress (it holds the last sample).
+        self._acc_p = sums_p[-1].copy()
+        self._acc_q = sums_q[-1].copy()
+        skip = max(0, -first_period)  # rows of periods before period 1
+        out_p = sums_p[skip:-1]
+        out_q = sums_q[skip:-1]
+        self.periods_done += out_p.shape[0]
+        return out_p, out_q
+
+    def _integrate_with_edges(
+        self,
+        uu: np.ndarray,
+        pp: np.ndarray,
+        yy: np.ndarray,
+        ws: np.ndarray,
+        wc: np.ndarray,
+        du: np.ndarray,
+        n_cross: np.ndarray,
+        n_edges: int,
+    ) -> tuple[np.ndarray, np.ndarray, int]:
+        """Split segments at period edges and sum the trapezoids of every period touched.
+
+        Returns per-period sums (rows for period indices first_period .. pp[-1], 0-based) of P and Q.
+        """
+        n_pts = uu.shape[0]
+        n_seg = n_pts - 1
+        seg_idx = np.arange(n_seg)
+
+        # Knots: the samples, plus one virtual sample per period edge, in time order.
+        before = np.zeros(n_seg, dtype=np.int64)
+        np.cumsum(n_cross[:-1], out=before[1:])  # edges in earlier segments
+        pos_samples = np.arange(n_pts, dtype=np.int64)
+        pos_samples[1:] += np.cumsum(n_cross)
+        edge_seg = np.repeat(seg_idx, n_cross)
+        rank = np.arange(n_edges, dtype=np.int64) - before[edge_seg]
+        edge_period = pp[edge_seg] + 1 + rank  # edge e opens 0-based period e
+        pos_edges = pos_samples[edge_seg] + 1 + rank
+
+        ua = uu[edge_seg]
+        alpha = (edge_period - ua) / (uu[edge_seg + 1] - ua)  # fraction of the segment before the edge
+        ya = yy[edge_seg]
+        y_edge = ya + alpha[:, None] * (yy[edge_seg + 1] - ya)
+
+        n_knots = n_pts + n_edges
+        n_c, n_h = ws.shape[1], ws.shape[2]
+        knot_s = np.zeros((n_knots, n_c, n_h))
+        knot_c = np.empty((n_knots, n_c, n_h))
+        knot_s[pos_samples] = ws  # sin(2 pi k e) = 0 at the edges
+        knot_c[pos_samples] = wc
+        knot_c[pos_edges] = y_edge[:, :, None]  # cos(2 pi k e) = 1 at the edges
+
+        lam = np.zeros(n_knots)  # position of each knot within its segment, as a fraction
+        lam[pos_edges] = alpha
+        knot_seg = np.empty(n_knots, dtype=np.int64)
+        knot_seg[pos_samples[:-1]] = seg_idx
+        knot_seg[pos_samples[-1]] = n_seg - 1
+        knot_seg[pos_edges] = edge_seg
+        knot_period = np.empty(n_knots, dtype=np.int64)
+        knot_period[pos_samples] = pp
+        knot_period[pos_edges] = edge_period
+
+        # Piece q runs from knot q to knot q + 1; a piece ending at a sample ends its segment (fraction 1).
+        lam_end = lam[1:].copy()
+        lam_end[pos_samples[1:] - 1] = 1.0
+        length = (lam_end - lam[:-1]) * du[knot_seg[:-1]]
+
+        w = length[:, None, None]
+        piece_p = w * (knot_s[:-1] + knot_s[1:])
+        piece_q = w * (knot_c[:-1] + knot_c[1:])
+
+        piece_period = knot_period[:-1]
+        # Every period from the first to the last one appears, in order, so group starts index periods.
+        starts = np.concatenate(([0], np.flatnonzero(np.diff(piece_period)) + 1))
+        sums_p = np.add.reduceat(piece_p, starts, axis=0)
+        sums_q = np.add.reduceat(piece_q, starts, axis=0)
+        return sums_p, sums_q, int(piece_period[0])
