@@ -115,11 +115,11 @@ class SeriesHistory:
 
 
 def relative_change_percent(current: float, previous: float) -> float:
-    """|(|current| - |previous|) / |current}| * 100, the paper's test quantity (inf when current is 0)."""
+    """|(|current| - |previous|) / |current|| * 100, the paper's test quantity (inf for x/0, NaN for 0/0)."""
     num = abs(abs(current) - abs(previous))
     den = abs(current)
     if den == 0.0:
-        return math.inf if num > 0 or current == previous == 0.0 else math.nan
+        return math.inf if num > 0 else math.nan
     return num / den * 100.0
 
 
