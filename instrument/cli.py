@@ -12,6 +12,94 @@ from instrument.config import ConfigError, ExperimentConfig, load_config
 from instrument.response import ResultsError
 
 
+def _case_dir(config: ExperimentConfig, out: Path, name: str) -> Path:
+    return out / name if config.has_cases else out
+
+
+def _is_bench(config: ExperimentConfig) -> bool:
+    return config.cases[0].tables.get("bench") is not None
+
+
+def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool) -> int:
+    """Run every case of a bench config as a session (``direct``: the simulated drive without a bus)."""
+    from instrument.experiment import write_case
+    from instrument.links import plan_link
+    from instrument.progress import ProgressPrinter
+    from instrument.session import BenchSession, SessionError
+
+    status = 0
+    for case in config.cases:
+        directory = _case_dir(config, out, case.name)
+        plan = plan_link(case, config.path, direct=direct)
+        printer = ProgressPrinter(case.name or config.path.stem, len(case.excitation.frequencies_hz), quiet=quiet)
+        session = BenchSession(case, plan, directory, printer)
+        try:
+            result = session.run()
+        except SessionError as exc:
+            print(f"bodebench: {case.name}: stopped: {exc}; {len(session.response.points)} points kept in "
+                  f"{directory}; drive left at setpoint 0", file=sys.stderr)
+            status = 1
+            if session.response.points:
+                write_case(session.response, directory)
+            break
+        files = write_case(result.response, directory)
+        unconverged = [p for p in result.response.points if not p.converged]
+        rt = f", round trip {result.round_trip_s * 1e6:.0f} us" if result.round_trip_s == result.round_trip_s else ""
+        print(f"{case.name or config.path.stem}: {len(result.response.points)} points, {len(unconverged)} not "
+              f"converged{rt} -> {directory}/response.csv (+ {', '.join(f.name for f in files)})")
+    return status
+
+
+def _run(args: argparse.Namespace) -> int:
+    config = load_config(args.config)
+    if not _is_bench(config):
+        raise ConfigError(f"{args.config}: bench: missing (bodebench run needs a bench config; "
+                          "use bodebench simulate for an offline experiment)", "bench")
+    started = time.perf_counter()
+    status = _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet)
+    print(f"done in {time.perf_counter() - started:.1f} s")
+    return status
+
+
+def _sim_controller(args: argparse.Namespace) -> int:
+    from instrument.links import simulator_spec
+    from instrument.bench_config import build_layout
+    from sim.serve import serve_can, serve_serial_pty, serve_slcan_pty
+
+    config = load_config(args.config)
+    case = config.cases[0]
+    if case.tables.get("bench") is None or case.tables.get("simulator") is None:
+        raise ConfigError(f"{args.config}: simulator: missing (sim-controller needs [bench], [plant] and "
+                          "[simulator])", "simulator")
+    layout = build_layout(case.tables.get("frames"), str(config.path))
+    spec = simulator_spec(case, layout)
+    bench = case.tables["bench"]
+    if bench.transport == "serial":
+        serving, path = serve_serial_pty(spec)
+        where = f"serial ({spec.framing} framing) on {path}: set [serial] port = \"{path}\""
+    elif case.tables["can"].interface == "slcan":
+        serving, path = serve_slcan_pty(spec)
+        where = f"SLCAN adapter on {path}: set [can] channel = \"{path}\""
+    else:
+        serving = serve_can(spec)
+        where = f"python-can {spec.can['interface']} channel {spec.can['channel']}"
+    serving_started = time.monotonic()
+    print(f"simulated {case.raw['plant']['model']} drive, {bench.clock} clock at {bench.rate_hz:g} Hz, "
+          f"listening: {where}", flush=True)
+    try:
+        while not serving.stop.wait(0.5):
+            if args.seconds and time.monotonic() - serving_started > args.seconds:
+                break
+    except KeyboardInterrupt:
+        pass
+    finally:
+        serving.close()
+    c = serving.controller
+    print(f"stopped after {c.tick_count} control periods; last setpoint {c.applied:g}, "
+          f"{'enabled' if c.enabled else 'disabled'}")
+    return 0
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from instrument.experiment import default_executor, sweep, write_case
     from instrument.response import FrequencyResponse
@@ -19,10 +107,14 @@ def _simulate(args: argparse.Namespace) -> int:
     config: ExperimentConfig = load_config(args.config)
     out = Path(args.out)
     started = time.perf_counter()
+    if _is_bench(config):
+        status = _bench_sweeps(config, out, direct=True, quiet=args.quiet)
+        print(f"done in {time.perf_counter() - started:.1f} s")
+        return status
     executor = None if args.jobs == 1 else default_executor(args.jobs)
     try:
         for case in config.cases:
-            directory = out / case.name if config.has_cases else out
+            directory = _case_dir(config, out, case.name)
             partial = FrequencyResponse(config=case.raw, case=case.name)
             total = len(case.excitation.frequencies_hz)
             done = 0
@@ -60,6 +152,15 @@ def build_parser() -> argparse.ArgumentParser:
                      help="worker processes (default: all cores; 1 runs in this process)")
     sim.add_argument("--quiet", action="store_true", help="no progress lines")
     sim.set_defaults(handler=_simulate)
+    run = sub.add_parser("run", help="sweep a drive on the bench (CAN or serial), headless")
+    run.add_argument("config", help="TOML bench file")
+    run.add_argument("--out", required=True, help="results directory")
+    run.add_argument("--quiet", action="store_true", help="no progress display")
+    run.set_defaults(handler=_run)
+    ctl = sub.add_parser("sim-controller", help="run the simulated servo controller of a bench config standalone")
+    ctl.add_argument("config", help="TOML bench file with [simulator]")
+    ctl.add_argument("--seconds", type=float, default=0.0, help="stop after this long (default: until Ctrl-C)")
+    ctl.set_defaults(handler=_sim_controller)
     return parser
 
 

@@ -3,7 +3,8 @@
 Each top-level table is a frozen dataclass registered in :data:`TABLES`. Its fields carry validation metadata
 (``field(metadata={...})``); one generic converter (:func:`build_table`) turns a TOML table into the dataclass.
 Supported field types: ``float`` (integers accepted and converted, booleans rejected, must be finite), ``int``
-(booleans rejected), ``str``, ``bool``, ``tuple[float, ...]``, ``tuple[int, ...]``, ``tuple[str, ...]`` (from TOML
+(booleans rejected), ``str``, ``bool``, ``dict`` (a TOML table, checked by the table's own ``validate``),
+``tuple[float, ...]``, ``tuple[int, ...]``, ``tuple[str, ...]`` (from TOML
 arrays) and ``T | None`` of those (absent means ``None``).
 
 Field metadata keys:
@@ -38,6 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
+from instrument.bench_config import BENCH_TABLES, CaseCheckError, check_bench_case
 from instrument.rules import CRITERIA
 
 __all__ = [
@@ -89,12 +91,18 @@ class FieldError(ValueError):
 # --------------------------------------------------------------------------------------------------- the tables
 
 
+_HYDRAULIC = ("model", ("hydraulic",))
+
+
 @dataclass(frozen=True)
 class PlantConfig:
     """The simulated plant (METHOD.md section 2); all quantities dimensionless unless stated."""
 
     model: str = field(
-        metadata={"choices": ("coulomb", "linear", "lag"), "doc": "plant model: coulomb, linear or lag"}
+        metadata={
+            "choices": ("coulomb", "linear", "lag", "hydraulic"),
+            "doc": "plant model: coulomb, linear, lag or hydraulic (electrohydraulic position drive, SI units)",
+        }
     )
     mass: float = field(
         default=1.0,
@@ -128,6 +136,80 @@ class PlantConfig:
     gain: float = field(
         default=1.0,
         metadata={"nonzero": True, "only_if": ("model", ("lag",)), "doc": "lag static gain (dimensionless)"},
+    )
+
+    # The electrohydraulic position drive (sim/hydraulic.py); defaults: a ~10 kN industrial cylinder.
+    supply_pressure: float = field(
+        default=210e5,
+        metadata={"min": 0, "min_exclusive": True, "only_if": _HYDRAULIC, "doc": "supply pressure P_s, Pa"},
+    )
+    valve_gain: float = field(
+        default=1.8e-7,
+        metadata={
+            "min": 0,
+            "min_exclusive": True,
+            "only_if": _HYDRAULIC,
+            "doc": "valve flow gain K_q in Q_L = K_q x_v sqrt((P_s - sign(x_v) P_L)/2), m^3/(s*Pa^0.5)",
+        },
+    )
+    valve_natural_frequency_hz: float = field(
+        default=150.0,
+        metadata={"min": 0, "min_exclusive": True, "only_if": _HYDRAULIC, "doc": "servo valve natural frequency, Hz"},
+    )
+    valve_damping_ratio: float = field(
+        default=0.7,
+        metadata={"min": 0, "only_if": _HYDRAULIC, "doc": "servo valve damping ratio (dimensionless)"},
+    )
+    piston_area: float = field(
+        default=5e-4,
+        metadata={"min": 0, "min_exclusive": True, "only_if": _HYDRAULIC, "doc": "piston area A_p, m^2"},
+    )
+    total_volume: float = field(
+        default=1.5e-4,
+        metadata={
+            "min": 0,
+            "min_exclusive": True,
+            "only_if": _HYDRAULIC,
+            "doc": "total oil volume V_t of both chambers and lines, m^3",
+        },
+    )
+    bulk_modulus: float = field(
+        default=1.4e9,
+        metadata={"min": 0, "min_exclusive": True, "only_if": _HYDRAULIC, "doc": "effective bulk modulus, Pa"},
+    )
+    leakage: float = field(
+        default=2e-12,
+        metadata={"min": 0, "only_if": _HYDRAULIC, "doc": "cross-port leakage coefficient C_l, m^3/(s*Pa)"},
+    )
+    piston_mass: float = field(
+        default=40.0,
+        metadata={
+            "min": 0,
+            "min_exclusive": True,
+            "only_if": _HYDRAULIC,
+            "doc": "moving mass (piston, rod, load), kg",
+        },
+    )
+    load_stiffness: float = field(
+        default=0.0,
+        metadata={"min": 0, "only_if": _HYDRAULIC, "doc": "load spring stiffness K_load, N/m"},
+    )
+    viscous_damping: float = field(
+        default=2000.0,
+        metadata={"min": 0, "only_if": _HYDRAULIC, "doc": "viscous damping b, N*s/m"},
+    )
+    coulomb_friction: float = field(
+        default=150.0,
+        metadata={"min": 0, "only_if": _HYDRAULIC, "doc": "Coulomb (stick-slip) friction force F_c, N"},
+    )
+    loop_gain: float = field(
+        default=60.0,
+        metadata={
+            "min": 0,
+            "min_exclusive": True,
+            "only_if": _HYDRAULIC,
+            "doc": "position-loop gain K_loop: normalised valve current per metre of position error, 1/m",
+        },
     )
 
 
@@ -183,6 +265,7 @@ TABLES: dict[str, type] = {
     "plant": PlantConfig,
     "excitation": ExcitationConfig,
     "analysis": AnalysisConfig,
+    **BENCH_TABLES,
 }
 """Registered top-level tables, by TOML name. Every registered table may also appear inside ``[cases.NAME]``."""
 
@@ -294,7 +377,7 @@ class _Field:
 
 
 _SCHEMAS: dict[type, tuple[_Field, ...]] = {}
-_EXPECTED = {float: "a number", int: "an integer", str: "a string", bool: "a boolean"}
+_EXPECTED = {float: "a number", int: "an integer", str: "a string", bool: "a boolean", dict: "a table"}
 
 
 def _schema(cls: type) -> tuple[_Field, ...]:
@@ -369,6 +452,10 @@ def _convert_scalar(base: type, value: Any, meta: Mapping[str, Any], key: str) -
         if not isinstance(value, str):
             raise _Fault(key, f"expected a string, got {_describe(value)}")
         converted = value
+    elif base is dict:
+        if not isinstance(value, Mapping):
+            raise _Fault(key, f"expected a table, got {_describe(value)}")
+        return dict(value)
     else:
         if not isinstance(value, bool):
             raise _Fault(key, f"expected a boolean, got {_describe(value)}")
@@ -515,6 +602,7 @@ def _build_case(
     base: Mapping[str, Mapping[str, Any]],
     overrides: Mapping[str, Mapping[str, Any]],
     case_parts: tuple[str, ...],
+    source: str,
 ) -> CaseConfig:
     """Merge ``overrides`` (the case's sub-tables, from ``case_parts``) over ``base`` and validate the result."""
     built: dict[str, Any] = {}
@@ -535,7 +623,7 @@ def _build_case(
         obj = _build(cls, merged, origin, (*case_parts, table), table)
         built[table] = obj
         raw[table] = _to_raw(obj)
-    return CaseConfig(
+    case = CaseConfig(
         name=name,
         plant=built["plant"],
         excitation=built["excitation"],
@@ -543,6 +631,15 @@ def _build_case(
         raw=raw,
         tables=built,
     )
+
+    def key(table: str, name: str) -> str:
+        return _key_path(*case_parts, table, name) if name in overrides.get(table, {}) else _key_path(table, name)
+
+    try:
+        check_bench_case(case, key, source)
+    except CaseCheckError as err:
+        raise _Fault(err.key, err.problem) from None
+    return case
 
 
 def _parse(data: Mapping[str, Any], source: str) -> ExperimentConfig:
@@ -562,7 +659,7 @@ def _parse(data: Mapping[str, Any], source: str) -> ExperimentConfig:
             base[table] = _expect_table(data[table], table)
 
     if "cases" not in data:
-        case = _build_case(_default_case_name(source), base, {}, ())
+        case = _build_case(_default_case_name(source), base, {}, (), source)
         return ExperimentConfig(path=Path(source), title=title, cases=(case,), has_cases=False)
 
     cases = _expect_table(data["cases"], "cases")
@@ -592,7 +689,7 @@ def _parse(data: Mapping[str, Any], source: str) -> ExperimentConfig:
                 raise _Fault(_key_path(table, key), "unknown key")
             _convert(by_name[key], value, _key_path(table, key))
 
-    built = tuple(_build_case(name, base, overrides[name], ("cases", name)) for name in cases)
+    built = tuple(_build_case(name, base, overrides[name], ("cases", name), source) for name in cases)
     return ExperimentConfig(path=Path(source), title=title, cases=built, has_cases=True)
 
 

@@ -420,6 +420,8 @@ class AdaptiveRule(StoppingRule):
         return Verdict(n, z.real, z.imag, uncertainty, status, method)
 
     def estimate(self, hist: SeriesHistory, n: int) -> tuple[complex, float]:
+        if n - self._window(n) < 2:
+            return hist.at(n), math.nan
         mean, drift, spread = self._mean_estimate(hist, n)
         return mean, drift + spread if not math.isnan(spread) else math.nan
 

@@ -42,6 +42,9 @@ class PlantState:
         return PlantState(self.x.copy(), self.mode)
 
 
+_CACHE_SIZE = 64  # transition matrices kept per plant (one per distinct step and input)
+
+
 def _substeps(m: np.ndarray, h: float) -> int:
     """Sub-steps that keep |lambda|*h_sub <= 1 for every eigenvalue of m (local expansions stay exact)."""
     rate = float(np.max(np.abs(np.linalg.eigvals(m)))) if m.size else 0.0
@@ -105,34 +108,37 @@ class LinearPlant(Plant):
         if self.c.shape[0] != len(output_names):
             raise ValueError("LinearPlant: one output name per row of C")
         self.output_names = tuple(output_names)
+        self._c_aug = np.zeros((self.c.shape[0], n + 3))
+        self._c_aug[:, :n] = self.c
+        self._cache: dict[tuple[float, float, float], np.ndarray] = {}
 
     def initial_state(self) -> PlantState:
         return PlantState(np.zeros(self.a.shape[0]))
 
-    def _run(self, state: PlantState, m: np.ndarray, h: float, z: np.ndarray, held: np.ndarray,
-             n_steps: int) -> np.ndarray:
-        n = self.a.shape[0]
-        phi = expm(m * h)
-        c_out = np.zeros((self.c.shape[0], n + 3))
-        c_out[:, :n] = self.c
+    def _run(self, state: PlantState, amplitude: float, omega: float, h: float, z: np.ndarray,
+             held: np.ndarray, n_steps: int) -> np.ndarray:
+        key = (amplitude, omega, h)
+        phi = self._cache.get(key)
+        if phi is None:
+            if len(self._cache) >= _CACHE_SIZE:
+                self._cache.clear()
+            phi = self._cache[key] = expm(_exosystem_matrix(self.a, self.b, amplitude, omega) * h)
         out = np.empty((n_steps, self.c.shape[0]))
-        _kernels.lti_run(phi, z, n_steps, held, c_out, out)
-        state.x[:] = z[:n]
+        _kernels.lti_run(phi, z, n_steps, held, self._c_aug, out)
+        state.x[:] = z[: self.a.shape[0]]
         return out
 
     def run_sine(self, state: PlantState, t_start: float, h: float, n_steps: int,
                  amplitude: float, frequency_hz: float) -> np.ndarray:
         omega = 2.0 * math.pi * frequency_hz
-        m = _exosystem_matrix(self.a, self.b, amplitude, omega)
         phase = omega * t_start
         z = np.concatenate([state.x, [math.sin(phase), math.cos(phase), 1.0]])
-        return self._run(state, m, h, z, _EMPTY, n_steps)
+        return self._run(state, amplitude, omega, h, z, _EMPTY, n_steps)
 
     def run_held(self, state: PlantState, setpoints: np.ndarray, h: float) -> np.ndarray:
         setpoints = np.ascontiguousarray(setpoints, dtype=float)
-        m = _exosystem_matrix(self.a, self.b, 1.0, 0.0)
         z = np.concatenate([state.x, [0.0, 0.0, 1.0]])
-        return self._run(state, m, h, z, setpoints, len(setpoints))
+        return self._run(state, 1.0, 0.0, h, z, setpoints, len(setpoints))
 
     def frequency_response(self, frequency_hz: np.ndarray | float) -> np.ndarray:
         """Exact complex transfer function C (jwI - A)^-1 B of each output at f (Hz): shape (..., n_out)."""
@@ -188,6 +194,7 @@ class CoulombOscillator(Plant):
         self._a = np.array([[0.0, 1.0], [-stiffness / mass, -self._damping / mass]])
         self._b = np.array([0.0, 1.0 / mass])
         self.events = 0  # stick, break-away and reversal events handled so far
+        self._cache: dict[tuple[float, float, float], tuple] = {}
 
     @property
     def natural_frequency_hz(self) -> float:
@@ -196,14 +203,24 @@ class CoulombOscillator(Plant):
     def initial_state(self) -> PlantState:
         return PlantState(np.zeros(2), 0.0)
 
+    def _matrices(self, amplitude: float, omega: float, h: float) -> tuple:
+        """Augmented matrices and one-sub-step transitions for sliding forward/backward, cached per step."""
+        key = (amplitude, omega, h)
+        found = self._cache.get(key)
+        if found is None:
+            fric = self.friction / self.mass
+            m_fwd = _exosystem_matrix(self._a, self._b, amplitude, omega, np.array([0.0, -fric]))
+            m_bwd = _exosystem_matrix(self._a, self._b, amplitude, omega, np.array([0.0, fric]))
+            sub = _substeps(m_fwd[:4, :4], h)
+            found = (m_fwd, m_bwd, expm(m_fwd * (h / sub)), expm(m_bwd * (h / sub)), sub)
+            if len(self._cache) >= _CACHE_SIZE:
+                self._cache.clear()
+            self._cache[key] = found
+        return found
+
     def _run(self, state: PlantState, amplitude: float, omega: float, h: float, w: tuple[float, float],
              held: np.ndarray, n_steps: int) -> np.ndarray:
-        fric = self.friction / self.mass
-        m_fwd = _exosystem_matrix(self._a, self._b, amplitude, omega, np.array([0.0, -fric]))
-        m_bwd = _exosystem_matrix(self._a, self._b, amplitude, omega, np.array([0.0, fric]))
-        sub = _substeps(m_fwd[:4, :4], h)
-        phi_fwd = expm(m_fwd * (h / sub))
-        phi_bwd = expm(m_bwd * (h / sub))
+        m_fwd, m_bwd, phi_fwd, phi_bwd, sub = self._matrices(amplitude, omega, h)
         y, v = state.x
         z = np.array([y, v, w[0], w[1], 1.0])
         mode = np.array([state.mode])
@@ -228,12 +245,24 @@ class CoulombOscillator(Plant):
 
 
 def plant_from_config(model: str, *, mass: float = 1.0, stiffness: float = 1.0, friction: float = 0.0,
-                      damping_ratio: float = 0.0, time_constant: float = 1.0, gain: float = 1.0) -> Plant:
-    """Build the plant a ``[plant]`` table describes (model: coulomb, linear or lag)."""
+                      damping_ratio: float = 0.0, time_constant: float = 1.0, gain: float = 1.0,
+                      **hydraulic: float) -> Plant:
+    """Build the plant a ``[plant]`` table describes (model: coulomb, linear, lag or hydraulic).
+
+    ``hydraulic``: the keyword parameters of :class:`sim.hydraulic.ElectrohydraulicDrive` (SI units); accepted by
+    every model (a ``[plant]`` table carries them all) and used by "hydraulic" only.
+    """
     if model == "coulomb":
         return CoulombOscillator(mass, stiffness, friction, damping_ratio)
     if model == "linear":
         return LinearOscillator(mass, stiffness, damping_ratio)
     if model == "lag":
         return FirstOrderLag(time_constant, gain)
+    if model == "hydraulic":
+        from sim.hydraulic import HYDRAULIC_DEFAULTS, ElectrohydraulicDrive
+
+        unknown = sorted(set(hydraulic) - set(HYDRAULIC_DEFAULTS))
+        if unknown:
+            raise ValueError(f"unknown hydraulic plant parameters {unknown}")
+        return ElectrohydraulicDrive(**hydraulic)
     raise ValueError(f"unknown plant model {model!r}")

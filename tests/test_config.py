@@ -233,7 +233,7 @@ VALUE_ERRORS = [
     ("plant", "time_constant", 0.0, "lag", "plant.time_constant: must be > 0, got 0.0"),
     ("plant", "gain", 0, "lag", "plant.gain: must be != 0, got 0.0"),
     ("plant", "model", "spring", "coulomb",
-     'plant.model: must be one of "coulomb", "linear", "lag", got "spring"'),
+     'plant.model: must be one of "coulomb", "linear", "lag", "hydraulic", got "spring"'),
     ("excitation", "amplitude", 0.0, "coulomb", "excitation.amplitude: must be > 0, got 0.0"),
     ("excitation", "frequencies_hz", [], "coulomb", "excitation.frequencies_hz: must not be empty"),
     ("excitation", "frequencies_hz", [1, 2, 3, -4], "coulomb",
@@ -559,18 +559,18 @@ def test_build_table_generic_types() -> None:
 
 def test_registered_table_is_loaded_and_overridable(monkeypatch: pytest.MonkeyPatch) -> None:
     data = minimal()
-    data["can"] = {"channel": "can0"}
-    assert error_of(data) == f"{SRC}: can: unknown key"
-    monkeypatch.setitem(cfg.TABLES, "can", _PortConfig)
-    data["cases"] = {"a": {}, "b": {"can": {"bitrate": 250000}}}
+    data["port"] = {"channel": "can0"}
+    assert error_of(data) == f"{SRC}: port: unknown key"
+    monkeypatch.setitem(cfg.TABLES, "port", _PortConfig)
+    data["cases"] = {"a": {}, "b": {"port": {"bitrate": 250000}}}
     exp = parse_config(data)
-    assert exp.cases[0].tables["can"] == _PortConfig(channel="can0")
-    assert exp.cases[1].tables["can"].bitrate == 250000
-    assert exp.cases[1].raw["can"] == {"channel": "can0", "bitrate": 250000, "fd": False, "names": ["a"]}
+    assert exp.cases[0].tables["port"] == _PortConfig(channel="can0")
+    assert exp.cases[1].tables["port"].bitrate == 250000
+    assert exp.cases[1].raw["port"] == {"channel": "can0", "bitrate": 250000, "fd": False, "names": ["a"]}
     # An optional table that is absent yields None.
-    del data["can"]
+    del data["port"]
     del data["cases"]["b"]
-    assert parse_config(data).cases[0].tables["can"] is None
+    assert parse_config(data).cases[0].tables["port"] is None
 
 
 # --------------------------------------------------------------------------------------------- property test

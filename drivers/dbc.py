@@ -1,0 +1,223 @@
+"""Messages defined by a DBC file (via cantools), adapted to the ``Codec`` protocol of drivers.layout.
+
+``DbcMessage`` maps our signal names (setpoint, counter, channel names) to DBC signal names; values are physical
+(cantools applies each signal's scale and offset). DBC signals that are not mapped are sent with their initial value
+from the DBC file (0 when it gives none, moved into the signal's [minimum, maximum] when 0 is outside it).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from .errors import LayoutError
+from .layout import Layout, Message, _Ctx, _is_number, _show
+
+__all__ = ["DbcMessage", "layout_from_dbc"]
+
+
+class DbcMessage:
+    """A DBC message seen through a mapping ``our name -> DBC signal name`` (physical values in both directions)."""
+
+    def __init__(self, db_message: Any, signals: Mapping[str, str] | None = None) -> None:
+        """``db_message`` is a ``cantools.database.can.Message``; ``signals`` maps our names to its signal names
+        (default: every DBC signal under its own name, in DBC order)."""
+        self._msg = db_message
+        where = f"DBC message {_show(db_message.name)}"
+        if db_message.is_multiplexed():
+            raise LayoutError(f"{where}: multiplexed messages are not supported")
+        by_name = {sig.name: sig for sig in db_message.signals}
+        mapping = dict(signals) if signals is not None else {name: name for name in by_name}
+        if not mapping:
+            raise LayoutError(f"{where}: no signals mapped")
+        targets: set[str] = set()
+        for ours, theirs in mapping.items():
+            if theirs not in by_name:
+                raise LayoutError(
+                    f"{where}: has no signal {_show(theirs)} (for {_show(ours)}); it has {', '.join(by_name)}"
+                )
+            if theirs in targets:
+                raise LayoutError(f"{where}: signal {_show(theirs)} is mapped twice")
+            targets.add(theirs)
+        self._map = mapping
+        self._sig = {ours: by_name[theirs] for ours, theirs in mapping.items()}
+        self._defaults = {name: _default_value(sig) for name, sig in by_name.items() if name not in targets}
+
+    def __repr__(self) -> str:
+        return f"DbcMessage({self._msg.name!r}, id=0x{self.id:X}, signals={self._map!r})"
+
+    @property
+    def name(self) -> str:
+        """DBC message name."""
+        return str(self._msg.name)
+
+    @property
+    def id(self) -> int:
+        """Frame id."""
+        return int(self._msg.frame_id)
+
+    @property
+    def extended(self) -> bool:
+        """True for a 29-bit id."""
+        return bool(self._msg.is_extended_frame)
+
+    @property
+    def data(self) -> bytes | None:
+        """Always None: a DBC message is a signal message."""
+        return None
+
+    @property
+    def length(self) -> int:
+        """Payload length in bytes (DBC message length)."""
+        return int(self._msg.length)
+
+    @property
+    def signal_names(self) -> tuple[str, ...]:
+        """Our signal names, in mapping order."""
+        return tuple(self._map)
+
+    def encode(self, values: Mapping[str, float]) -> bytes:
+        """Payload for the physical ``values``; LayoutError naming message and signal when missing or out of range."""
+        dbc_values: dict[str, float] = dict(self._defaults)
+        for ours, sig in self._sig.items():
+            where = f"message {_show(self.name)} signal {_show(ours)} ({_show(sig.name)})"
+            if ours not in values:
+                raise LayoutError(f"message {_show(self.name)}: missing value for signal {_show(ours)}")
+            value = values[ours]
+            if not _is_number(value):
+                raise LayoutError(f"{where}: value must be a number, got {_show(value)}")
+            if not sig.is_float:
+                if not math.isfinite(value):
+                    raise LayoutError(f"{where}: cannot encode non-finite value {value!r} as an integer")
+                raw = round((float(value) - sig.offset) / sig.scale)
+                lo, hi = _raw_limits(sig)
+                if not lo <= raw <= hi:
+                    raise LayoutError(f"{where}: value {value!r} gives raw {raw}, outside {lo}..{hi}")
+            dbc_values[sig.name] = value
+        try:
+            return bytes(self._msg.encode(dbc_values, scaling=True, strict=True))
+        except Exception as exc:  # cantools raises EncodeError, OverflowError, ValueError
+            raise LayoutError(f"message {_show(self.name)}: {exc}") from exc
+
+    def decode(self, payload: bytes) -> dict[str, float]:
+        """Physical value of every mapped signal; LayoutError naming the message on a short payload."""
+        if len(payload) < self.length:
+            raise LayoutError(
+                f"message {_show(self.name)} (id 0x{self.id:X}): payload is {len(payload)} bytes, needs {self.length}"
+            )
+        try:
+            decoded = self._msg.decode(bytes(payload[: self.length]), decode_choices=False, scaling=True)
+        except Exception as exc:  # cantools DecodeError and friends
+            raise LayoutError(f"message {_show(self.name)}: {exc}") from exc
+        return {ours: float(decoded[sig.name]) for ours, sig in self._sig.items()}
+
+    def integer_modulus(self, name: str) -> int | None:
+        """``2**bits`` when our signal ``name`` is an unsigned integer with unit scale and zero offset, else None."""
+        if name not in self._sig:
+            raise LayoutError(f"message {_show(self.name)} has no signal {_show(name)}")
+        sig = self._sig[name]
+        if sig.is_float or sig.is_signed or sig.scale != 1 or sig.offset != 0:
+            return None
+        return 1 << int(sig.length)
+
+
+def _raw_limits(sig: Any) -> tuple[int, int]:
+    bits = int(sig.length)
+    if sig.is_signed:
+        return -(1 << (bits - 1)), (1 << (bits - 1)) - 1
+    return 0, (1 << bits) - 1
+
+
+def _default_value(sig: Any) -> float:
+    """Physical value sent for an unmapped DBC signal: its initial value, else 0 moved into [minimum, maximum]."""
+    if sig.initial is not None:
+        return float(sig.initial)
+    value = 0.0
+    if sig.minimum is not None and value < sig.minimum:
+        value = float(sig.minimum)
+    if sig.maximum is not None and value > sig.maximum:
+        value = float(sig.maximum)
+    return value
+
+
+def layout_from_dbc(cls: type[Layout], path: Path, mapping: Mapping[str, Any], source: str) -> Layout:
+    """Build ``cls`` from DBC file ``path`` and the ``[frames]`` table ``mapping`` (see ``Layout.from_dbc``)."""
+    import cantools
+
+    ctx = _Ctx(source)
+    table = ctx.table(mapping, "frames")
+    ctx.known(table, "frames", {"setpoint", "feedback", "enable", "disable", "heartbeat"})
+    try:
+        db = cantools.database.load_file(str(path), database_format="dbc")
+    except Exception as exc:  # missing file, parse errors
+        prefix = f"{source}: " if source else ""
+        raise LayoutError(f"{prefix}frames.dbc: cannot load {str(path)!r}: {exc}") from exc
+
+    def find(sub: Mapping[str, Any], where: str) -> Any:
+        name = ctx.require(sub, where, "message")
+        if not isinstance(name, str):
+            ctx.fail(f"{where}.message", f"a DBC message name, got {_show(name)}")
+        try:
+            return db.get_message_by_name(name)
+        except KeyError:
+            names = ", ".join(m.name for m in db.messages)
+            ctx.fail(f"{where}.message", f"no message {_show(name)} in {path.name} (it has {names})")
+
+    def signal_message(value: object, where: str) -> DbcMessage:
+        sub = ctx.table(value, where)
+        ctx.known(sub, where, {"message", "signals"})
+        db_msg = find(sub, where)
+        signals = sub.get("signals")
+        if signals is not None:
+            signals = ctx.table(signals, f"{where}.signals")
+            for ours, theirs in signals.items():
+                if not isinstance(theirs, str):
+                    ctx.fail(f"{where}.signals.{ours}", f"a DBC signal name, got {_show(theirs)}")
+        try:
+            return DbcMessage(db_msg, signals)
+        except LayoutError as exc:
+            ctx.fail(where, str(exc))
+
+    def fixed_message(value: object, where: str, role: str) -> tuple[Message, float]:
+        sub = ctx.table(value, where)
+        allowed = {"message", "values", "period_s"} if role == "heartbeat" else {"message", "values"}
+        ctx.known(sub, where, allowed)
+        db_msg = find(sub, where)
+        values = ctx.table(sub.get("values", {}), f"{where}.values")
+        by_name = {sig.name: sig for sig in db_msg.signals}
+        full: dict[str, float] = {name: _default_value(sig) for name, sig in by_name.items()}
+        for key, val in values.items():
+            if key not in by_name:
+                ctx.fail(f"{where}.values.{key}", f"no signal {_show(key)} in DBC message {_show(db_msg.name)}")
+            full[key] = ctx.number(val, f"{where}.values.{key}")
+        try:
+            payload = bytes(db_msg.encode(full, scaling=True, strict=True))
+        except Exception as exc:
+            ctx.fail(f"{where}.values", f"cannot encode: {exc}")
+        period = ctx.number(sub["period_s"], f"{where}.period_s") if "period_s" in sub else 0.0
+        try:
+            msg = Message(str(db_msg.name), int(db_msg.frame_id), bool(db_msg.is_extended_frame), data=payload)
+        except LayoutError as exc:
+            ctx.fail(where, str(exc))
+        return msg, period
+
+    setpoint = signal_message(ctx.require(table, "frames", "setpoint"), "frames.setpoint")
+    fb_raw = ctx.require(table, "frames", "feedback")
+    if isinstance(fb_raw, Mapping):
+        fb_raw = [fb_raw]
+    if not isinstance(fb_raw, Sequence) or isinstance(fb_raw, (str, bytes)) or not fb_raw:
+        ctx.fail("frames.feedback", f"a non-empty list of tables, got {_show(fb_raw)}")
+    feedback = tuple(signal_message(item, f"frames.feedback[{i}]") for i, item in enumerate(fb_raw))
+    optional: dict[str, Message | None] = {"enable": None, "disable": None, "heartbeat": None}
+    period = 0.0
+    for role in optional:
+        if role in table:
+            optional[role], p = fixed_message(table[role], f"frames.{role}", role)
+            if role == "heartbeat":
+                period = p
+    result: Layout = ctx.build(
+        lambda: cls(setpoint, feedback, optional["enable"], optional["disable"], optional["heartbeat"], period)
+    )
+    return result

@@ -1,0 +1,291 @@
+"""The instrument's view of a servo controller: send setpoints and commands, receive assembled feedback samples.
+
+``Driver`` works on any ``FramePort`` with any ``Layout``. Feedback frames that share a counter value are joined
+into one ``FeedbackSample``; counter gaps, repeats and partial samples are counted in ``BusHealth``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+from .errors import LayoutError
+from .layout import COUNTER, SETPOINT, TIMESTAMP, Codec, Layout
+from .ports import Frame, FramePort
+
+__all__ = ["BusHealth", "Driver", "FeedbackSample", "Unwrapper"]
+
+_MAX_PENDING = 64
+"""Most partial samples held at once; beyond that the oldest is dropped as incomplete."""
+
+
+class Unwrapper:
+    """Turns a rolling counter (values ``0 .. modulus - 1``) into a monotonic integer.
+
+    Each raw value is placed at the unwrapped value nearest to the previous one: a step of ``d = (raw - previous)
+    mod modulus`` counts forward when ``d < modulus / 2`` and backward (``d - modulus``) otherwise. So a jump
+    backwards in the raw value by more than half the modulus is a wrap (e.g. 65535 -> 2 with modulus 65536 is +3),
+    and a small backward step (a repeated or reordered value) stays a backward step. The first value is returned
+    as is. Gaps of half the modulus or more cannot be told from backward steps.
+    """
+
+    def __init__(self, modulus: int) -> None:
+        """``modulus``: number of distinct raw values (``2**bits``), at least 2."""
+        if not isinstance(modulus, int) or isinstance(modulus, bool) or modulus < 2:
+            raise ValueError(f"Unwrapper modulus must be an integer >= 2, got {modulus!r}")
+        self.modulus = modulus
+        self._last: int | None = None
+
+    @property
+    def last(self) -> int | None:
+        """The last unwrapped value (None before the first)."""
+        return self._last
+
+    def reset(self) -> None:
+        """Forget the history; the next value is returned as is."""
+        self._last = None
+
+    def unwrap(self, raw: int) -> int:
+        """Unwrapped value of ``raw`` (0 <= raw < modulus)."""
+        if not isinstance(raw, int) or isinstance(raw, bool) or not 0 <= raw < self.modulus:
+            raise ValueError(f"raw counter value must be an integer 0..{self.modulus - 1}, got {raw!r}")
+        if self._last is None:
+            self._last = raw
+            return raw
+        m = self.modulus
+        step = (raw - self._last) % m
+        if step >= (m + 1) // 2:
+            step -= m
+        self._last += step
+        return self._last
+
+
+@dataclass(frozen=True)
+class FeedbackSample:
+    """One feedback sample.
+
+    ``counter``: unwrapped sample counter (monotonic), None when the layout has none. ``timestamp``: controller time
+    in s unwrapped from timestamp_us, None without one. ``receive_time``: timestamp (s) of the last frame of the
+    sample. ``values``: physical channel values in ``Layout.channels`` order.
+    """
+
+    counter: int | None
+    timestamp: float | None
+    receive_time: float
+    values: tuple[float, ...]
+
+
+@dataclass
+class BusHealth:
+    """Link statistics (plain data). ``errors`` = port errors (error frames, CRC failures, malformed input) plus
+    feedback frames that failed to decode; ``lost_samples``: counter values never seen; ``duplicates``: repeated or
+    stale counter values (dropped); ``incomplete_samples``: counters with some but not all feedback frames (dropped);
+    ``bus_state``: "active", "passive", "bus-off" or "unknown"; ``last_error``: description of the latest error."""
+
+    frames_in: int = 0
+    frames_out: int = 0
+    errors: int = 0
+    lost_samples: int = 0
+    duplicates: int = 0
+    incomplete_samples: int = 0
+    bus_state: str = "unknown"
+    last_error: str = ""
+
+    def snapshot(self) -> BusHealth:
+        """An independent copy."""
+        return dataclasses.replace(self)
+
+
+class Driver:
+    """Setpoints, commands and feedback samples over ``port`` using ``layout`` (validated for the port's transport).
+
+    Sample assembly: feedback frames are grouped by unwrapped counter. A sample is complete when every feedback
+    message of its counter has arrived; it is then returned, and older partial samples are dropped and counted as
+    incomplete, counters skipped without any frame count as lost. Frames whose counter is not newer than the last
+    complete sample count as duplicates and are dropped (one count per repeated counter value), as do repeats of a
+    message within a partial sample. Frames with ids not in the feedback set are ignored (counted only in
+    ``frames_in``); feedback frames that fail to decode count as errors and never raise.
+    """
+
+    def __init__(self, port: FramePort, layout: Layout) -> None:
+        """Use ``port`` (kept open until ``close()``) with ``layout``; LayoutError if it does not suit the port."""
+        layout.validate(port.transport)
+        self.port = port
+        self.layout = layout
+        self.health = BusHealth()
+        self._channels = layout.channels
+        self._by_key: dict[tuple[int, bool], int] = {
+            (msg.id, msg.extended): index for index, msg in enumerate(layout.feedback)
+        }
+        self._n_feedback = len(layout.feedback)
+        modulus = layout.counter_modulus
+        self._counter: Unwrapper | None = (
+            Unwrapper(modulus) if layout.has_counter and modulus is not None else None
+        )
+        self._setpoint_modulus = layout.counter_modulus if layout.has_setpoint_counter else None
+        ts_modulus = layout.timestamp_modulus
+        self._clock: Unwrapper | None = Unwrapper(ts_modulus) if ts_modulus is not None else None
+        self._ts_index = next(
+            (i for i, msg in enumerate(layout.feedback) if TIMESTAMP in msg.signal_names), None
+        )
+        self._pending: dict[int, dict[int, tuple[dict[str, float], float]]] = {}
+        self._next: int | None = None  # lowest counter not yet emitted, lost or dropped
+        self._last_duplicate: int | None = None
+        self._decode_errors = 0
+        self._port_last_error = port.last_error
+        self._update_health()
+
+    # ----------------------------------------------------------------------------------------------------------
+    # commands
+    def send_setpoint(self, value: float, counter: int = 0) -> None:
+        """Send the setpoint ``value`` (physical units of the layout) with ``counter`` (reduced modulo the counter
+        modulus; ignored when the setpoint message has no counter). LayoutError when the value does not fit."""
+        values = {SETPOINT: value}
+        if self._setpoint_modulus is not None:
+            values[COUNTER] = int(counter) % self._setpoint_modulus
+        self._send(self.layout.setpoint, values)
+
+    def enable(self) -> None:
+        """Send the enable message (no-op when the layout has none)."""
+        if self.layout.enable is not None:
+            self._send(self.layout.enable, {})
+
+    def disable(self) -> None:
+        """Send the disable message (no-op when the layout has none)."""
+        if self.layout.disable is not None:
+            self._send(self.layout.disable, {})
+
+    def heartbeat(self) -> None:
+        """Send the heartbeat message (no-op when the layout has none); call every ``layout.heartbeat_period_s``."""
+        if self.layout.heartbeat is not None:
+            self._send(self.layout.heartbeat, {})
+
+    def _send(self, msg: Codec, values: dict[str, float]) -> None:
+        data = msg.encode(values)
+        try:
+            self.port.send(Frame(msg.id, data, msg.extended))
+        finally:
+            self._update_health()
+
+    # ----------------------------------------------------------------------------------------------------------
+    # feedback
+    def receive(self, timeout: float) -> list[FeedbackSample]:
+        """Samples completed within ``timeout`` s: waits until at least one sample is complete or the time is up,
+        then returns every sample completed by the frames received so far (oldest first)."""
+        if not isinstance(timeout, (int, float)) or not timeout >= 0:
+            raise ValueError(f"receive timeout must be a number >= 0 s, got {timeout!r}")
+        deadline = time.monotonic() + timeout
+        samples: list[FeedbackSample] = []
+        try:
+            while True:
+                frames = self.port.recv(max(0.0, deadline - time.monotonic()))
+                for frame in frames:
+                    sample = self._accept(frame)
+                    if sample is not None:
+                        samples.append(sample)
+                if samples or time.monotonic() >= deadline:
+                    return samples
+        finally:
+            self._update_health()
+
+    def feed(self, frames: list[Frame]) -> list[FeedbackSample]:
+        """Assemble samples from frames obtained elsewhere (same rules as ``receive``)."""
+        samples = [s for s in (self._accept(f) for f in frames) if s is not None]
+        self._update_health()
+        return samples
+
+    def _accept(self, frame: Frame) -> FeedbackSample | None:
+        if frame.is_error:
+            return None  # counted by the port
+        index = self._by_key.get((frame.id, frame.extended))
+        if index is None:
+            return None
+        msg = self.layout.feedback[index]
+        try:
+            values = msg.decode(frame.data)
+            counter = self._counter.unwrap(self._raw_counter(values)) if self._counter is not None else None
+        except (LayoutError, ValueError) as exc:
+            self._decode_errors += 1
+            self.health.last_error = f"feedback frame 0x{frame.id:X}: {exc}"
+            return None
+        if counter is None:
+            return self._emit(None, {index: (values, frame.timestamp)})
+        if self._next is None:
+            self._next = counter
+        if counter < self._next:
+            if counter != self._last_duplicate:
+                self.health.duplicates += 1
+                self._last_duplicate = counter
+            return None
+        parts = self._pending.setdefault(counter, {})
+        if index in parts:
+            if counter != self._last_duplicate:
+                self.health.duplicates += 1
+                self._last_duplicate = counter
+            return None
+        parts[index] = (values, frame.timestamp)
+        if len(parts) < self._n_feedback:
+            if len(self._pending) > _MAX_PENDING:
+                self._drop_oldest()
+            return None
+        del self._pending[counter]
+        older = [c for c in self._pending if c < counter]
+        for c in older:
+            del self._pending[c]
+        self.health.incomplete_samples += len(older)
+        self.health.lost_samples += counter - self._next - len(older)
+        self._next = counter + 1
+        return self._emit(counter, parts)
+
+    def _raw_counter(self, values: dict[str, float]) -> int:
+        raw = values[COUNTER]
+        if raw != int(raw):
+            raise ValueError(f"counter value {raw!r} is not an integer")
+        return int(raw)
+
+    def _drop_oldest(self) -> None:
+        assert self._next is not None
+        oldest = min(self._pending)
+        del self._pending[oldest]
+        self.health.incomplete_samples += 1
+        self.health.lost_samples += oldest - self._next
+        self._next = oldest + 1
+
+    def _emit(self, counter: int | None, parts: dict[int, tuple[dict[str, float], float]]) -> FeedbackSample:
+        merged: dict[str, float] = {}
+        receive_time = 0.0
+        for values, stamp in parts.values():  # in arrival order: the last one completed the sample
+            merged.update(values)
+            receive_time = stamp
+        timestamp: float | None = None
+        if self._clock is not None and self._ts_index is not None and self._ts_index in parts:
+            raw = parts[self._ts_index][0][TIMESTAMP]
+            timestamp = self._clock.unwrap(int(raw)) * 1e-6
+        return FeedbackSample(counter, timestamp, receive_time, tuple(merged[name] for name in self._channels))
+
+    # ----------------------------------------------------------------------------------------------------------
+    # health and shutdown
+    def _update_health(self) -> None:
+        h = self.health
+        port = self.port
+        h.frames_in = port.frames_in
+        h.frames_out = port.frames_out
+        h.errors = port.errors + self._decode_errors
+        h.bus_state = port.bus_state()
+        if port.last_error != self._port_last_error:
+            self._port_last_error = port.last_error
+            h.last_error = port.last_error
+
+    def close(self) -> None:
+        """Close the port."""
+        try:
+            self.port.close()
+        finally:
+            self._update_health()
+
+    def __enter__(self) -> Driver:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

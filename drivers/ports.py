@@ -1,0 +1,399 @@
+"""Frame ports: send and receive frames over CAN (python-can) or a serial line (pyserial).
+
+``FramePort`` does the shared work (counting, closed-state checks, mapping vendor exceptions to ``DriverError``
+subclasses, batching received frames); a backend fills ``_send``, ``_recv`` and ``_close``. Both the instrument's
+``Driver`` and a simulated controller use these ports.
+"""
+
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from collections import deque
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any, ClassVar
+
+from .errors import DriverError, DriverInitError, DriverOperationError, DriverTimeoutError, LayoutError
+from .layout import Codec, Layout
+from .serial_framing import (
+    AsciiDeframer,
+    BinaryDeframer,
+    ascii_line,
+    ascii_payload,
+    encode_ascii,
+    encode_binary,
+)
+
+__all__ = ["MAX_BATCH", "CanPort", "Frame", "FramePort", "SerialPort"]
+
+MAX_BATCH = 256
+"""Most frames one ``recv`` call returns; the rest wait for the next call."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame: ``id``, payload ``data``, 29-bit flag, reception ``timestamp`` (s; interface time where the
+    interface provides one, else ``time.time()`` at reception; 0 for frames not yet sent) and error-frame flag."""
+
+    id: int
+    data: bytes
+    extended: bool = False
+    timestamp: float = 0.0
+    is_error: bool = False
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.id, int) or isinstance(self.id, bool) or self.id < 0:
+            raise ValueError(f"Frame.id must be a non-negative integer, got {self.id!r}")
+        if not isinstance(self.data, bytes):
+            if isinstance(self.data, (bytearray, memoryview)):
+                object.__setattr__(self, "data", bytes(self.data))
+            else:
+                raise ValueError(f"Frame.data must be bytes, got {type(self.data).__name__}")
+
+
+class FramePort(ABC):
+    """Base of all frame transports. Counts ``frames_in``, ``frames_out`` and ``errors`` (error frames and
+    rejected input), remembers ``last_error`` (text), and is a context manager that closes the port.
+
+    ``transport`` is the ``Layout.validate`` transport name of the port. Backends list their vendor exception types
+    in ``_vendor_errors`` / ``_timeout_errors`` and implement ``_send``, ``_recv`` and ``_close``.
+    """
+
+    _vendor_errors: ClassVar[tuple[type[BaseException], ...]] = (OSError,)
+    _timeout_errors: ClassVar[tuple[type[BaseException], ...]] = ()
+
+    def __init__(self, name: str, transport: str) -> None:
+        """``name`` describes the interface in error messages (e.g. "CAN socketcan:can0", "serial /dev/ttyUSB0");
+        ``transport`` is "can", "serial-binary" or "serial-ascii"."""
+        self.name = name
+        self.transport = transport
+        self.frames_in = 0
+        self.frames_out = 0
+        self.errors = 0
+        self.last_error = ""
+        self._closed = False
+        self._queue: deque[Frame] = deque()
+
+    # ----------------------------------------------------------------------------------------------------------
+    # public API
+    @property
+    def closed(self) -> bool:
+        """True after ``close()``."""
+        return self._closed
+
+    def send(self, frame: Frame) -> None:
+        """Send one frame; DriverOperationError (DriverTimeoutError on a timeout) naming the port on failure."""
+        if self._closed:
+            raise DriverOperationError(f"{self.name}: port is closed")
+        with self._vendor("send"):
+            self._send(frame)
+        self.frames_out += 1
+
+    def recv(self, timeout: float) -> list[Frame]:
+        """Wait up to ``timeout`` s for a first frame, then also take what is immediately available (at most
+        ``MAX_BATCH`` frames in all). Returns [] when nothing arrived in time. Error frames are included (flagged
+        ``is_error``) and counted in ``errors``."""
+        if not isinstance(timeout, (int, float)) or not timeout >= 0:
+            raise ValueError(f"recv timeout must be a number >= 0 s, got {timeout!r}")
+        if self._closed:
+            raise DriverOperationError(f"{self.name}: port is closed")
+        if not self._queue:
+            with self._vendor("receive"):
+                self._queue.extend(self._recv(float(timeout), MAX_BATCH))
+        batch: list[Frame] = []
+        while self._queue and len(batch) < MAX_BATCH:
+            batch.append(self._queue.popleft())
+        for frame in batch:
+            if frame.is_error:
+                self._note_error(f"error frame 0x{frame.id:X} data {frame.data.hex()}")
+        self.frames_in += len(batch)
+        return batch
+
+    def close(self) -> None:
+        """Release the interface; further send/recv raise DriverOperationError. Safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        with self._vendor("close"):
+            self._close()
+
+    def bus_state(self) -> str:
+        """"active", "passive", "bus-off" or "unknown"."""
+        if self._closed:
+            return "unknown"
+        try:
+            return self._bus_state()
+        except Exception:  # a backend that cannot tell
+            return "unknown"
+
+    def __enter__(self) -> FramePort:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name!r})"
+
+    # ----------------------------------------------------------------------------------------------------------
+    # shared helpers for backends
+    def _note_error(self, text: str) -> None:
+        """Count one error and remember its description."""
+        self.errors += 1
+        self.last_error = text
+
+    @contextmanager
+    def _vendor(self, action: str) -> Iterator[None]:
+        """Re-raise vendor exceptions as DriverTimeoutError / DriverOperationError naming the port."""
+        try:
+            yield
+        except DriverError:
+            raise
+        except self._timeout_errors as exc:
+            self.last_error = f"{action} timed out: {exc}"
+            raise DriverTimeoutError(f"{self.name}: {action} timed out: {exc}") from exc
+        except self._vendor_errors as exc:
+            self.last_error = f"{action} failed: {exc}"
+            raise DriverOperationError(f"{self.name}: {action} failed: {exc}") from exc
+
+    # ----------------------------------------------------------------------------------------------------------
+    # backend hooks
+    @abstractmethod
+    def _send(self, frame: Frame) -> None:
+        """Transmit ``frame``."""
+
+    @abstractmethod
+    def _recv(self, timeout: float, limit: int) -> list[Frame]:
+        """Wait up to ``timeout`` s for a first frame, then return it plus up to ``limit`` - 1 frames available
+        without waiting (more is allowed; the base class queues the excess)."""
+
+    @abstractmethod
+    def _close(self) -> None:
+        """Release the interface."""
+
+    def _bus_state(self) -> str:
+        return "unknown"
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# CAN
+def _can_errors() -> tuple[tuple[type[BaseException], ...], tuple[type[BaseException], ...]]:
+    import can
+
+    return (can.CanError, OSError), (can.CanTimeoutError,)
+
+
+class CanPort(FramePort):
+    """Frames on a python-can bus (any interface). Error frames are returned flagged ``is_error`` and counted."""
+
+    _vendor_errors, _timeout_errors = _can_errors()
+
+    def __init__(self, bus: Any, *, name: str | None = None, send_timeout: float | None = 0.1,
+                 owns_bus: bool = True) -> None:
+        """Wrap the open ``can.BusABC`` ``bus``. ``send_timeout`` (s) bounds each send where the interface supports
+        it; with ``owns_bus`` the bus is shut down by ``close()``."""
+        super().__init__(name or f"CAN {getattr(bus, 'channel_info', type(bus).__name__)}", "can")
+        self._bus = bus
+        self._send_timeout = send_timeout
+        self._owns_bus = owns_bus
+
+    @classmethod
+    def open(cls, interface: str, channel: Any, bitrate: int | None = None,
+             options: Mapping[str, Any] | None = None) -> CanPort:
+        """Open ``can.Bus(interface=..., channel=..., bitrate=..., **options)``; DriverInitError naming interface and
+        channel when that fails (``bitrate`` None leaves it to the interface)."""
+        import can
+
+        kwargs = dict(options or {})
+        if bitrate is not None:
+            kwargs["bitrate"] = bitrate
+        name = f"CAN {interface}:{channel}"
+        try:
+            bus = can.Bus(interface=interface, channel=channel, **kwargs)
+        except (can.CanError, OSError, ValueError, TypeError, ImportError, NotImplementedError) as exc:
+            raise DriverInitError(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}") from exc
+        return cls(bus, name=name)
+
+    @property
+    def bus(self) -> Any:
+        """The wrapped python-can bus."""
+        return self._bus
+
+    def _send(self, frame: Frame) -> None:
+        import can
+
+        msg = can.Message(arbitration_id=frame.id, data=frame.data, is_extended_id=frame.extended,
+                          is_fd=len(frame.data) > 8)
+        self._bus.send(msg, timeout=self._send_timeout)
+
+    def _recv(self, timeout: float, limit: int) -> list[Frame]:
+        msg = self._bus.recv(timeout)
+        out: list[Frame] = []
+        while msg is not None:
+            out.append(self._to_frame(msg))
+            if len(out) >= limit:
+                break
+            msg = self._bus.recv(0)
+        return out
+
+    @staticmethod
+    def _to_frame(msg: Any) -> Frame:
+        stamp = float(msg.timestamp) if msg.timestamp else time.time()
+        return Frame(int(msg.arbitration_id), bytes(msg.data), bool(msg.is_extended_id), stamp,
+                     bool(msg.is_error_frame))
+
+    def _close(self) -> None:
+        if self._owns_bus:
+            self._bus.shutdown()
+
+    def _bus_state(self) -> str:
+        import can
+
+        state = self._bus.state
+        return {can.BusState.ACTIVE: "active", can.BusState.PASSIVE: "passive",
+                can.BusState.ERROR: "bus-off"}.get(state, "unknown")
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# serial
+def _serial_errors() -> tuple[tuple[type[BaseException], ...], tuple[type[BaseException], ...]]:
+    import serial
+
+    return (serial.SerialException, OSError), (serial.SerialTimeoutException,)
+
+
+_FRAMINGS = ("binary", "ascii")
+
+
+class SerialPort(FramePort):
+    """Frames on a serial line, binary or ASCII-line framed (drivers/PROTOCOL.md).
+
+    Wraps a pyserial ``Serial`` (or any object with ``read``, ``write``, ``in_waiting``) opened with ``timeout=0``.
+    Received frames carry the ``extended`` flag of the layout message with their id. With ASCII framing the layout
+    converts between payloads and value fields; lines with ids not in the layout are dropped and counted in
+    ``ignored``, lines whose fields do not fit their message count as errors. CRC/checksum failures and malformed
+    lines count in ``errors``; ``resyncs`` and ``bytes_discarded`` come from the deframer.
+    """
+
+    _vendor_errors, _timeout_errors = _serial_errors()
+    _POLL_S = 0.0005  # s, sleep between polls while waiting for the first frame
+    _CHUNK = 4096  # bytes read per call at most
+
+    def __init__(self, ser: Any, framing: str, layout: Layout, *, name: str | None = None) -> None:
+        """Wrap the open serial object ``ser``; ``framing`` "binary" or "ascii"; ``layout`` is validated for it."""
+        if framing not in _FRAMINGS:
+            raise LayoutError(f'serial framing: one of "binary", "ascii", got {framing!r}')
+        layout.validate(f"serial-{framing}")
+        super().__init__(name or f"serial {getattr(ser, 'port', None) or type(ser).__name__}", f"serial-{framing}")
+        self._ser = ser
+        self.framing = framing
+        self.layout = layout
+        self.ignored = 0
+        """ASCII lines dropped because their id is not in the layout."""
+        self._deframer: BinaryDeframer | AsciiDeframer = BinaryDeframer() if framing == "binary" else AsciiDeframer()
+        self._by_id: dict[int, Codec] = {}
+        for msg in layout.messages:
+            self._by_id.setdefault(msg.id, msg)
+        self._seen_framing_errors = 0
+
+    @classmethod
+    def open(cls, port: str, baudrate: int, framing: str, layout: Layout) -> SerialPort:
+        """Open ``port`` (a device path or a pyserial URL such as "loop://") at ``baudrate`` with ``timeout=0``;
+        DriverInitError naming the port when that fails."""
+        import serial
+
+        if framing not in _FRAMINGS:
+            raise LayoutError(f'serial framing: one of "binary", "ascii", got {framing!r}')
+        layout.validate(f"serial-{framing}")
+        try:
+            ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DriverInitError(f"cannot open serial port {port!r} at {baudrate} baud: {exc}") from exc
+        return cls(ser, framing, layout, name=f"serial {port}")
+
+    @property
+    def deframer(self) -> BinaryDeframer | AsciiDeframer:
+        """The deframer (its counters: frames, crc_errors, bytes_discarded, resyncs)."""
+        return self._deframer
+
+    @property
+    def resyncs(self) -> int:
+        """Times the deframer lost frame alignment."""
+        return self._deframer.resyncs
+
+    @property
+    def bytes_discarded(self) -> int:
+        """Bytes the deframer dropped."""
+        return self._deframer.bytes_discarded
+
+    def _send(self, frame: Frame) -> None:
+        if self.framing == "binary":
+            wire = encode_binary(frame.id, frame.data)
+        else:
+            msg = self._by_id.get(frame.id)
+            if msg is None or msg.data is not None:
+                wire = ascii_line(frame.id, [frame.data.hex().upper()])
+            else:
+                wire = encode_ascii(msg, msg.decode(frame.data))
+        self._ser.write(wire)
+
+    def _read_available(self) -> list[Frame]:
+        frames: list[Frame] = []
+        while True:
+            waiting = self._ser.in_waiting
+            data = self._ser.read(min(max(int(waiting), 1), self._CHUNK))
+            if not data:
+                break
+            now = time.time()
+            if isinstance(self._deframer, BinaryDeframer):
+                for frame_id, payload in self._deframer.feed(data):
+                    frames.append(self._frame(frame_id, payload, now))
+            else:
+                for frame_id, fields in self._deframer.feed(data):
+                    msg = self._by_id.get(frame_id)
+                    if msg is None:
+                        self.ignored += 1
+                        continue
+                    try:
+                        payload = ascii_payload(msg, fields)
+                    except LayoutError as exc:
+                        self._note_error(f"ASCII line id 0x{frame_id:X}: {exc}")
+                        continue
+                    frames.append(self._frame(frame_id, payload, now))
+            if len(data) < self._CHUNK and not self._ser.in_waiting:
+                break
+        self._count_framing_errors()
+        return frames
+
+    def _frame(self, frame_id: int, payload: bytes, stamp: float) -> Frame:
+        msg = self._by_id.get(frame_id)
+        return Frame(frame_id, payload, msg.extended if msg is not None else False, stamp)
+
+    def _count_framing_errors(self) -> None:
+        d = self._deframer
+        total = d.crc_errors + (d.format_errors if isinstance(d, AsciiDeframer) else 0)
+        if total > self._seen_framing_errors:
+            kind = "CRC" if isinstance(d, BinaryDeframer) else "checksum/format"
+            self.errors += total - self._seen_framing_errors
+            self.last_error = f"{kind} error on serial input ({total} so far)"
+            self._seen_framing_errors = total
+
+    def _recv(self, timeout: float, limit: int) -> list[Frame]:
+        deadline = time.monotonic() + timeout
+        while True:
+            frames = self._read_available()
+            if frames:
+                return frames
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return []
+            time.sleep(min(self._POLL_S, remaining))
+
+    def _close(self) -> None:
+        self._ser.close()
+

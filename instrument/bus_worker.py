@@ -1,0 +1,522 @@
+"""The bus worker: paces setpoints, talks to the drive, enforces the safety limits.
+
+It runs apart from the analysis (its own process on the realtime clock, with
+the garbage collector frozen and timer slack lowered; a thread is enough on
+the lockstep clock) and exchanges only small typed messages with the session
+over a pipe: commands in, sample batches and bus health out. Whatever ends it
+(a stop, an abort, a trip, an exception, Ctrl-C, the session vanishing), its
+last act on the bus is a zero setpoint and, where the layout has one, the
+disable frame.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import gc
+import math
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from typing import Any
+
+import numpy as np
+
+from drivers.driver import BusHealth, Driver, FeedbackSample
+from drivers.errors import DriverError
+from drivers.ports import FramePort
+
+# ------------------------------------------------------------------------------------------- messages to the worker
+
+
+@dataclass(frozen=True)
+class StartSine:
+    """Ramp the running sine out (if any), then start ``amplitude*sin(2 pi f t)`` ramped in over whole periods."""
+
+    frequency_hz: float
+    amplitude: float
+    ramp_in_periods: int
+    ramp_out_periods: int
+
+
+@dataclass(frozen=True)
+class Credit:
+    """Lockstep: setpoints may be sent up to and including tick ``until_tick``."""
+
+    until_tick: int
+
+
+@dataclass(frozen=True)
+class Stop:
+    """End the session: ramp out (``abort``: slew straight to zero), zero setpoint, disable, exit."""
+
+    reason: str
+    abort: bool = False
+
+
+# ----------------------------------------------------------------------------------------- messages from the worker
+
+
+@dataclass(frozen=True)
+class Ready:
+    """The bus is open and the drive enabled; ``channels`` are the feedback columns of every Samples batch."""
+
+    channels: tuple[str, ...]
+    period_s: float
+
+
+@dataclass(frozen=True)
+class SineStarted:
+    """The setpoint of tick ``tick`` (session time tick * period) is the new sine's phase zero."""
+
+    frequency_hz: float
+    tick: int
+
+
+@dataclass(frozen=True)
+class Samples:
+    """Feedback samples: session time t (s), values (n, channels), and the setpoint sent at each sample's tick."""
+
+    t: np.ndarray
+    values: np.ndarray
+    setpoint: np.ndarray
+    last_tick: int
+
+
+@dataclass(frozen=True)
+class PacingStats:
+    """Send-time error of paced setpoints against their schedule (s): p50, p99, max; overruns = ticks late by
+    more than one period."""
+
+    p50: float
+    p99: float
+    max: float
+    count: int
+    overruns: int
+
+
+@dataclass(frozen=True)
+class Health:
+    """Bus health, round-trip delay (s; lockstep: setpoint to its sample) and pacing."""
+
+    bus: BusHealth
+    round_trip_s: float
+    pacing: PacingStats | None
+    tick: int
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A trip or error; the worker has already zeroed and disabled the drive. kind: watchdog, feedback_limit,
+    bus, error."""
+
+    kind: str
+    message: str
+
+
+@dataclass(frozen=True)
+class Stopped:
+    """The worker's last message: the setpoint it left the drive at and whether it sent the disable frame."""
+
+    reason: str
+    last_setpoint: float
+    disabled: bool
+
+
+# --------------------------------------------------------------------------------------------------- configuration
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Safety limits: |setpoint| <= max_amplitude, slew <= max_rate (units/s, None: none), feedback windows
+    {channel: (low, high)}, watchdog_s without feedback."""
+
+    max_amplitude: float
+    max_rate: float | None
+    feedback_limits: dict[str, tuple[float, float]] = field(default_factory=dict)
+    watchdog_s: float = 0.5
+
+
+@dataclass(frozen=True)
+class WorkerSpec:
+    """Everything the worker needs, picklable: how to open the link (``open_link`` returns (port, layout,
+    resources to close)), the pacing, the time base and the limits."""
+
+    open_link: Any  # a picklable callable () -> tuple[FramePort, Layout, list[closeable]]
+    rate_hz: float
+    clock: str
+    timebase: str
+    limits: Limits
+    batch_s: float = 0.01
+    health_s: float = 0.1
+
+
+class _Trip(Exception):
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+# ---------------------------------------------------------------------------------------------- the sine program
+
+
+class SineProgram:
+    """Setpoint at each tick: a sine with whole-period linear ramps in and out, then zero.
+
+    tick0: the tick of phase zero; period_s: tick period (s).
+    """
+
+    def __init__(self, frequency_hz: float, amplitude: float, ramp_in_periods: int, ramp_out_periods: int,
+                 tick0: int, period_s: float) -> None:
+        self.f = frequency_hz
+        self.amplitude = amplitude
+        self.ramp_in = ramp_in_periods
+        self.ramp_out = ramp_out_periods
+        self.tick0 = tick0
+        self.h = period_s
+        self.out_tick: int | None = None
+
+    def finish(self, tick: int, at_once: bool = False) -> None:
+        """Start ramping out at ``tick`` (``at_once``: no ramp)."""
+        if self.out_tick is None:
+            self.out_tick = tick
+            if at_once:
+                self.ramp_out = 0
+
+    def finished(self, tick: int) -> bool:
+        if self.out_tick is None:
+            return False
+        return self.ramp_out == 0 or (tick - self.out_tick) * self.h * self.f >= self.ramp_out
+
+    def value(self, tick: int) -> float:
+        t = (tick - self.tick0) * self.h
+        if t < 0 or self.finished(tick):
+            return 0.0
+        gain = 1.0 if self.ramp_in == 0 else min(1.0, t * self.f / self.ramp_in)
+        if self.out_tick is not None and self.ramp_out:
+            gain *= max(0.0, 1.0 - (tick - self.out_tick) * self.h * self.f / self.ramp_out)
+        return self.amplitude * gain * math.sin(2.0 * math.pi * self.f * t)
+
+
+# ------------------------------------------------------------------------------------------------------ the loop
+
+
+def _lower_timer_slack() -> None:
+    """Ask Linux for 1 ns timer slack so sleeps end on time (PR_SET_TIMERSLACK = 29)."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(29, 1, 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+class BusWorker:
+    """The pacing loop. ``run`` never raises: every way out zeroes the drive and ends with ``Stopped``."""
+
+    def __init__(self, spec: WorkerSpec, conn: Connection) -> None:
+        self.spec = spec
+        self.conn = conn
+        self.h = 1.0 / spec.rate_hz
+        self.lockstep = spec.clock == "lockstep"
+        self.tick = 0                 # next setpoint's tick
+        self.credit = -1              # lockstep: last tick allowed
+        self.program: SineProgram | None = None
+        self.pending: StartSine | None = None
+        self.stopping: Stop | None = None
+        self.last_sent = 0.0
+        self.driver: Driver | None = None
+        self.resources: list[Any] = []
+        self.last_feedback = 0.0
+        self.offset: float | None = None     # session time = raw time - offset
+        self.wall0 = 0.0
+        self.round_trips: list[float] = []
+        self.send_errors: list[float] = []
+        self.overruns = 0
+        self._t: list[float] = []
+        self._v: list[tuple[float, ...]] = []
+        self._u: list[float] = []
+        self._tick_of_sample: dict[int, float] = {}
+
+    # --- plumbing
+    def _post(self, message: object) -> None:
+        try:
+            self.conn.send(message)
+        except (OSError, EOFError, BrokenPipeError):
+            raise _Trip("error", "session went away") from None
+
+    def _ship(self) -> None:
+        if self._t:
+            self._post(Samples(np.array(self._t), np.array(self._v, dtype=float).reshape(len(self._t), -1),
+                               np.array(self._u), self.tick - 1))
+            self._t, self._v, self._u = [], [], []
+
+    def _health(self) -> None:
+        assert self.driver is not None
+        pacing = None
+        if self.send_errors:
+            e = np.abs(np.array(self.send_errors))
+            pacing = PacingStats(float(np.percentile(e, 50)), float(np.percentile(e, 99)), float(e.max()),
+                                 len(e), self.overruns)
+        rt = float(np.median(self.round_trips)) if self.round_trips else math.nan
+        self._post(Health(self.driver.health.snapshot(), rt, pacing, self.tick))
+
+    def _command(self, message: object) -> None:
+        if isinstance(message, Credit):
+            self.credit = max(self.credit, message.until_tick)
+        elif isinstance(message, StartSine):
+            if self.program is not None:
+                self.program.finish(self.tick)
+            self.pending = message
+        elif isinstance(message, Stop):
+            self.stopping = message
+            if self.program is not None:
+                self.program.finish(self.tick, at_once=message.abort)
+
+    def _poll_commands(self, timeout: float = 0.0) -> None:
+        try:
+            while self.conn.poll(timeout):
+                self._command(self.conn.recv())
+                timeout = 0.0
+        except (OSError, EOFError):
+            raise _Trip("error", "session went away") from None
+
+    # --- setpoints
+    def _limit(self, u: float) -> float:
+        lim = self.spec.limits
+        if not math.isfinite(u):
+            u = 0.0
+        u = max(-lim.max_amplitude, min(lim.max_amplitude, u))
+        if lim.max_rate is not None:
+            step = lim.max_rate * self.h
+            u = max(self.last_sent - step, min(self.last_sent + step, u))
+        return u
+
+    def _next_setpoint(self) -> float:
+        if self.program is not None and self.program.finished(self.tick):
+            self.program = None
+        if self.program is None and self.pending is not None and self.stopping is None:
+            p = self.pending
+            self.pending = None
+            self.program = SineProgram(p.frequency_hz, p.amplitude, p.ramp_in_periods, p.ramp_out_periods,
+                                       self.tick, self.h)
+            self._post(SineStarted(p.frequency_hz, self.tick))
+            if self.lockstep:  # the ramp in and the first period need no asking
+                self.credit = max(self.credit, self.tick + math.ceil((p.ramp_in_periods + 1) / (p.frequency_hz * self.h)) + 1)
+        return self.program.value(self.tick) if self.program is not None else 0.0
+
+    def _send(self, u: float) -> None:
+        assert self.driver is not None
+        self.driver.send_setpoint(u, self.tick)
+        self.last_sent = u
+
+    # --- feedback
+    def _time_of(self, s: FeedbackSample, answered_tick: int | None) -> float:
+        """Session time of a sample: its counter, timestamp or receive time, aligned once on the first sample."""
+        base = self.spec.timebase
+        if base == "counter" and s.counter is not None:
+            raw = s.counter * self.h
+        elif base == "timestamp" and s.timestamp is not None:
+            raw = s.timestamp
+        else:
+            raw = s.receive_time - self.wall0
+            if base != "receive":
+                raise _Trip("bus", f"feedback without the {base} the time base needs")
+        if self.offset is None:
+            expected = (answered_tick + 1) * self.h if answered_tick is not None else s.receive_time - self.wall0
+            self.offset = raw - expected
+        return raw - self.offset
+
+    def _accept(self, samples: list[FeedbackSample], answered_tick: int | None) -> None:
+        lim = self.spec.limits
+        channels = self.layout_channels
+        for s in samples:
+            for name, (lo, hi) in lim.feedback_limits.items():
+                v = s.values[channels.index(name)]
+                if not lo <= v <= hi:
+                    raise _Trip("feedback_limit", f"{name} = {v:g} outside [{lo:g}, {hi:g}]")
+            t = self._time_of(s, answered_tick)
+            self._t.append(t)
+            self._v.append(s.values)
+            self._u.append(self.last_sent)
+            self.last_feedback = time.monotonic()
+
+    def _watchdog(self) -> None:
+        if time.monotonic() - self.last_feedback > self.spec.limits.watchdog_s:
+            raise _Trip("watchdog", f"no feedback for {self.spec.limits.watchdog_s:g} s")
+
+    # --- main loops
+    def _lockstep_tick(self) -> None:
+        assert self.driver is not None
+        u = self._limit(self._next_setpoint())
+        sent = time.perf_counter()
+        self._send(u)
+        deadline = time.monotonic() + self.spec.limits.watchdog_s
+        while True:
+            samples = self.driver.receive(max(0.0, min(0.05, deadline - time.monotonic())))
+            if samples:
+                self.round_trips.append(time.perf_counter() - sent)
+                if len(self.round_trips) > 4096:
+                    del self.round_trips[:2048]
+                self._accept(samples[-1:], self.tick)
+                break
+            self._watchdog()
+        self.tick += 1
+
+    def _realtime_tick(self, scheduled: float) -> None:
+        assert self.driver is not None
+        now = time.perf_counter()
+        if scheduled - now > 3e-4:
+            time.sleep(scheduled - now - 2e-4)
+        while time.perf_counter() < scheduled:
+            pass
+        u = self._limit(self._next_setpoint())
+        actual = time.perf_counter()
+        self._send(u)
+        self.send_errors.append(actual - scheduled)
+        if len(self.send_errors) > 200_000:
+            del self.send_errors[:100_000]
+        if actual - scheduled > self.h:
+            self.overruns += 1
+        self._accept(self.driver.receive(0.0), None)
+        self._watchdog()
+        self.tick += 1
+
+    def run(self) -> None:
+        reason = "stopped"
+        disabled = False
+        try:
+            if not self.lockstep:
+                gc.collect()
+                gc.freeze()
+                gc.disable()
+                _lower_timer_slack()
+            port, self.layout, self.resources = self.spec.open_link()
+            self.driver = Driver(port, self.layout)
+            self.layout_channels = self.layout.channels
+            self.driver.enable()
+            self._post(Ready(self.layout.channels, self.h))
+            self.wall0 = time.time()
+            self.last_feedback = time.monotonic()
+            next_ship = next_health = time.monotonic()
+            scheduled = time.perf_counter() + self.h
+            while True:
+                self._poll_commands()
+                if self.stopping is not None and (self.program is None or self.program.finished(self.tick)):
+                    reason = self.stopping.reason
+                    break
+                if self.lockstep:
+                    # without credit the worker waits, except to ramp out and start a requested sine
+                    if self.tick > self.credit and self.pending is None and not (self.stopping and self.program):
+                        self._ship()
+                        self._health()
+                        self._poll_commands(0.5)
+                        continue
+                    self._lockstep_tick()
+                    if self.tick > self.credit:
+                        self._ship()
+                else:
+                    self._realtime_tick(scheduled)
+                    scheduled += self.h
+                    if time.perf_counter() - scheduled > 0.1:  # suspended: resume the schedule from now
+                        scheduled = time.perf_counter() + self.h
+                now = time.monotonic()
+                if now >= next_ship:
+                    self._ship()
+                    next_ship = now + self.spec.batch_s
+                if now >= next_health:
+                    self._health()
+                    next_health = now + self.spec.health_s
+        except _Trip as trip:
+            reason = f"{trip.kind}: {trip}"
+            self._report(Fault(trip.kind, str(trip)))
+        except DriverError as exc:
+            reason = f"bus: {exc}"
+            self._report(Fault("bus", str(exc)))
+        except KeyboardInterrupt:
+            reason = "interrupted"
+            self._report(Fault("error", "interrupted (Ctrl-C)"))
+        except BaseException as exc:  # noqa: BLE001 - any failure must still leave the drive safe
+            reason = f"error: {type(exc).__name__}: {exc}"
+            self._report(Fault("error", f"{type(exc).__name__}: {exc}"))
+        finally:
+            disabled = self._make_safe()
+            try:
+                self._ship()
+            except _Trip:
+                pass
+            self._report(Stopped(reason, self.last_sent, disabled))
+            self._close()
+
+    def _report(self, message: object) -> None:
+        try:
+            self.conn.send(message)
+        except (OSError, EOFError, BrokenPipeError, ValueError):
+            pass
+
+    def _make_safe(self) -> bool:
+        """Zero setpoint (slewed if a rate limit asks for it) and disable; True when the disable frame went out."""
+        if self.driver is None:
+            return False
+        disabled = False
+        try:
+            lim = self.spec.limits
+            steps = 0
+            if lim.max_rate is not None:
+                steps = min(10_000, math.ceil(abs(self.last_sent) / (lim.max_rate * self.h)))
+            for _ in range(steps):
+                self._send(self._limit(0.0))
+                self.tick += 1
+                if not self.lockstep:
+                    time.sleep(self.h)
+                else:
+                    self.driver.receive(0.0)
+            for _ in range(3):
+                self._send(0.0)
+                self.tick += 1
+            self.driver.disable()
+            disabled = self.layout.disable is not None
+        except Exception:  # noqa: BLE001 - the bus may be what failed; nothing more can be done on it
+            pass
+        return disabled
+
+    def _close(self) -> None:
+        if self.driver is not None:
+            try:
+                self.driver.close()
+            except Exception:  # noqa: BLE001
+                pass
+        for r in self.resources:
+            try:
+                r.close()
+            except Exception:  # noqa: BLE001
+                pass
+
+
+def worker_main(spec: WorkerSpec, conn: Connection) -> None:
+    """Entry point of the worker process or thread."""
+    BusWorker(spec, conn).run()
+    try:
+        conn.close()
+    except OSError:
+        pass
+
+
+def start_worker(spec: WorkerSpec, mode: str) -> tuple[Connection, Any]:
+    """Start the worker in its own process (``process``) or a thread; returns (session end of the pipe, handle)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    ours, theirs = ctx.Pipe(duplex=True)
+    if mode == "process":
+        proc = ctx.Process(target=worker_main, args=(spec, theirs), name="bodebench-bus", daemon=True)
+        proc.start()
+        theirs.close()
+        return ours, proc
+    thread = threading.Thread(target=worker_main, args=(spec, theirs), name="bodebench-bus", daemon=True)
+    thread.start()
+    return ours, thread
+
+
+def pid_of(handle: Any) -> int:
+    return getattr(handle, "pid", None) or os.getpid()

@@ -1,0 +1,129 @@
+"""From a bench config to a link: what the bus worker opens, and the simulated drive behind it if any.
+
+The ``*Link`` objects are picklable recipes called inside the bus worker
+(its own process on the realtime clock); each returns (frame port, layout,
+resources to close when the worker ends).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from drivers.layout import Layout
+from drivers.ports import CanPort, FramePort, SerialPort
+from instrument.bench_config import BenchConfig, CanConfig, SerialConfig, SimulatorConfig, build_layout
+from instrument.config import CaseConfig
+from sim.controller import ControllerTiming
+from sim.serve import ControllerPort, SimulatorProcess, SimulatorSpec, serve_can
+
+SLCAN_DEFAULTS = {"sleep_after_open": 0.0}
+
+
+@dataclass(frozen=True)
+class CanLink:
+    """A python-can bus; ``simulator``: serve the simulated drive on the same bus from the worker's process."""
+
+    interface: str
+    channel: str
+    bitrate: int | None
+    options: dict[str, Any]
+    layout: Layout
+    simulator: SimulatorSpec | None = None
+
+    def __call__(self) -> tuple[FramePort, Layout, list[Any]]:
+        resources: list[Any] = []
+        if self.simulator is not None:
+            resources.append(serve_can(self.simulator))
+        try:
+            port = CanPort.open(self.interface, self.channel, self.bitrate, self.options)
+        except BaseException:
+            for r in resources:
+                r.close()
+            raise
+        return port, self.layout, resources
+
+
+@dataclass(frozen=True)
+class SerialLink:
+    """A serial line opened with pyserial."""
+
+    port: str
+    baudrate: int
+    framing: str
+    layout: Layout
+
+    def __call__(self) -> tuple[FramePort, Layout, list[Any]]:
+        return SerialPort.open(self.port, self.baudrate, self.framing, self.layout), self.layout, []
+
+
+@dataclass(frozen=True)
+class DirectLink:
+    """The simulated drive called directly (lockstep), frames encoded and decoded as on a bus."""
+
+    simulator: SimulatorSpec
+
+    def __call__(self) -> tuple[FramePort, Layout, list[Any]]:
+        return ControllerPort(self.simulator.controller()), self.simulator.layout, []
+
+
+@dataclass
+class LinkPlan:
+    """The recipe for the worker and what the session must close at the end (a simulator process)."""
+
+    open_link: Any
+    layout: Layout
+    resources: list[Any] = field(default_factory=list)
+    where: str = ""
+
+    def close(self) -> None:
+        for r in self.resources:
+            r.close()
+
+
+def simulator_spec(case: CaseConfig, layout: Layout, *, jitter: bool = True) -> SimulatorSpec:
+    """The simulated drive of a case: [plant] behind the controller at [bench] rate and clock."""
+    bench: BenchConfig = case.tables["bench"]
+    sim: SimulatorConfig | None = case.tables.get("simulator")
+    timing = ControllerTiming(bench.rate_hz, bench.clock, sim.jitter if (sim and jitter) else 0.0,
+                              sim.seed if sim else 0)
+    serial: SerialConfig | None = case.tables.get("serial")
+    can: CanConfig | None = case.tables.get("can")
+    can_map: dict[str, Any] = {}
+    if can is not None:
+        can_map = {"interface": can.interface, "channel": can.channel or "bodebench", "bitrate": can.bitrate,
+                   "options": dict(can.options)}
+    return SimulatorSpec(dict(case.raw["plant"]), layout, timing, serial.framing if serial else "binary", can_map)
+
+
+def plan_link(case: CaseConfig, source: str | Path, *, direct: bool = False) -> LinkPlan:
+    """How the worker reaches the drive of ``case`` (starting the simulated drive where the config has one).
+
+    direct: the simulated drive called in-process without a bus and without jitter (``bodebench simulate``).
+    """
+    bench: BenchConfig = case.tables["bench"]
+    layout = build_layout(case.tables.get("frames"), str(source))
+    simulated = case.tables.get("simulator") is not None
+    if direct:
+        return LinkPlan(DirectLink(simulator_spec(case, layout, jitter=False)), layout, where="in-process")
+    if bench.transport == "can":
+        can: CanConfig = case.tables["can"]
+        options = dict(can.options)
+        if can.interface == "slcan":
+            options = {**SLCAN_DEFAULTS, **options}
+        if simulated and can.interface == "slcan" and not can.channel:
+            proc = SimulatorProcess(simulator_spec(case, layout), "slcan")
+            link = CanLink("slcan", proc.path, can.bitrate, options, layout)
+            return LinkPlan(link, layout, [proc], where=f"slcan adapter on {proc.path}")
+        channel = can.channel or "bodebench"
+        spec = simulator_spec(case, layout) if simulated and can.interface != "slcan" else None
+        link = CanLink(can.interface, channel, can.bitrate, options, layout, spec)
+        return LinkPlan(link, layout, where=f"{can.interface} channel {channel}")
+    serial: SerialConfig = case.tables["serial"]
+    if simulated and not serial.port:
+        proc = SimulatorProcess(simulator_spec(case, layout), "serial")
+        return LinkPlan(SerialLink(proc.path, serial.baudrate, serial.framing, layout), layout, [proc],
+                        where=f"serial {proc.path}")
+    return LinkPlan(SerialLink(serial.port, serial.baudrate, serial.framing, layout), layout,
+                    where=f"serial {serial.port}")

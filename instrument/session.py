@@ -1,0 +1,336 @@
+"""A bench session: the sweep on a drive, joining the bus worker, the sampler and the results directory.
+
+For each frequency the worker ramps the sine in over whole periods; the
+sampler autointegrates from the end of the ramp with the configured rule;
+the point is written to disk the moment it is measured; the worker ramps
+out and starts the next frequency. Listeners (the command line, the terminal
+UI) receive typed events; they never touch the measurement.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from instrument.autointegration import Autointegrator, SeriesState
+from instrument.bench_config import BenchConfig, SafetyConfig
+from instrument.bus_worker import (Credit, Fault, Health, Limits, Ready, Samples, SineStarted, StartSine, Stop,
+                                   Stopped, WorkerSpec, start_worker)
+from instrument.config import AnalysisConfig, CaseConfig
+from instrument.links import LinkPlan
+from instrument.response import FrequencyResponse, ResponsePoint
+
+# ---------------------------------------------------------------------------------------------- events to listeners
+
+
+@dataclass(frozen=True)
+class SessionStarted:
+    frequencies_hz: tuple[float, ...]
+    channels: tuple[str, ...]
+    where: str
+
+
+@dataclass(frozen=True)
+class PointStarted:
+    index: int
+    frequency_hz: float
+
+
+@dataclass(frozen=True)
+class PointProgress:
+    """The current point after the latest batch of periods; ``scope``: recent (t, setpoint, output) samples."""
+
+    index: int
+    frequency_hz: float
+    periods: int
+    states: tuple[SeriesState, ...]
+    tolerance_percent: float
+    criterion: str
+    scope: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+
+@dataclass(frozen=True)
+class PointFinished:
+    index: int
+    points: tuple[ResponsePoint, ...]
+    skipped: bool = False
+
+
+@dataclass(frozen=True)
+class BusStatus:
+    health: Health
+
+
+@dataclass(frozen=True)
+class SessionFault:
+    """The sweep stopped early; ``kept`` points are on disk."""
+
+    kind: str
+    message: str
+    kept: int
+
+
+@dataclass(frozen=True)
+class SessionEnded:
+    reason: str
+    completed: bool
+    last_setpoint: float
+    disabled: bool
+
+
+Listener = Callable[[object], None]
+
+
+class SessionError(RuntimeError):
+    """The sweep could not complete; the drive was left at zero."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(f"{kind}: {message}")
+        self.kind = kind
+
+
+@dataclass
+class SessionResult:
+    response: FrequencyResponse
+    completed: bool
+    reason: str
+    last_setpoint: float
+    disabled: bool
+    round_trip_s: float = math.nan
+    health: Health | None = None
+
+
+@dataclass
+class _Controls:
+    """Requests from the user, read by the session between batches (thread-safe flags)."""
+
+    abort: threading.Event = field(default_factory=threading.Event)
+    skip: threading.Event = field(default_factory=threading.Event)
+    pause: threading.Event = field(default_factory=threading.Event)
+    tolerance_percent: float | None = None
+    remeasure: list[float] = field(default_factory=list)
+
+
+class BenchSession:
+    """A sweep of ``case`` on the drive ``plan`` reaches; points go to ``out_dir`` (None: memory only)."""
+
+    def __init__(self, case: CaseConfig, plan: LinkPlan, out_dir: Path | None = None,
+                 listener: Listener | None = None, worker_mode: str | None = None) -> None:
+        self.case = case
+        self.plan = plan
+        self.out_dir = out_dir
+        self.listener = listener or (lambda event: None)
+        bench: BenchConfig = case.tables["bench"]
+        self.bench = bench
+        self.analysis: AnalysisConfig = case.analysis
+        self.worker_mode = worker_mode or (bench.worker if bench.worker != "auto" else
+                                           ("thread" if bench.clock == "lockstep" else "process"))
+        self.controls = _Controls()
+        self.response = FrequencyResponse(config=case.raw, case=case.name)
+        self.period = 1.0 / bench.rate_hz
+        self.last_health: Health | None = None
+
+    # --- user requests (any thread)
+    def request_abort(self) -> None:
+        self.controls.abort.set()
+
+    def request_skip(self) -> None:
+        self.controls.skip.set()
+
+    def set_paused(self, paused: bool) -> None:
+        (self.controls.pause.set if paused else self.controls.pause.clear)()
+
+    def set_tolerance(self, tolerance_percent: float) -> None:
+        """Tolerance for the points not yet started."""
+        self.controls.tolerance_percent = tolerance_percent
+
+    def request_remeasure(self, frequency_hz: float) -> None:
+        self.controls.remeasure.append(frequency_hz)
+
+    # --- the sweep
+    def _spec(self) -> WorkerSpec:
+        safety: SafetyConfig = self.case.tables["safety"]
+        limits = Limits(safety.max_amplitude, safety.max_rate,
+                        {k: (float(v[0]), float(v[1])) for k, v in safety.feedback_limits.items()},
+                        safety.watchdog_s)
+        return WorkerSpec(self.plan.open_link, self.bench.rate_hz, self.bench.clock, self.bench.timebase, limits,
+                          batch_s=self.bench.batch_ms / 1000.0)
+
+    def run(self) -> SessionResult:
+        """Run the whole sweep; never leaves the drive moving. Raises SessionError after a trip (points kept)."""
+        conn, handle = start_worker(self._spec(), self.worker_mode)
+        self._conn = conn
+        stopped: Stopped | None = None
+        completed = False
+        reason = "sweep complete"
+        try:
+            ready = self._expect(Ready, timeout=60.0)
+            self.channels = ready.channels
+            self.listener(SessionStarted(self.case.excitation.frequencies_hz, ready.channels, self.plan.where))
+            queue = list(self.case.excitation.frequencies_hz)
+            index = 0
+            while queue or self.controls.remeasure:
+                f = self.controls.remeasure.pop(0) if self.controls.remeasure else queue.pop(0)
+                self._measure(index, f)
+                index += 1
+            completed = True
+        except SessionError as exc:
+            reason = str(exc)
+            raise
+        except KeyboardInterrupt:
+            reason = "interrupted"
+            self.controls.abort.set()
+            raise
+        finally:
+            stopped = self._shutdown(reason, abort=not completed)
+            join = getattr(handle, "join")
+            join(timeout=10)
+            self.plan.close()
+            self.listener(SessionEnded(reason if stopped is None else stopped.reason, completed,
+                                       stopped.last_setpoint if stopped else math.nan,
+                                       stopped.disabled if stopped else False))
+        rt = self.last_health.round_trip_s if self.last_health else math.nan
+        return SessionResult(self.response, completed, reason, stopped.last_setpoint if stopped else math.nan,
+                             stopped.disabled if stopped else False, rt, self.last_health)
+
+    def _shutdown(self, reason: str, abort: bool) -> Stopped | None:
+        try:
+            self._conn.send(Stop(reason, abort=abort))
+        except (OSError, BrokenPipeError):
+            pass
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            try:
+                if not self._conn.poll(0.2):
+                    continue
+                message = self._conn.recv()
+            except (EOFError, OSError):
+                return None
+            if isinstance(message, Stopped):
+                return message
+            if isinstance(message, Health):
+                self.last_health = message
+        return None
+
+    def _receive(self, timeout: float) -> object | None:
+        try:
+            if not self._conn.poll(timeout):
+                return None
+            message = self._conn.recv()
+        except (EOFError, OSError):
+            raise SessionError("bus", "the bus worker ended unexpectedly") from None
+        if isinstance(message, Fault):
+            self.listener(SessionFault(message.kind, message.message, len(self.response.points)))
+            raise SessionError(message.kind, message.message)
+        if isinstance(message, Stopped):
+            raise SessionError("bus", f"the bus worker stopped: {message.reason}")
+        if isinstance(message, Health):
+            self.last_health = message
+            self.listener(BusStatus(message))
+        return message
+
+    def _expect(self, kind: type, timeout: float):  # type: ignore[no-untyped-def]
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self._check_abort()
+            message = self._receive(0.1)
+            if isinstance(message, kind):
+                return message
+        raise SessionError("timeout", f"no {kind.__name__} from the bus worker within {timeout:g} s")
+
+    def _check_abort(self) -> None:
+        if self.controls.abort.is_set():
+            self.listener(SessionFault("abort", "aborted by the user", len(self.response.points)))
+            raise SessionError("abort", "aborted by the user")
+
+    def _analysis(self) -> AnalysisConfig:
+        if self.controls.tolerance_percent is not None:
+            return replace(self.analysis, tolerance_percent=self.controls.tolerance_percent)
+        return self.analysis
+
+    def _measure(self, index: int, f: float) -> None:
+        bench = self.bench
+        analysis = self._analysis()
+        amplitude = self.case.excitation.amplitude
+        outputs = bench.output_channels
+        reference = bench.reference_channel
+        names = outputs + ((reference,) if reference else ())
+        columns = [self.channels.index(n) for n in names]
+        self._conn.send(StartSine(f, amplitude, bench.ramp_in_periods, bench.ramp_out_periods))
+        self.listener(PointStarted(index, f))
+        started = self._expect(SineStarted, timeout=60.0)
+        t0 = started.tick * self.period + bench.ramp_in_periods / f
+        sampler = Autointegrator(f, amplitude, names, analysis, t0=t0)
+        ticks_per_period = max(1, math.ceil(1.0 / (f * self.period)))
+        held: tuple[float, np.ndarray] | None = None  # the last sample at or before t0
+        scope: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.controls.skip.clear()
+        while not sampler.done:
+            self._check_abort()
+            if self.controls.skip.is_set():
+                self.listener(PointFinished(index, (), skipped=True))
+                return
+            if self.controls.pause.is_set():
+                time.sleep(0.05)
+                continue
+            message = self._receive(1.0)
+            if not isinstance(message, Samples):
+                continue
+            t, values = message.t, message.values[:, columns]
+            scope.append((t, message.setpoint, values[:, 0]))
+            if len(scope) > 64:
+                del scope[:32]
+            keep = t > t0
+            if held is None or not np.all(keep):
+                before = np.flatnonzero(~keep)
+                if before.size:
+                    held = (float(t[before[-1]]), values[before[-1]])
+            t, values = t[keep], values[keep]
+            if t.size == 0:
+                continue
+            if held is not None and held[0] <= t0:
+                t = np.concatenate([[held[0]], t])
+                values = np.vstack([held[1][None, :], values])
+                held = (math.inf, held[1])
+            sampler.feed(t, values)
+            if bench.clock == "lockstep" and not sampler.done:
+                self._conn.send(Credit(message.last_tick + ticks_per_period))
+            self.listener(PointProgress(index, f, sampler.periods, tuple(sampler.states()), analysis.tolerance_percent,
+                                        analysis.criterion, _scope(scope, f)))
+        points = self._finish_points(sampler, outputs, reference)
+        for p in points:
+            if self.out_dir is not None:
+                self.response.write_point(self.out_dir, p)
+            else:
+                self.response.add(p)
+        self.listener(PointFinished(index, tuple(points)))
+
+    def _finish_points(self, sampler: Autointegrator, outputs: tuple[str, ...], reference: str) -> list[ResponsePoint]:
+        points = [p for p in sampler.points() if p.channel in outputs]
+        if not reference:
+            return points
+        # two-channel mode: relative to the reference channel's own fundamental over the last half of the run
+        ref = sampler.history(reference, 1)
+        n = ref.size
+        z_ref = complex(np.mean(ref[n // 2:])) if n else complex("nan")
+        out = []
+        for p in points:
+            z = complex(p.p, p.q) * np.exp(-1j * p.harmonic * np.angle(z_ref))
+            out.append(replace(p, p=z.real, q=z.imag, amplitude=abs(z_ref)))
+        return out
+
+
+def _scope(chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]], f: float
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The last two periods of setpoint and first output channel."""
+    if not chunks:
+        return None
+    t = np.concatenate([c[0] for c in chunks])
+    keep = t >= t[-1] - 2.0 / f
+    return (t[keep], np.concatenate([c[1] for c in chunks])[keep], np.concatenate([c[2] for c in chunks])[keep])

@@ -1,0 +1,171 @@
+"""The simulated servo controller: a plant behind the same wire protocol a real drive speaks.
+
+The controller receives setpoint, enable and disable frames, steps its plant
+with the setpoint held over each control period, and answers with feedback
+frames (counter, controller timestamp, channels). Two clocks:
+
+- ``lockstep``: every setpoint advances simulated time by one control period
+  and is answered at once, so a sweep runs as fast as the bus carries frames;
+- ``realtime``: the plant is stepped at the control rate on the wall clock with
+  the latest setpoint, whatever the host does.
+
+It is transport-agnostic: ``handle``/``tick`` turn frames into frames, and
+``serve`` runs either clock over any ``drivers.ports.FramePort``.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from drivers.layout import Layout, Message
+from drivers.ports import Frame, FramePort
+from sim.plants import Plant
+
+SETPOINT_ECHO = "setpoint_echo"
+CLOCKS = ("lockstep", "realtime")
+
+
+@dataclass(frozen=True)
+class ControllerTiming:
+    """How the controller keeps time.
+
+    rate_hz: control and sampling rate (Hz); clock: lockstep or realtime;
+    jitter: sampling-instant jitter as a fraction of the control period
+    (uniform in +-jitter; the feedback timestamp reports the true instant);
+    seed: random seed of the jitter.
+    """
+
+    rate_hz: float
+    clock: str = "lockstep"
+    jitter: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.clock not in CLOCKS:
+            raise ValueError(f"clock must be one of {CLOCKS}, got {self.clock!r}")
+        if not self.rate_hz > 0:
+            raise ValueError(f"rate_hz must be > 0, got {self.rate_hz}")
+        if not 0 <= self.jitter < 0.5:
+            raise ValueError(f"jitter must be in [0, 0.5), got {self.jitter}")
+
+
+class SimulatedController:
+    """A servo controller around ``plant`` answering in ``layout``'s frames.
+
+    Feedback channels are the plant's outputs of the same name, and
+    ``setpoint_echo``, the setpoint applied over the period just ended.
+    Disabled (after a disable frame, and from the start when the layout has an
+    enable frame), the plant gets a zero setpoint.
+    """
+
+    def __init__(self, plant: Plant, layout: Layout, timing: ControllerTiming) -> None:
+        self.plant = plant
+        self.layout = layout
+        self.timing = timing
+        self.period = 1.0 / timing.rate_hz
+        for name in layout.channels:
+            if name != SETPOINT_ECHO and name not in plant.output_names:
+                raise ValueError(f"feedback channel {name!r} is not an output of the plant "
+                                 f"({', '.join(plant.output_names)}) nor {SETPOINT_ECHO!r}")
+        self._sources = [(m, [(name, self._source(name)) for name in m.signal_names]) for m in layout.feedback]
+        self.state = plant.initial_state()
+        self.tick_count = 0      # control periods stepped
+        self.time = 0.0          # controller time at the last sample (s)
+        self.setpoint = 0.0      # latest setpoint received
+        self.applied = 0.0       # setpoint applied over the last period
+        self.enabled = layout.enable is None
+        self.setpoints_received = 0
+        self.enable_frames = 0
+        self.disable_frames = 0
+        self._rng = np.random.default_rng(timing.seed)
+        self._u = np.zeros(1)
+        self._lock = threading.Lock()
+
+    def _source(self, name: str) -> int:
+        """Index into the plant's outputs, or -1 for the echoed setpoint / counter / timestamp."""
+        return self.plant.output_names.index(name) if name in self.plant.output_names else -1
+
+    @staticmethod
+    def _matches(message: Message | None, frame: Frame) -> bool:
+        return (message is not None and frame.id == message.id and frame.extended == message.extended
+                and (message.data is None or bytes(frame.data) == bytes(message.data)))
+
+    def handle(self, frame: Frame) -> list[Frame]:
+        """Take one received frame; in lockstep a setpoint is answered with the next sample's frames."""
+        with self._lock:
+            if frame.id == self.layout.setpoint.id and frame.extended == self.layout.setpoint.extended:
+                value = self.layout.setpoint.decode(bytes(frame.data))["setpoint"]
+                self.setpoint = value if math.isfinite(value) else 0.0
+                self.setpoints_received += 1
+                if self.timing.clock == "lockstep":
+                    return self._step()
+            elif self._matches(self.layout.disable, frame):
+                self.enabled = False
+                self.disable_frames += 1
+            elif self._matches(self.layout.enable, frame):
+                self.enabled = True
+                self.enable_frames += 1
+            return []
+
+    def tick(self) -> list[Frame]:
+        """One control period with the latest setpoint (the realtime clock calls this at the control rate)."""
+        with self._lock:
+            return self._step()
+
+    def _step(self) -> list[Frame]:
+        dt = self.period
+        if self.timing.jitter:
+            # the sampling instant of this period moves; the next one is referenced to the nominal grid
+            nominal_next = (self.tick_count + 1) * self.period
+            target = nominal_next + self.timing.jitter * self.period * self._rng.uniform(-1.0, 1.0)
+            dt = target - self.time
+        self.applied = self.setpoint if self.enabled else 0.0
+        self._u[0] = self.applied
+        y = self.plant.run_held(self.state, self._u, dt)[0]
+        self.time += dt
+        self.tick_count += 1
+        return self._feedback(y)
+
+    def _feedback(self, y: np.ndarray) -> list[Frame]:
+        frames = []
+        timestamp_us = int(round(self.time * 1e6)) % (1 << 32)
+        for message, sources in self._sources:
+            values: dict[str, float] = {}
+            for name, index in sources:
+                if name == "counter":
+                    values[name] = self.tick_count % self.layout.counter_modulus
+                elif name == "timestamp_us":
+                    values[name] = timestamp_us
+                elif index >= 0:
+                    values[name] = float(y[index])
+                else:
+                    values[name] = self.applied
+            frames.append(Frame(message.id, message.encode(values), message.extended, time.time()))
+        return frames
+
+    def serve(self, port: FramePort, stop: threading.Event, poll_s: float = 0.05) -> None:
+        """Answer on ``port`` until ``stop`` is set: lockstep answers each setpoint; realtime ticks on the wall clock."""
+        if self.timing.clock == "lockstep":
+            while not stop.is_set():
+                for frame in port.recv(poll_s):
+                    for out in self.handle(frame):
+                        port.send(out)
+            return
+        next_tick = time.perf_counter() + self.period
+        while not stop.is_set():
+            for frame in port.recv(0.0):
+                self.handle(frame)
+            wait = next_tick - time.perf_counter()
+            if wait > 0:
+                time.sleep(wait)
+            for out in self.tick():
+                port.send(out)
+            next_tick += self.period
+            if time.perf_counter() - next_tick > 100 * self.period:  # fell far behind (suspended): resume now
+                next_tick = time.perf_counter() + self.period

@@ -1,0 +1,146 @@
+"""Running a simulated servo controller on a transport.
+
+- ``ControllerPort``: a direct in-memory link (lockstep; the offline run of a bench config).
+- ``serve_can``: on any python-can bus (``virtual`` in-process, ``udp_multicast``, ...) in a thread.
+- ``serve_serial_pty`` / ``serve_slcan_pty``: on a pseudo-terminal, posing as a serial drive or as an SLCAN
+  USB-CAN adapter; the instrument opens the returned tty path.
+- ``run_in_process``: any of the pty transports in a process of its own, reporting the path.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from drivers.layout import Layout
+from drivers.ports import CanPort, Frame, FramePort, SerialPort
+from sim.controller import ControllerTiming, SimulatedController
+from sim.plants import plant_from_config
+from sim.pty_link import FdStream, Pty, SlcanAdapterPort
+
+PTY_TRANSPORTS = ("serial", "slcan")
+
+
+@dataclass(frozen=True)
+class SimulatorSpec:
+    """A picklable recipe for a simulated controller: plant parameters (``model`` plus its keys), layout, timing."""
+
+    plant: Mapping[str, Any]
+    layout: Layout
+    timing: ControllerTiming
+    framing: str = "binary"  # serial transport only
+    can: Mapping[str, Any] = field(default_factory=dict)  # interface, channel, bitrate, options (CAN buses)
+
+    def controller(self) -> SimulatedController:
+        params = dict(self.plant)
+        return SimulatedController(plant_from_config(params.pop("model"), **params), self.layout, self.timing)
+
+
+class ControllerPort(FramePort):
+    """The host's end of a direct link to a lockstep controller: a sent frame is handled at once."""
+
+    def __init__(self, controller: SimulatedController) -> None:
+        super().__init__("simulated drive (direct)", "can")
+        self.controller = controller
+        self._inbox: collections.deque[Frame] = collections.deque()
+
+    def _send(self, frame: Frame) -> None:
+        self._inbox.extend(self.controller.handle(frame))
+
+    def _recv(self, timeout: float, limit: int) -> list[Frame]:
+        frames = list(self._inbox)
+        self._inbox.clear()
+        return frames
+
+    def _close(self) -> None:
+        """Nothing to release."""
+
+
+class Serving:
+    """A controller serving in a background thread; ``close`` stops it and releases the transport."""
+
+    def __init__(self, controller: SimulatedController, port: FramePort, extra: list[Any] | None = None) -> None:
+        self.controller = controller
+        self.port = port
+        self.stop = threading.Event()
+        self._extra = extra or []
+        self.thread = threading.Thread(target=self._serve, name="sim-controller", daemon=True)
+        self.error: BaseException | None = None
+        self.thread.start()
+
+    def _serve(self) -> None:
+        try:
+            self.controller.serve(self.port, self.stop)
+        except BaseException as exc:  # noqa: BLE001 - reported to whoever closes us
+            self.error = exc
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(timeout=5)
+        try:
+            self.port.close()
+        finally:
+            for item in self._extra:
+                item.close()
+
+
+def serve_can(spec: SimulatorSpec) -> Serving:
+    """Serve on a python-can bus opened from ``spec.can`` (for ``virtual``: in this process)."""
+    can = dict(spec.can)
+    port = CanPort.open(can["interface"], can.get("channel"), can.get("bitrate"), can.get("options", {}))
+    return Serving(spec.controller(), port)
+
+
+def serve_serial_pty(spec: SimulatorSpec) -> tuple[Serving, str]:
+    """Serve the serial protocol on a new pseudo-terminal; returns the tty path the instrument opens."""
+    pty = Pty()
+    port = SerialPort(FdStream(pty.master), spec.framing, spec.layout)
+    return Serving(spec.controller(), port, [pty]), pty.path
+
+
+def serve_slcan_pty(spec: SimulatorSpec) -> tuple[Serving, str]:
+    """Pose as an SLCAN adapter on a new pseudo-terminal; returns the path for python-can's ``slcan`` interface."""
+    pty = Pty()
+    return Serving(spec.controller(), SlcanAdapterPort(pty.master), [pty]), pty.path
+
+
+def _process_main(spec: SimulatorSpec, transport: str, conn: Any) -> None:
+    serving, path = (serve_slcan_pty if transport == "slcan" else serve_serial_pty)(spec)
+    conn.send(path)
+    try:
+        conn.recv()  # anything, or the pipe closing, ends the simulator
+    except (EOFError, OSError):
+        pass
+    finally:
+        serving.close()
+
+
+class SimulatorProcess:
+    """A pty-transport simulator in its own process (the drive on the far side of a real tty)."""
+
+    def __init__(self, spec: SimulatorSpec, transport: str) -> None:
+        import multiprocessing as mp
+
+        if transport not in PTY_TRANSPORTS:
+            raise ValueError(f"transport must be one of {PTY_TRANSPORTS}")
+        ctx = mp.get_context("spawn")
+        self._conn, theirs = ctx.Pipe()
+        self.process = ctx.Process(target=_process_main, args=(spec, transport, theirs), daemon=True,
+                                   name=f"sim-controller-{transport}")
+        self.process.start()
+        theirs.close()
+        if not self._conn.poll(30):
+            self.process.terminate()
+            raise RuntimeError("simulated controller did not start")
+        self.path: str = self._conn.recv()
+
+    def close(self) -> None:
+        try:
+            self._conn.send("stop")
+        except (OSError, BrokenPipeError):
+            pass
+        self.process.join(timeout=5)
+        if self.process.is_alive():
+            self.process.terminate()
