@@ -292,8 +292,9 @@ def chart(tables: dict[str, dict[str, dict[str, np.ndarray]]], freqs: np.ndarray
                  f"n_k = {analysis.skip_periods}, l = {analysis.window}")
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     files = [OUT / "rules.png", OUT / "rules.svg"]
+    plt.rcParams["svg.hashsalt"] = "bench_rules"  # stable element ids: reruns give the same file
     for path in files:
-        fig.savefig(path, dpi=120)
+        fig.savefig(path, dpi=120, metadata={"Date": None} if path.suffix == ".svg" else None)
     plt.close(fig)
     return files
 

@@ -18,6 +18,8 @@ __all__ = ["BusHealth", "Driver", "FeedbackSample", "Unwrapper"]
 
 _MAX_PENDING = 64
 """Most partial samples held at once; beyond that the oldest is dropped as incomplete."""
+_RESTART_BEHIND = 64
+"""A feedback counter this many samples or more behind the expected one is taken as a restart of the counter."""
 
 
 class Unwrapper:
@@ -81,7 +83,8 @@ class BusHealth:
     """Link statistics (plain data). ``errors`` = port errors (error frames, CRC failures, malformed input) plus
     feedback frames that failed to decode; ``lost_samples``: counter values never seen; ``duplicates``: repeated or
     stale counter values (dropped); ``incomplete_samples``: counters with some but not all feedback frames (dropped);
-    ``bus_state``: "active", "passive", "bus-off" or "unknown"; ``last_error``: description of the latest error."""
+    ``bus_state``: "active", "passive", "bus-off" or "unknown"; ``last_error``: description of the latest error;
+    ``counter_restarts``: times the feedback counter jumped back by more than 64 samples (assembly restarted there)."""
 
     frames_in: int = 0
     frames_out: int = 0
@@ -91,6 +94,7 @@ class BusHealth:
     incomplete_samples: int = 0
     bus_state: str = "unknown"
     last_error: str = ""
+    counter_restarts: int = 0
 
     def snapshot(self) -> BusHealth:
         """An independent copy."""
@@ -104,7 +108,10 @@ class Driver:
     message of its counter has arrived; it is then returned, and older partial samples are dropped and counted as
     incomplete, counters skipped without any frame count as lost. Frames whose counter is not newer than the last
     complete sample count as duplicates and are dropped (one count per repeated counter value), as do repeats of a
-    message within a partial sample. Frames with ids not in the feedback set are ignored (counted only in
+    message within a partial sample; a counter more than 64 samples behind is a restart of the controller's counter
+    (partial samples dropped, counted in ``counter_restarts``; assembly continues with counters shifted to follow on
+    from the last one, so ``FeedbackSample.counter`` stays monotonic). At most 64 partial samples are held; beyond
+    that the oldest is dropped as incomplete. Frames with ids not in the feedback set are ignored (counted only in
     ``frames_in``); feedback frames that fail to decode count as errors and never raise.
     """
 
@@ -131,6 +138,7 @@ class Driver:
         )
         self._pending: dict[int, dict[int, tuple[dict[str, float], float]]] = {}
         self._next: int | None = None  # lowest counter not yet emitted, lost or dropped
+        self._offset = 0  # added to unwrapped counters after counter restarts
         self._last_duplicate: int | None = None
         self._decode_errors = 0
         self._port_last_error = port.last_error
@@ -213,6 +221,9 @@ class Driver:
             return self._emit(None, {index: (values, frame.timestamp)})
         if self._next is None:
             self._next = counter
+        counter += self._offset
+        if counter < self._next - _RESTART_BEHIND:
+            counter = self._restart(counter)
         if counter < self._next:
             if counter != self._last_duplicate:
                 self.health.duplicates += 1
@@ -243,6 +254,20 @@ class Driver:
         if raw != int(raw):
             raise ValueError(f"counter value {raw!r} is not an integer")
         return int(raw)
+
+    def _restart(self, counter: int) -> int:
+        """The controller's counter jumped far back (e.g. it restarted): drop partial samples and continue, shifting
+        later counters so that the reported counter stays monotonic. Returns the shifted ``counter``."""
+        assert self._next is not None
+        self.health.incomplete_samples += len(self._pending)
+        self._pending.clear()
+        self.health.counter_restarts += 1
+        self.health.last_error = (
+            f"feedback counter jumped back from {self._next - 1} to {counter}; assembly restarted"
+        )
+        self._offset += self._next - counter
+        self._last_duplicate = None
+        return self._next
 
     def _drop_oldest(self) -> None:
         assert self._next is not None

@@ -7,6 +7,9 @@ subclasses, batching received frames); a backend fills ``_send``, ``_recv`` and 
 
 from __future__ import annotations
 
+import io
+import os
+import select
 import time
 from abc import ABC, abstractmethod
 from collections import deque
@@ -283,6 +286,7 @@ class SerialPort(FramePort):
     _vendor_errors, _timeout_errors = _serial_errors()
     _POLL_S = 0.0005  # s, sleep between polls while waiting for the first frame
     _CHUNK = 4096  # bytes read per call at most
+    _MAX_READS = 16  # reads per poll at most
 
     def __init__(self, ser: Any, framing: str, layout: Layout, *, name: str | None = None) -> None:
         """Wrap the open serial object ``ser``; ``framing`` "binary" or "ascii"; ``layout`` is validated for it."""
@@ -343,8 +347,9 @@ class SerialPort(FramePort):
         self._ser.write(wire)
 
     def _read_available(self) -> list[Frame]:
+        """Read and deframe what the line holds now (bounded, so a busy line cannot keep the caller here)."""
         frames: list[Frame] = []
-        while True:
+        for _ in range(self._MAX_READS):
             waiting = self._ser.in_waiting
             data = self._ser.read(min(max(int(waiting), 1), self._CHUNK))
             if not data:
@@ -365,7 +370,7 @@ class SerialPort(FramePort):
                         self._note_error(f"ASCII line id 0x{frame_id:X}: {exc}")
                         continue
                     frames.append(self._frame(frame_id, payload, now))
-            if len(data) < self._CHUNK and not self._ser.in_waiting:
+            if len(frames) >= MAX_BATCH or (len(data) < self._CHUNK and not self._ser.in_waiting):
                 break
         self._count_framing_errors()
         return frames
@@ -385,6 +390,7 @@ class SerialPort(FramePort):
 
     def _recv(self, timeout: float, limit: int) -> list[Frame]:
         deadline = time.monotonic() + timeout
+        fd = self._fileno()
         while True:
             frames = self._read_available()
             if frames:
@@ -392,7 +398,18 @@ class SerialPort(FramePort):
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return []
-            time.sleep(min(self._POLL_S, remaining))
+            if fd is not None:  # wake as soon as bytes arrive
+                select.select([fd], [], [], remaining)
+            else:
+                time.sleep(min(self._POLL_S, remaining))
+
+    def _fileno(self) -> int | None:
+        """The line's file descriptor where select() can wait on it (POSIX), else None."""
+        try:
+            fd = self._ser.fileno()
+        except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
+            return None
+        return fd if isinstance(fd, int) and os.name == "posix" else None
 
     def _close(self) -> None:
         self._ser.close()

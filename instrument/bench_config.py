@@ -180,7 +180,7 @@ def build_layout(frames: FramesConfig | None, source: str) -> "Layout":
         if not dbc.is_absolute():
             dbc = Path(source).parent / dbc
         mapping["dbc"] = str(dbc)
-    return Layout.from_mapping(mapping, "frames")
+    return Layout.from_mapping(mapping)
 
 
 def check_bench_case(case: "CaseConfig", key: Callable[[str, str], str], source: str) -> None:
@@ -200,8 +200,6 @@ def check_bench_case(case: "CaseConfig", key: Callable[[str, str], str], source:
         raise CaseCheckError(key("can", "channel"), "missing (only a [simulator] provides its own)")
     if isinstance(link, SerialConfig) and not link.port and not simulated:
         raise CaseCheckError(key("serial", "port"), "missing (only a [simulator] provides its own)")
-    if bench.clock == "lockstep" and not simulated:
-        raise CaseCheckError(key("bench", "clock"), "lockstep needs the simulated controller ([simulator])")
     if bench.clock == "lockstep" and bench.timebase == "receive":
         raise CaseCheckError(key("bench", "timebase"), "receive times mean nothing on the lockstep clock")
     safety: SafetyConfig | None = tables.get("safety")
@@ -226,10 +224,15 @@ def check_bench_case(case: "CaseConfig", key: Callable[[str, str], str], source:
 
     try:
         layout = build_layout(tables.get("frames"), source)
+        framing = tables["serial"].framing if bench.transport == "serial" else ""
+        layout.validate(f"serial-{framing}" if framing else "can")
     except LayoutError as exc:
         text = str(exc)
         head, _, problem = text.partition(": ")
-        raise CaseCheckError(head if problem else "frames", problem or text) from None
+        if head.startswith("frames") and problem:
+            raise CaseCheckError(head, problem) from None
+        absent = "" if tables.get("frames") is not None else " (the default layout: give a [frames] table)"
+        raise CaseCheckError("frames", text + absent) from None
     except OSError as exc:
         raise CaseCheckError(key("frames", "dbc"), f"cannot read: {exc.strerror or exc}") from None
     channels = set(layout.channels)

@@ -323,8 +323,12 @@ class BusWorker:
             if base != "receive":
                 raise _Trip("bus", f"feedback without the {base} the time base needs")
         if self.offset is None:
-            expected = (answered_tick + 1) * self.h if answered_tick is not None else s.receive_time - self.wall0
-            self.offset = raw - expected
+            if answered_tick is not None:
+                # lockstep: the controller's clock runs a whole number of periods ahead of the session's,
+                # so round the offset to periods (a jittered first sample must not shift the whole timeline)
+                self.offset = round((raw - (answered_tick + 1) * self.h) / self.h) * self.h
+            else:
+                self.offset = raw - (s.receive_time - self.wall0)
         return raw - self.offset
 
     def _accept(self, samples: list[FeedbackSample], answered_tick: int | None) -> None:

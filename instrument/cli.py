@@ -8,8 +8,10 @@ import time
 from pathlib import Path
 from typing import Sequence
 
+from drivers.errors import DriverError
 from instrument.config import ConfigError, ExperimentConfig, load_config
 from instrument.response import ResultsError
+from sim.serve import SimulatorStartError
 
 
 def _case_dir(config: ExperimentConfig, out: Path, name: str) -> Path:
@@ -173,6 +175,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ConfigError, ResultsError) as exc:
         print(f"bodebench: {exc}", file=sys.stderr)
         return 2
+    except (DriverError, SimulatorStartError) as exc:
+        print(f"bodebench: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("bodebench: interrupted; points already measured are on disk", file=sys.stderr)
         return 130

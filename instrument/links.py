@@ -63,9 +63,10 @@ class DirectLink:
     """The simulated drive called directly (lockstep), frames encoded and decoded as on a bus."""
 
     simulator: SimulatorSpec
+    transport: str = "can"
 
     def __call__(self) -> tuple[FramePort, Layout, list[Any]]:
-        return ControllerPort(self.simulator.controller()), self.simulator.layout, []
+        return ControllerPort(self.simulator.controller(), self.transport), self.simulator.layout, []
 
 
 @dataclass
@@ -106,7 +107,10 @@ def plan_link(case: CaseConfig, source: str | Path, *, direct: bool = False) -> 
     layout = build_layout(case.tables.get("frames"), str(source))
     simulated = case.tables.get("simulator") is not None
     if direct:
-        return LinkPlan(DirectLink(simulator_spec(case, layout, jitter=False)), layout, where="in-process")
+        serial: SerialConfig | None = case.tables.get("serial")
+        transport = f"serial-{serial.framing}" if bench.transport == "serial" and serial else "can"
+        return LinkPlan(DirectLink(simulator_spec(case, layout, jitter=False), transport), layout,
+                        where="in-process")
     if bench.transport == "can":
         can: CanConfig = case.tables["can"]
         options = dict(can.options)
@@ -120,7 +124,7 @@ def plan_link(case: CaseConfig, source: str | Path, *, direct: bool = False) -> 
         spec = simulator_spec(case, layout) if simulated and can.interface != "slcan" else None
         link = CanLink(can.interface, channel, can.bitrate, options, layout, spec)
         return LinkPlan(link, layout, where=f"{can.interface} channel {channel}")
-    serial: SerialConfig = case.tables["serial"]
+    serial = case.tables["serial"]
     if simulated and not serial.port:
         proc = SimulatorProcess(simulator_spec(case, layout), "serial")
         return LinkPlan(SerialLink(proc.path, serial.baudrate, serial.framing, layout), layout, [proc],

@@ -150,6 +150,7 @@ def plot_periods(
     are marked with a cross. Writes ``<path_stem>.png`` and ``<path_stem>.svg`` and returns both paths.
     """
     from matplotlib.lines import Line2D
+    from matplotlib.ticker import FuncFormatter
 
     curves = _as_mapping(responses)
     fig, (ax,) = _new_figure(1, 4.5)
@@ -172,6 +173,9 @@ def plot_periods(
                 ax.plot(freq[capped], periods[capped], "x", ms=9.0, mew=2.0, color=line.get_color(), linestyle="none")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    plain = FuncFormatter(lambda value, _pos: f"{value:g}")
+    ax.yaxis.set_major_formatter(plain)
+    ax.yaxis.set_minor_formatter(plain)
     ax.set_xlabel("Frequency (Hz)")
     ax.set_ylabel("Periods")
     ax.grid(True, which="major", alpha=0.5)

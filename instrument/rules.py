@@ -12,6 +12,7 @@ Pure numerics: no I/O, no threads.
 
 from __future__ import annotations
 
+import functools
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
@@ -111,7 +112,13 @@ class SeriesHistory:
         sums = self._cum[edges[1:]] - self._cum[edges[:-1]]
         means = sums / np.diff(edges)
         spread = np.sqrt(np.sum(np.abs(means - means.mean()) ** 2) / (nb * (nb - 1)))
-        return float(stats.t.ppf(0.5 + confidence / 2, nb - 1) * spread)
+        return float(_student_t(confidence, nb - 1) * spread)
+
+
+@functools.lru_cache(maxsize=64)
+def _student_t(confidence: float, dof: int) -> float:
+    """Two-sided Student t quantile (computed once per confidence and degrees of freedom)."""
+    return float(stats.t.ppf(0.5 + confidence / 2, dof))
 
 
 def relative_change_percent(current: float, previous: float) -> float:

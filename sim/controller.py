@@ -134,7 +134,7 @@ class SimulatedController:
 
     def _feedback(self, y: np.ndarray) -> list[Frame]:
         frames = []
-        timestamp_us = int(round(self.time * 1e6)) % (1 << 32)
+        timestamp_us = int(round(self.time * 1e6)) % (self.layout.timestamp_modulus or 1 << 32)
         for message, sources in self._sources:
             values: dict[str, float] = {}
             for name, index in sources:

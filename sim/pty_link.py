@@ -50,6 +50,9 @@ class FdStream:
         self.fd = fd
         self.timeout = timeout
 
+    def fileno(self) -> int:
+        return self.fd
+
     @property
     def in_waiting(self) -> int:
         ready, _, _ = select.select([self.fd], [], [], 0)

@@ -41,8 +41,9 @@ class SimulatorSpec:
 class ControllerPort(FramePort):
     """The host's end of a direct link to a lockstep controller: a sent frame is handled at once."""
 
-    def __init__(self, controller: SimulatedController) -> None:
-        super().__init__("simulated drive (direct)", "can")
+    def __init__(self, controller: SimulatedController, transport: str = "can") -> None:
+        """transport: the Layout.validate name of the bus this link stands in for."""
+        super().__init__("simulated drive (direct)", transport)
         self.controller = controller
         self._inbox: collections.deque[Frame] = collections.deque()
 
@@ -106,9 +107,17 @@ def serve_slcan_pty(spec: SimulatorSpec) -> tuple[Serving, str]:
     return Serving(spec.controller(), SlcanAdapterPort(pty.master), [pty]), pty.path
 
 
+class SimulatorStartError(RuntimeError):
+    """The simulated controller could not be started (the message says why)."""
+
+
 def _process_main(spec: SimulatorSpec, transport: str, conn: Any) -> None:
-    serving, path = (serve_slcan_pty if transport == "slcan" else serve_serial_pty)(spec)
-    conn.send(path)
+    try:
+        serving, path = (serve_slcan_pty if transport == "slcan" else serve_serial_pty)(spec)
+    except Exception as exc:  # noqa: BLE001 - reported to the parent as text
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        return
+    conn.send(("path", path))
     try:
         conn.recv()  # anything, or the pipe closing, ends the simulator
     except (EOFError, OSError):
@@ -131,10 +140,19 @@ class SimulatorProcess:
                                    name=f"sim-controller-{transport}")
         self.process.start()
         theirs.close()
-        if not self._conn.poll(30):
+        try:
+            if not self._conn.poll(30):
+                raise SimulatorStartError("simulated controller did not start within 30 s")
+            kind, text = self._conn.recv()
+        except (EOFError, OSError):
+            kind, text = "error", "simulated controller process ended at start"
+        except SimulatorStartError:
             self.process.terminate()
-            raise RuntimeError("simulated controller did not start")
-        self.path: str = self._conn.recv()
+            raise
+        if kind != "path":
+            self.process.join(timeout=5)
+            raise SimulatorStartError(f"simulated controller: {text}")
+        self.path: str = text
 
     def close(self) -> None:
         try:

@@ -1,0 +1,197 @@
+"""The whole instrument chain against the simulated drive: real python-can buses, real pseudo-terminals.
+
+Each sweep over a transport must agree with the offline run of the same bench config (``bodebench simulate``:
+the same controller called directly), and every way a sweep ends must leave the drive at a zero setpoint and
+disabled, as seen on the bus.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import threading
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+import pytest
+
+from drivers.layout import default_layout
+from instrument.config import parse_config
+from instrument.links import plan_link
+from instrument.response import FrequencyResponse
+from instrument.session import BenchSession, PointProgress, SessionError
+
+FREQS = [3.0, 8.0, 20.0]
+
+BASE: dict[str, Any] = {
+    "plant": {"model": "coulomb", "mass": 2.533e-4, "stiffness": 1.0, "friction": 0.008},
+    "excitation": {"amplitude": 0.01, "frequencies_hz": FREQS},
+    "analysis": {"harmonics": [1, 3], "tolerance_percent": 0.01},
+    "bench": {"transport": "can", "rate_hz": 1000, "clock": "lockstep", "timebase": "counter"},
+    "can": {"interface": "virtual", "channel": "e2e"},
+    "safety": {"max_amplitude": 0.02, "max_rate": 5.0, "watchdog_s": 2.0},
+    "simulator": {},
+}
+
+SERIAL_FRAMES = {
+    "setpoint": {"id": 1, "signals": [{"name": "setpoint", "byte": 0, "type": "float32"},
+                                      {"name": "counter", "byte": 4, "type": "uint16"}]},
+    "feedback": [{"id": 0x81, "signals": [{"name": "position", "byte": 0, "type": "float32"},
+                                          {"name": "setpoint_echo", "byte": 4, "type": "float32"},
+                                          {"name": "counter", "byte": 8, "type": "uint16"},
+                                          {"name": "timestamp_us", "byte": 10, "type": "uint32"}]}],
+    "enable": {"id": 0x10, "data": [1]},
+    "disable": {"id": 0x10, "data": [0]},
+}
+
+
+def config(**tables: dict[str, Any]) -> dict[str, Any]:
+    data = copy.deepcopy(BASE)
+    for name, value in tables.items():
+        if value is None:
+            data.pop(name, None)
+        else:
+            data[name] = {**data.get(name, {}), **value} if isinstance(value, dict) and name in data else value
+    return data
+
+
+def sweep(data: dict[str, Any], out: Path | None = None, direct: bool = False, listener=None) -> BenchSession:
+    case = parse_config(data, "e2e.toml").cases[0]
+    session = BenchSession(case, plan_link(case, "e2e.toml", direct=direct), out, listener)
+    session.run()
+    return session
+
+
+def compare(a: FrequencyResponse, b: FrequencyResponse, gain_db: float, phase_deg: float) -> None:
+    first_a, first_b = a.select(harmonic=1), b.select(harmonic=1)
+    assert list(first_a.frequency_hz) == list(first_b.frequency_hz) == FREQS
+    assert np.max(np.abs(first_a.gain_db - first_b.gain_db)) <= gain_db
+    assert np.max(np.abs(first_a.phase_deg - first_b.phase_deg)) <= phase_deg
+    assert all(p.converged for p in a.points)
+    assert all(p.converged for p in b.points)
+
+
+@pytest.fixture(scope="module")
+def offline() -> FrequencyResponse:
+    return sweep(config(), direct=True).response
+
+
+@pytest.fixture(scope="module")
+def offline_serial() -> FrequencyResponse:
+    return sweep(config(bench={"transport": "serial"}, can=None, serial={"framing": "binary"},
+                        frames=SERIAL_FRAMES), direct=True).response
+
+
+def test_virtual_can_agrees_with_the_offline_run(offline: FrequencyResponse, tmp_path: Path) -> None:
+    session = sweep(config(), tmp_path)
+    compare(session.response, offline, 0.05, 0.2)
+    on_disk = FrequencyResponse.load(tmp_path)
+    assert len(on_disk.points) == len(session.response.points) == 2 * len(FREQS)
+
+
+def test_slcan_adapter_on_a_pty_agrees_with_the_offline_run(offline: FrequencyResponse) -> None:
+    session = sweep(config(can={"interface": "slcan", "channel": ""}))
+    compare(session.response, offline, 0.05, 0.2)
+    assert "slcan" in session.plan.where
+
+
+@pytest.mark.parametrize("framing", ["binary", "ascii"])
+def test_serial_on_a_pty_agrees_with_the_offline_run(offline_serial: FrequencyResponse, framing: str) -> None:
+    session = sweep(config(bench={"transport": "serial"}, can=None, serial={"framing": framing},
+                           frames=SERIAL_FRAMES))
+    compare(session.response, offline_serial, 0.05, 0.2)
+
+
+def test_jittered_sampling_with_timestamps_agrees(offline_serial: FrequencyResponse) -> None:
+    """Sampling instants jitter by +-5 % of the period; the controller's timestamps say when each sample was
+    taken and the sampler integrates on them. Jitter is noise, so the tolerance is 0.05 % here."""
+    session = sweep(config(bench={"transport": "serial", "timebase": "timestamp"}, can=None,
+                           serial={"framing": "binary"}, frames=SERIAL_FRAMES,
+                           simulator={"jitter": 0.05, "seed": 11},
+                           analysis={"harmonics": [1], "tolerance_percent": 0.05}))
+    compare(session.response, offline_serial, 0.05, 0.2)
+
+
+class BusRecorder:
+    """A third node on the virtual bus that records every setpoint and enable/disable frame."""
+
+    def __init__(self, channel: str) -> None:
+        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        self.layout = default_layout()
+        self.frames: list[can.Message] = []
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            msg = self.bus.recv(0.05)
+            if msg is not None:
+                self.frames.append(msg)
+
+    def close(self) -> tuple[float, bool]:
+        """(last setpoint sent, whether a disable frame followed it)."""
+        self.stop.set()
+        self.thread.join()
+        self.bus.shutdown()
+        sp, dis = self.layout.setpoint, self.layout.disable
+        setpoints = [i for i, m in enumerate(self.frames) if m.arbitration_id == sp.id]
+        last = setpoints[-1]
+        value = sp.decode(bytes(self.frames[last].data))["setpoint"]
+        disabled = any(m.arbitration_id == dis.id and bytes(m.data) == bytes(dis.data)
+                       for m in self.frames[last:])
+        return value, disabled
+
+
+def test_abort_leaves_zero_setpoint_and_disable_on_the_bus(tmp_path: Path) -> None:
+    recorder = BusRecorder("e2e-abort")
+    holder: dict[str, BenchSession] = {}
+
+    def listener(event: object) -> None:
+        if isinstance(event, PointProgress) and event.index == 1 and event.periods >= 2:
+            holder["s"].request_abort()
+
+    case = parse_config(config(can={"channel": "e2e-abort"}), "e2e.toml").cases[0]
+    session = holder["s"] = BenchSession(case, plan_link(case, "e2e.toml"), tmp_path, listener)
+    with pytest.raises(SessionError, match="abort"):
+        session.run()
+    value, disabled = recorder.close()
+    assert value == 0.0 and disabled
+    # the point measured before the abort is on disk, whole
+    kept = FrequencyResponse.load(tmp_path)
+    assert [p.frequency_hz for p in kept.points] == [3.0, 3.0]
+
+
+def test_watchdog_trips_when_the_drive_does_not_answer() -> None:
+    recorder = BusRecorder("e2e-mute")
+    data = config(can={"channel": "e2e-mute"}, safety={"watchdog_s": 0.3}, simulator=None)
+    with pytest.raises(SessionError, match="watchdog"):
+        sweep(data)
+    value, disabled = recorder.close()
+    assert value == 0.0 and disabled
+
+
+def test_feedback_window_trips_and_zeroes_the_drive() -> None:
+    recorder = BusRecorder("e2e-window")
+    data = config(can={"channel": "e2e-window"}, safety={"feedback_limits": {"position": [-0.002, 0.002]}})
+    with pytest.raises(SessionError, match="feedback_limit"):
+        sweep(data)
+    value, disabled = recorder.close()
+    assert value == 0.0 and disabled
+
+
+def test_setpoints_respect_amplitude_and_rate_limits() -> None:
+    """Everything the instrument sent, read off the bus: never above max_amplitude, never faster than max_rate."""
+    recorder = BusRecorder("e2e-limits")
+    data = config(can={"channel": "e2e-limits"}, safety={"max_amplitude": 0.0101, "max_rate": 0.55})
+    data["excitation"]["frequencies_hz"] = [3.0, 8.0]
+    sweep(data)
+    recorder.close()
+    sp = recorder.layout.setpoint
+    values = np.array([sp.decode(bytes(m.data))["setpoint"] for m in recorder.frames
+                       if m.arbitration_id == sp.id])
+    assert np.max(np.abs(values)) <= 0.0101 * (1 + 1e-6)
+    assert np.max(np.abs(np.diff(values))) <= 0.55 / 1000 * (1 + 1e-5)
+    assert values[-1] == 0.0
