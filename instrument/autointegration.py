@@ -38,18 +38,29 @@ class Autointegrator:
     """Integrates period after period until every series' rule stops or ``max_periods`` is reached.
 
     frequency_hz: excitation frequency f (Hz); amplitude: input amplitude A_i
-    (input units), for gains; channels: names of the columns fed; t0: instant
-    (s) at which the excitation sine has phase zero.
+    (input units), for gains; channels: names of the measured columns fed;
+    t0: instant (s) at which the excitation sine has phase zero.
+
+    reference: two-channel mode. One more column (fed last) carries the input
+    as the drive saw it (e.g. the echoed setpoint). Every period, each output
+    coefficient is taken relative to that period's reference fundamental
+    ``Z_r``: ``Z_k * A_i * (conj(Z_r)/|Z_r|)**k / |Z_r|``, so gain and phase
+    are output over input whatever delay or amplitude error the path to the
+    drive added, and the rules judge that ratio.
     """
 
     def __init__(self, frequency_hz: float, amplitude: float, channels: Sequence[str],
-                 analysis: AnalysisConfig, t0: float = 0.0) -> None:
+                 analysis: AnalysisConfig, t0: float = 0.0, reference: str | None = None) -> None:
         self.frequency_hz = frequency_hz
         self.amplitude = amplitude
         self.channels = tuple(channels)
         self.harmonics = tuple(analysis.harmonics)
         self.max_periods = analysis.max_periods
-        self._integrator = PeriodIntegrator(frequency_hz, self.harmonics, len(self.channels), t0)
+        self.reference = reference
+        harmonics = self.harmonics if reference is None or 1 in self.harmonics else (*self.harmonics, 1)
+        self._ref_index = harmonics.index(1) if reference is not None else -1
+        self._integrator = PeriodIntegrator(frequency_hz, harmonics, len(self.channels) + (reference is not None),
+                                            t0)
         self._histories = [[SeriesHistory() for _ in self.harmonics] for _ in self.channels]
         self._rules: list[list[StoppingRule]] = [
             [make_rule(analysis.criterion, tolerance_percent=analysis.tolerance_percent,
@@ -76,6 +87,12 @@ class Autointegrator:
             self.periods += m
             return m
         z = p + 1j * q  # (m, channel, harmonic)
+        if self.reference is not None:
+            z_ref = z[:, -1, self._ref_index]
+            rotation = np.conj(z_ref) / np.abs(z_ref)
+            k = np.array(self.harmonics)
+            z = z[:, :-1, : len(self.harmonics)] * (self.amplitude / np.abs(z_ref))[:, None, None] \
+                * rotation[:, None, None] ** k[None, None, :]
         for c, row in enumerate(self._histories):
             for k, hist in enumerate(row):
                 hist.extend(z[:, c, k])

@@ -98,12 +98,14 @@ class PacingStats:
 
 @dataclass(frozen=True)
 class Health:
-    """Bus health, round-trip delay (s; lockstep: setpoint to its sample) and pacing."""
+    """Bus health, round-trip delay (s; lockstep: setpoint to its sample), pacing, and samples dropped because
+    their time did not increase (bursts read at once on the receive time base)."""
 
     bus: BusHealth
     round_trip_s: float
     pacing: PacingStats | None
     tick: int
+    time_conflicts: int = 0
 
 
 @dataclass(frozen=True)
@@ -236,7 +238,8 @@ class BusWorker:
         self._t: list[float] = []
         self._v: list[tuple[float, ...]] = []
         self._u: list[float] = []
-        self._tick_of_sample: dict[int, float] = {}
+        self._last_t = -math.inf
+        self.time_conflicts = 0  # samples dropped because their time did not increase
 
     # --- plumbing
     def _post(self, message: object) -> None:
@@ -259,7 +262,7 @@ class BusWorker:
             pacing = PacingStats(float(np.percentile(e, 50)), float(np.percentile(e, 99)), float(e.max()),
                                  len(e), self.overruns)
         rt = float(np.median(self.round_trips)) if self.round_trips else math.nan
-        self._post(Health(self.driver.health.snapshot(), rt, pacing, self.tick))
+        self._post(Health(self.driver.health.snapshot(), rt, pacing, self.tick, self.time_conflicts))
 
     def _command(self, message: object) -> None:
         if isinstance(message, Credit):
@@ -340,6 +343,10 @@ class BusWorker:
                 if not lo <= v <= hi:
                     raise _Trip("feedback_limit", f"{name} = {v:g} outside [{lo:g}, {hi:g}]")
             t = self._time_of(s, answered_tick)
+            if t <= self._last_t:  # receive times of samples read in one burst: keep the first only
+                self.time_conflicts += 1
+                continue
+            self._last_t = t
             self._t.append(t)
             self._v.append(s.values)
             self._u.append(self.last_sent)

@@ -7,7 +7,7 @@ resources to close when the worker ends).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -121,7 +121,12 @@ def plan_link(case: CaseConfig, source: str | Path, *, direct: bool = False) -> 
             link = CanLink("slcan", proc.path, can.bitrate, options, layout)
             return LinkPlan(link, layout, [proc], where=f"slcan adapter on {proc.path}")
         channel = can.channel or "bodebench"
-        spec = simulator_spec(case, layout) if simulated and can.interface != "slcan" else None
+        spec = None
+        if simulated and can.interface != "slcan":
+            # served from the bus worker's own process: on the realtime clock the worker's pacing is the drive's
+            # clock (a second pacing thread would fight the worker for the interpreter), so it answers each setpoint
+            spec = simulator_spec(case, layout)
+            spec = replace(spec, timing=replace(spec.timing, clock="lockstep"))
         link = CanLink(can.interface, channel, can.bitrate, options, layout, spec)
         return LinkPlan(link, layout, where=f"{can.interface} channel {channel}")
     serial = case.tables["serial"]

@@ -260,13 +260,12 @@ class BenchSession:
         amplitude = self.case.excitation.amplitude
         outputs = bench.output_channels
         reference = bench.reference_channel
-        names = outputs + ((reference,) if reference else ())
-        columns = [self.channels.index(n) for n in names]
+        columns = [self.channels.index(n) for n in outputs + ((reference,) if reference else ())]
         self._conn.send(StartSine(f, amplitude, bench.ramp_in_periods, bench.ramp_out_periods))
         self.listener(PointStarted(index, f))
         started = self._expect(SineStarted, timeout=60.0)
         t0 = started.tick * self.period + bench.ramp_in_periods / f
-        sampler = Autointegrator(f, amplitude, names, analysis, t0=t0)
+        sampler = Autointegrator(f, amplitude, outputs, analysis, t0=t0, reference=reference or None)
         ticks_per_period = max(1, math.ceil(1.0 / (f * self.period)))
         held: tuple[float, np.ndarray] | None = None  # the last sample at or before t0
         scope: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
@@ -303,27 +302,13 @@ class BenchSession:
                 self._conn.send(Credit(message.last_tick + ticks_per_period))
             self.listener(PointProgress(index, f, sampler.periods, tuple(sampler.states()), analysis.tolerance_percent,
                                         analysis.criterion, _scope(scope, f)))
-        points = self._finish_points(sampler, outputs, reference)
+        points = sampler.points()
         for p in points:
             if self.out_dir is not None:
                 self.response.write_point(self.out_dir, p)
             else:
                 self.response.add(p)
         self.listener(PointFinished(index, tuple(points)))
-
-    def _finish_points(self, sampler: Autointegrator, outputs: tuple[str, ...], reference: str) -> list[ResponsePoint]:
-        points = [p for p in sampler.points() if p.channel in outputs]
-        if not reference:
-            return points
-        # two-channel mode: relative to the reference channel's own fundamental over the last half of the run
-        ref = sampler.history(reference, 1)
-        n = ref.size
-        z_ref = complex(np.mean(ref[n // 2:])) if n else complex("nan")
-        out = []
-        for p in points:
-            z = complex(p.p, p.q) * np.exp(-1j * p.harmonic * np.angle(z_ref))
-            out.append(replace(p, p=z.real, q=z.imag, amplitude=abs(z_ref)))
-        return out
 
 
 def _scope(chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]], f: float
