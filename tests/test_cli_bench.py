@@ -1,0 +1,122 @@
+"""The bench commands as a user runs them: ``bodebench run`` and ``bodebench sim-controller`` in real processes."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from instrument.response import FrequencyResponse
+
+SERIAL_BENCH = """
+title = "lockstep serial drive"
+[plant]
+model = "coulomb"
+mass = 2.533e-4
+stiffness = 1.0
+friction = 0.008
+[excitation]
+amplitude = 0.01
+frequencies_hz = {freqs}
+[analysis]
+harmonics = [1]
+tolerance_percent = 0.01
+[bench]
+transport = "serial"
+rate_hz = 1000
+clock = "lockstep"
+[serial]
+port = "{port}"
+framing = "binary"
+[frames.setpoint]
+id = 1
+signals = [{{ name = "setpoint", byte = 0, type = "float32" }}, {{ name = "counter", byte = 4, type = "uint16" }}]
+[[frames.feedback]]
+id = 0x81
+signals = [{{ name = "position", byte = 0, type = "float32" }}, {{ name = "counter", byte = 4, type = "uint16" }}]
+[frames.enable]
+id = 0x10
+data = [1]
+[frames.disable]
+id = 0x10
+data = [0]
+[safety]
+max_amplitude = 0.02
+watchdog_s = 2.0
+{simulator}
+"""
+
+
+def command() -> list[str]:
+    exe = shutil.which("bodebench")
+    return [exe] if exe else [sys.executable, "-m", "instrument.cli"]
+
+
+def test_run_command_sweeps_the_simulated_can_bench(tmp_path: Path) -> None:
+    cfg = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
+    text = cfg.read_text().replace("frequencies_hz = [2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 15, 20, 30, 50]",
+                                   "frequencies_hz = [4, 12]")
+    small = tmp_path / "sim_can_small.toml"
+    small.write_text(text)
+    proc = subprocess.run(command() + ["run", str(small), "--out", str(tmp_path / "out")], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "drive left at setpoint 0, disabled" in proc.stderr
+    response = FrequencyResponse.load(tmp_path / "out")
+    assert sorted({p.frequency_hz for p in response.points}) == [4.0, 12.0]
+    assert all(p.converged for p in response.points)
+    # the offline run of the same bench config gives the same numbers
+    proc = subprocess.run(command() + ["simulate", str(small), "--out", str(tmp_path / "offline")],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    offline = FrequencyResponse.load(tmp_path / "offline")
+    a, b = response.select(harmonic=1), offline.select(harmonic=1)
+    assert np.allclose(a.gain_db, b.gain_db, atol=0.05) and np.allclose(a.phase_deg, b.phase_deg, atol=0.2)
+
+
+def test_run_refuses_an_offline_config(tmp_path: Path) -> None:
+    cfg = Path(__file__).resolve().parents[1] / "configs" / "paper2013.toml"
+    proc = subprocess.run(command() + ["run", str(cfg), "--out", str(tmp_path)], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 2
+    assert "paper2013.toml" in proc.stderr and "bench" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_ctrl_c_mid_sweep_keeps_points_and_leaves_the_drive_at_zero(tmp_path: Path) -> None:
+    """A standalone simulated drive on a pty; ``bodebench run`` against it gets SIGINT (Ctrl-C) mid-sweep."""
+    sim_cfg = tmp_path / "drive.toml"
+    sim_cfg.write_text(SERIAL_BENCH.format(freqs="[3]", port="", simulator="[simulator]"))
+    drive = subprocess.Popen(command() + ["sim-controller", str(sim_cfg)], stdout=subprocess.PIPE, text=True,
+                             start_new_session=True)
+    try:
+        line = drive.stdout.readline()
+        port = re.search(r'port = "([^"]+)"', line).group(1)
+        run_cfg = tmp_path / "run.toml"
+        run_cfg.write_text(SERIAL_BENCH.format(freqs="[3, 4, 5, 6, 7, 8, 9, 10]", port=port, simulator=""))
+        out = tmp_path / "out"
+        run = subprocess.Popen(command() + ["run", str(run_cfg), "--out", str(out)], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, start_new_session=True)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and run.poll() is None:
+            csv = out / "response.csv"
+            if csv.exists() and len(csv.read_text().splitlines()) >= 3:  # two points measured
+                break
+            time.sleep(0.05)
+        assert run.poll() is None, run.stderr.read()
+        os.killpg(run.pid, signal.SIGINT)  # what Ctrl-C in the terminal sends to the foreground group
+        _, err = run.communicate(timeout=60)
+        assert run.returncode != 0
+        assert "Traceback" not in err
+        kept = FrequencyResponse.load(out)
+        assert len(kept.points) >= 2 and all(p.converged for p in kept.points)
+    finally:
+        os.killpg(drive.pid, signal.SIGINT)
+        tail, _ = drive.communicate(timeout=30)
+    assert "last setpoint 0, disabled" in tail
