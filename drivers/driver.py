@@ -84,7 +84,8 @@ class BusHealth:
     feedback frames that failed to decode; ``lost_samples``: counter values never seen; ``duplicates``: repeated or
     stale counter values (dropped); ``incomplete_samples``: counters with some but not all feedback frames (dropped);
     ``bus_state``: "active", "passive", "bus-off" or "unknown"; ``last_error``: description of the latest error;
-    ``counter_restarts``: times the feedback counter jumped back by more than 64 samples (assembly restarted there)."""
+    ``counter_restarts``: times the feedback counter jumped back by more than 64 samples (assembly restarted there);
+    ``resyncs``: serial lines only, runs of bytes discarded between frames (line noise, garbage)."""
 
     frames_in: int = 0
     frames_out: int = 0
@@ -95,6 +96,7 @@ class BusHealth:
     bus_state: str = "unknown"
     last_error: str = ""
     counter_restarts: int = 0
+    resyncs: int = 0
 
     def snapshot(self) -> BusHealth:
         """An independent copy."""
@@ -297,6 +299,7 @@ class Driver:
         h.frames_in = port.frames_in
         h.frames_out = port.frames_out
         h.errors = port.errors + self._decode_errors
+        h.resyncs = getattr(port, "resyncs", 0)
         h.bus_state = port.bus_state()
         if port.last_error != self._port_last_error:
             self._port_last_error = port.last_error

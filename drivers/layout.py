@@ -151,25 +151,27 @@ class Signal:
 
     def encode_into(self, buffer: bytearray, value: float, message: str) -> None:
         """Write the physical ``value`` into ``buffer``; LayoutError (naming ``message`` and signal) if it does not fit."""
-        where = f"message {_show(message)} signal {_show(self.name)}"
+        def where() -> str:  # only built for an error message
+            return f"message {_show(message)} signal {_show(self.name)}"
+
         if not _is_number(value):
-            raise LayoutError(f"{where}: value must be a number, got {_show(value)}")
+            raise LayoutError(f"{where()}: value must be a number, got {_show(value)}")
         raw_float = (float(value) - self.offset) / self.scale
         limits = self.raw_range
         if limits is not None:
             if not math.isfinite(raw_float):
-                raise LayoutError(f"{where}: cannot encode non-finite value {value!r} as {self.type}")
+                raise LayoutError(f"{where()}: cannot encode non-finite value {value!r} as {self.type}")
             raw = round(raw_float)
             if not limits[0] <= raw <= limits[1]:
                 raise LayoutError(
-                    f"{where}: value {value!r} gives raw {raw}, outside {self.type} range {limits[0]}..{limits[1]}"
+                    f"{where()}: value {value!r} gives raw {raw}, outside {self.type} range {limits[0]}..{limits[1]}"
                 )
             struct.pack_into(self._format, buffer, self.byte, raw)
         else:
             try:
                 struct.pack_into(self._format, buffer, self.byte, raw_float)
             except (OverflowError, struct.error) as exc:
-                raise LayoutError(f"{where}: value {value!r} does not fit {self.type}") from exc
+                raise LayoutError(f"{where()}: value {value!r} does not fit {self.type}") from exc
 
     def decode_from(self, payload: bytes) -> float:
         """Physical value of this signal in ``payload`` (which must be long enough)."""
@@ -177,6 +179,39 @@ class Signal:
         if self.scale == 1.0 and self.offset == 0.0:
             return float(raw)
         return float(raw) * self.scale + self.offset
+
+
+@dataclass(frozen=True)
+class _PackPlan:
+    """How a signal message packs in one struct call: ``format`` (None when the signals mix byte orders), and per
+    signal in byte order (name, is integer, unit scale and zero offset, scale, offset, raw low, raw high) for
+    packing, in layout order (name, index in the unpacked tuple, unit, scale, offset) for unpacking."""
+
+    format: str | None
+    packing: tuple[tuple[str, bool, bool, float, float, int, int], ...]
+    unpacking: tuple[tuple[str, int, bool, float, float], ...]
+
+
+def _pack_plan(signals: tuple[Signal, ...]) -> _PackPlan:
+    """The one-call packing plan of non-overlapping ``signals`` (gaps between them are zero pad bytes)."""
+    if len({sig.endian for sig in signals}) != 1:
+        return _PackPlan(None, (), ())
+    ordered = sorted(signals, key=lambda sig: sig.byte)
+    parts = ["<" if ordered[0].endian == "little" else ">"]
+    position = 0
+    packing = []
+    for sig in ordered:
+        if sig.byte > position:
+            parts.append(f"{sig.byte - position}x")
+        parts.append(_TYPES[sig.type][0])
+        position = sig.end
+        low, high = sig.raw_range or (0, 0)
+        packing.append((sig.name, sig.is_integer, sig.scale == 1.0 and sig.offset == 0.0, sig.scale, sig.offset,
+                        low, high))
+    index = {sig.name: i for i, sig in enumerate(ordered)}
+    unpacking = tuple((sig.name, index[sig.name], sig.scale == 1.0 and sig.offset == 0.0, sig.scale, sig.offset)
+                      for sig in signals)
+    return _PackPlan("".join(parts), tuple(packing), unpacking)
 
 
 @runtime_checkable
@@ -284,18 +319,21 @@ class Message:
                         f"{_show(sig.name)} (bytes {sig.byte}..{sig.end - 1}) overlap"
                     )
             seen[sig.name] = sig
+        # derived once (plain data, so the message still pickles): length, names and the packing plan
+        object.__setattr__(self, "_length", len(self.data) if self.data is not None
+                           else max(sig.end for sig in self.signals))
+        object.__setattr__(self, "_names", tuple(sig.name for sig in self.signals))
+        object.__setattr__(self, "_plan", _pack_plan(self.signals) if self.data is None else None)
 
     @property
     def length(self) -> int:
         """Payload length in bytes."""
-        if self.data is not None:
-            return len(self.data)
-        return max(sig.end for sig in self.signals)
+        return self._length  # type: ignore[attr-defined, no-any-return]
 
     @property
     def signal_names(self) -> tuple[str, ...]:
         """Signal names in layout order."""
-        return tuple(sig.name for sig in self.signals)
+        return self._names  # type: ignore[attr-defined, no-any-return]
 
     def signal(self, name: str) -> Signal:
         """The signal called ``name``; LayoutError when there is none."""
@@ -312,6 +350,29 @@ class Message:
         """
         if self.data is not None:
             return self.data
+        plan: _PackPlan = self._plan  # type: ignore[attr-defined]
+        if plan.format is not None:
+            # one struct call for the whole payload; anything unusual takes the signal-by-signal way below,
+            # which encodes the same bytes or raises the error naming the signal
+            raws: list[float | int] = []
+            try:
+                for name, is_int, unit, scale, offset, low, high in plan.packing:
+                    value = values[name]
+                    kind = type(value)
+                    if kind is not float and kind is not int:
+                        break
+                    raw = float(value) if unit else (float(value) - offset) / scale
+                    if is_int:
+                        if raw != raw or raw in (math.inf, -math.inf):
+                            break
+                        raw = round(raw)
+                        if not low <= raw <= high:
+                            break
+                    raws.append(raw)
+                else:
+                    return struct.pack(plan.format, *raws)
+            except (KeyError, OverflowError, struct.error):
+                pass
         buffer = bytearray(self.length)
         for sig in self.signals:
             if sig.name not in values:
@@ -321,12 +382,19 @@ class Message:
 
     def decode(self, payload: bytes) -> dict[str, float]:
         """Physical value of every signal (empty for a fixed-data message); LayoutError on a short payload."""
-        if len(payload) < self.length:
+        if len(payload) < self._length:  # type: ignore[attr-defined]
             raise LayoutError(
                 f"message {_show(self.name)} (id 0x{self.id:X}): payload is {len(payload)} bytes, "
                 f"needs {self.length}"
             )
-        return {sig.name: sig.decode_from(payload) for sig in self.signals}
+        plan: _PackPlan | None = self._plan  # type: ignore[attr-defined]
+        if plan is None:
+            return {}
+        if plan.format is None:
+            return {sig.name: sig.decode_from(payload) for sig in self.signals}
+        raws = struct.unpack_from(plan.format, payload, 0)
+        return {name: float(raws[i]) if unit else float(raws[i]) * scale + offset
+                for name, i, unit, scale, offset in plan.unpacking}
 
     def integer_modulus(self, name: str) -> int | None:
         """``2**bits`` when signal ``name`` is an unsigned integer with unit scale and zero offset, else None."""

@@ -196,7 +196,7 @@ class CanPort(FramePort):
 
     _vendor_errors, _timeout_errors = _can_errors()
 
-    def __init__(self, bus: Any, *, name: str | None = None, send_timeout: float | None = 0.1,
+    def __init__(self, bus: Any, *, name: str | None = None, send_timeout: float | None = 1.0,
                  owns_bus: bool = True) -> None:
         """Wrap the open ``can.BusABC`` ``bus``. ``send_timeout`` (s) bounds each send where the interface supports
         it; with ``owns_bus`` the bus is shut down by ``close()``."""
@@ -231,7 +231,7 @@ class CanPort(FramePort):
         import can
 
         msg = can.Message(arbitration_id=frame.id, data=frame.data, is_extended_id=frame.extended,
-                          is_fd=len(frame.data) > 8)
+                          is_fd=len(frame.data) > 8, is_error_frame=frame.is_error)
         self._bus.send(msg, timeout=self._send_timeout)
 
     def _recv(self, timeout: float, limit: int) -> list[Frame]:
@@ -336,6 +336,8 @@ class SerialPort(FramePort):
         return self._deframer.bytes_discarded
 
     def _send(self, frame: Frame) -> None:
+        if frame.is_error:  # a serial line has no error frames
+            return
         if self.framing == "binary":
             wire = encode_binary(frame.id, frame.data)
         else:

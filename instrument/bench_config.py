@@ -58,6 +58,9 @@ class BenchConfig:
         "doc": "where pacing and bus I/O run: auto = own process on the realtime clock, thread in lockstep"})
     batch_ms: float = field(default=10.0, metadata={"min": 0, "min_exclusive": True,
                                                     "doc": "samples are handed to the analysis this often, ms"})
+    reply_timeout_s: float = field(default=0.05, metadata={
+        "min": 0, "min_exclusive": True,
+        "doc": "lockstep: longest wait for a setpoint's reply (8 typical round trips, at least 2 ms, are waited), s"})
 
 
 @dataclass(frozen=True)
@@ -138,6 +141,16 @@ class SimulatorConfig:
     jitter: float = field(default=0.0, metadata={"min": 0, "max": 0.5, "max_exclusive": True,
                                                  "doc": "sampling-instant jitter, fraction of a period"})
     seed: int = field(default=0, metadata={"doc": "jitter random seed"})
+    faults: dict = field(default_factory=dict, metadata={"doc": "fault injection (sim/faults.py FaultConfig)"})
+
+    def validate(self, where: Callable[[str], str]) -> None:
+        from instrument.config import FieldError
+        from sim.faults import FaultConfig
+
+        try:
+            FaultConfig.from_mapping(self.faults)
+        except ValueError as exc:
+            raise FieldError("faults", str(exc)) from None
 
 
 BENCH_TABLES: dict[str, type] = {

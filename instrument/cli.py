@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -10,7 +11,7 @@ from typing import Sequence
 
 from drivers.errors import DriverError
 from instrument.config import ConfigError, ExperimentConfig, load_config
-from instrument.response import ResultsError
+from instrument.response import FrequencyResponse, ResultsError
 from sim.serve import SimulatorStartError
 
 
@@ -22,7 +23,27 @@ def _is_bench(config: ExperimentConfig) -> bool:
     return config.cases[0].tables.get("bench") is not None
 
 
-def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool) -> int:
+def _previous_run(directory: Path, raw: dict, resume: bool, overwrite: bool) -> FrequencyResponse | None:
+    """The interrupted sweep to resume in ``directory``, or None; refuses to overwrite measured points."""
+    from instrument.response import CSV_NAME
+
+    if not (directory / CSV_NAME).exists():
+        return None
+    if not resume:
+        if overwrite:
+            return None
+        raise ResultsError(f"{directory / CSV_NAME}: results already here; --resume continues that sweep, "
+                           "or choose another --out")
+    previous = FrequencyResponse.load(directory)
+    if previous.config != FrequencyResponse(config=raw).config:
+        changed = sorted(k for k in set(previous.config) | set(raw) if previous.config.get(k) != raw.get(k))
+        raise ResultsError(f"{directory / 'response.json'}: made with another configuration (tables differ: "
+                           f"{', '.join(changed)}); cannot resume")
+    return previous
+
+
+def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False,
+                  overwrite: bool = False) -> int:
     """Run every case of a bench config as a session (``direct``: the simulated drive without a bus)."""
     from instrument.experiment import write_case
     from instrument.links import plan_link
@@ -32,9 +53,10 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
     status = 0
     for case in config.cases:
         directory = _case_dir(config, out, case.name)
+        previous = _previous_run(directory, case.raw, resume, overwrite)
         plan = plan_link(case, config.path, direct=direct)
         printer = ProgressPrinter(case.name or config.path.stem, len(case.excitation.frequencies_hz), quiet=quiet)
-        session = BenchSession(case, plan, directory, printer)
+        session = BenchSession(case, plan, directory, printer, resume=previous)
         try:
             result = session.run()
         except SessionError as exc:
@@ -58,9 +80,19 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.config}: bench: missing (bodebench run needs a bench config; "
                           "use bodebench simulate for an offline experiment)", "bench")
     started = time.perf_counter()
-    status = _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet)
+    status = _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet, resume=args.resume)
     print(f"done in {time.perf_counter() - started:.1f} s")
     return status
+
+
+def _tui(args: argparse.Namespace) -> int:
+    from instrument.tui import run_tui
+
+    config = load_config(args.config)
+    if not _is_bench(config):
+        raise ConfigError(f"{args.config}: bench: missing (bodebench tui needs a bench config)", "bench")
+    out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
+    return run_tui(config, out)
 
 
 def _sim_controller(args: argparse.Namespace) -> int:
@@ -104,13 +136,12 @@ def _sim_controller(args: argparse.Namespace) -> int:
 
 def _simulate(args: argparse.Namespace) -> int:
     from instrument.experiment import default_executor, sweep, write_case
-    from instrument.response import FrequencyResponse
 
     config: ExperimentConfig = load_config(args.config)
     out = Path(args.out)
     started = time.perf_counter()
     if _is_bench(config):
-        status = _bench_sweeps(config, out, direct=True, quiet=args.quiet)
+        status = _bench_sweeps(config, out, direct=True, quiet=args.quiet, overwrite=True)
         print(f"done in {time.perf_counter() - started:.1f} s")
         return status
     executor = None if args.jobs == 1 else default_executor(args.jobs)
@@ -144,6 +175,63 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _calibrate(args: argparse.Namespace) -> int:
+    from instrument import calibration
+    from instrument.experiment import default_executor
+
+    if args.jobs is not None and args.jobs < 1:
+        print(f"bodebench: --jobs must be >= 1, got {args.jobs}", file=sys.stderr)
+        return 2
+    out = Path(args.out) if args.out else calibration.DATA_FILE
+    started = time.perf_counter()
+    executor = None if args.jobs == 1 else default_executor(args.jobs)
+    try:
+        table = calibration.compute_calibration(calibration.DEFAULT_FBAR_GRID, calibration.DEFAULT_OFFSET_GRID,
+                                                executor)
+    finally:
+        if executor is not None:
+            executor.shutdown(cancel_futures=True)
+    try:
+        table.save(out)
+    except OSError as exc:
+        print(f"bodebench: {out}: cannot write the calibration: {exc}", file=sys.stderr)
+        return 1
+    lo, hi = table.fbar_range
+    print(f"friction calibration: {table.fbar.size} Fbar from {lo:g} to {hi:g} x {table.offset.size} offsets "
+          f"f/f_-90; r_90 from {table.r90.min():.4g} to {table.r90.max():.4g} -> {out} "
+          f"({time.perf_counter() - started:.1f} s)")
+    return 0
+
+
+def _identify(args: argparse.Namespace) -> int:
+    import dataclasses
+    import json
+
+    from instrument.calibration import CalibrationError, load_calibration
+    from instrument.identify import IdentificationError, format_report, identify, plot_identification
+    from instrument.response import FrequencyResponse
+
+    directory = Path(args.results)
+    response = FrequencyResponse.load(directory)
+    try:
+        report = identify(response, args.stiffness, args.amplitude, harmonic=args.harmonic, channel=args.channel,
+                          fit_stiffness=args.fit_stiffness, fit_damping=args.fit_damping,
+                          table=load_calibration(args.calibration))
+    except (IdentificationError, CalibrationError) as exc:
+        print(f"bodebench: {directory}: {exc}", file=sys.stderr)
+        return 2
+    status = 0
+    if not args.no_plot:
+        try:
+            paths = plot_identification(response, report, directory / "identify")
+            report = dataclasses.replace(report, plots=tuple(str(p) for p in paths))
+        except OSError as exc:
+            print(f"bodebench: {directory}: cannot write the identification plot: {exc}", file=sys.stderr)
+            status = 1
+    print(json.dumps(report.to_json(), indent=2, allow_nan=False) if args.json else format_report(report))
+    return status
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="bodebench", description=__doc__.strip().splitlines()[0] if __doc__ else "")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -158,11 +246,35 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("config", help="TOML bench file")
     run.add_argument("--out", required=True, help="results directory")
     run.add_argument("--quiet", action="store_true", help="no progress display")
+    run.add_argument("--resume", action="store_true",
+                     help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
     run.set_defaults(handler=_run)
     ctl = sub.add_parser("sim-controller", help="run the simulated servo controller of a bench config standalone")
     ctl.add_argument("config", help="TOML bench file with [simulator]")
     ctl.add_argument("--seconds", type=float, default=0.0, help="stop after this long (default: until Ctrl-C)")
     ctl.set_defaults(handler=_sim_controller)
+    tui = sub.add_parser("tui", help="sweep a drive on the bench in the terminal UI")
+    tui.add_argument("config", help="TOML bench file")
+    tui.add_argument("--out", default=None, help="results directory (default: results/<config stem>)")
+    tui.set_defaults(handler=_tui)
+    cal = sub.add_parser("calibrate", help="compute the friction link's calibration curves (identify's procedure)")
+    cal.add_argument("--out", default=None, help="output file (default: the table shipped in the package)")
+    cal.add_argument("--jobs", type=int, default=None,
+                     help="worker processes (default: all cores; 1 runs in this process)")
+    cal.set_defaults(handler=_calibrate)
+    ident = sub.add_parser("identify", help="identify the friction link (F_ct, m) from a measured response")
+    ident.add_argument("results", metavar="RESULTS_DIR", help="directory holding response.csv and response.json")
+    ident.add_argument("--json", action="store_true", help="print the report as JSON")
+    ident.add_argument("--stiffness", type=float, default=None, help="K_p (default: the sidecar's plant.stiffness)")
+    ident.add_argument("--amplitude", type=float, default=None,
+                       help="A_F, force amplitude (default: the sidecar's excitation.amplitude)")
+    ident.add_argument("--harmonic", type=int, default=1, help="measured harmonic to use (default 1)")
+    ident.add_argument("--channel", default=None, help='output channel (default: "position")')
+    ident.add_argument("--fit-stiffness", action="store_true", help="let the fit adjust K_p as well")
+    ident.add_argument("--fit-damping", action="store_true", help="fit a viscous damping ratio as well")
+    ident.add_argument("--calibration", default=None, help="calibration file (default: the shipped table)")
+    ident.add_argument("--no-plot", action="store_true", help="do not write identify.png/svg")
+    ident.set_defaults(handler=_identify)
     return parser
 
 
@@ -181,6 +293,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("bodebench: interrupted; points already measured are on disk", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # output piped into a pager or head that closed early
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ from drivers.ports import CanPort, FramePort, SerialPort
 from instrument.bench_config import BenchConfig, CanConfig, SerialConfig, SimulatorConfig, build_layout
 from instrument.config import CaseConfig
 from sim.controller import ControllerTiming
+from sim.faults import FaultConfig
 from sim.serve import ControllerPort, SimulatorProcess, SimulatorSpec, serve_can
 
 SLCAN_DEFAULTS = {"sleep_after_open": 0.0}
@@ -84,7 +85,9 @@ class LinkPlan:
 
 
 def simulator_spec(case: CaseConfig, layout: Layout, *, jitter: bool = True) -> SimulatorSpec:
-    """The simulated drive of a case: [plant] behind the controller at [bench] rate and clock."""
+    """The simulated drive of a case: [plant] behind the controller at [bench] rate and clock.
+
+    jitter: with the configured jitter and faults (False: the ideal drive of the offline run)."""
     bench: BenchConfig = case.tables["bench"]
     sim: SimulatorConfig | None = case.tables.get("simulator")
     timing = ControllerTiming(bench.rate_hz, bench.clock, sim.jitter if (sim and jitter) else 0.0,
@@ -95,7 +98,9 @@ def simulator_spec(case: CaseConfig, layout: Layout, *, jitter: bool = True) -> 
     if can is not None:
         can_map = {"interface": can.interface, "channel": can.channel or "bodebench", "bitrate": can.bitrate,
                    "options": dict(can.options)}
-    return SimulatorSpec(dict(case.raw["plant"]), layout, timing, serial.framing if serial else "binary", can_map)
+    faults = FaultConfig.from_mapping(sim.faults) if sim is not None and jitter else None
+    return SimulatorSpec(dict(case.raw["plant"]), layout, timing, serial.framing if serial else "binary", can_map,
+                         faults if faults is not None and faults.any else None)
 
 
 def plan_link(case: CaseConfig, source: str | Path, *, direct: bool = False) -> LinkPlan:

@@ -121,7 +121,9 @@ class BenchSession:
     """A sweep of ``case`` on the drive ``plan`` reaches; points go to ``out_dir`` (None: memory only)."""
 
     def __init__(self, case: CaseConfig, plan: LinkPlan, out_dir: Path | None = None,
-                 listener: Listener | None = None, worker_mode: str | None = None) -> None:
+                 listener: Listener | None = None, worker_mode: str | None = None,
+                 resume: FrequencyResponse | None = None) -> None:
+        """resume: points of an interrupted sweep of the same case; their frequencies are not measured again."""
         self.case = case
         self.plan = plan
         self.out_dir = out_dir
@@ -132,7 +134,7 @@ class BenchSession:
         self.worker_mode = worker_mode or (bench.worker if bench.worker != "auto" else
                                            ("thread" if bench.clock == "lockstep" else "process"))
         self.controls = _Controls()
-        self.response = FrequencyResponse(config=case.raw, case=case.name)
+        self.response = FrequencyResponse(resume.points if resume else (), config=case.raw, case=case.name)
         self.period = 1.0 / bench.rate_hz
         self.last_health: Health | None = None
 
@@ -160,7 +162,7 @@ class BenchSession:
                         {k: (float(v[0]), float(v[1])) for k, v in safety.feedback_limits.items()},
                         safety.watchdog_s)
         return WorkerSpec(self.plan.open_link, self.bench.rate_hz, self.bench.clock, self.bench.timebase, limits,
-                          batch_s=self.bench.batch_ms / 1000.0)
+                          batch_s=self.bench.batch_ms / 1000.0, reply_timeout_s=self.bench.reply_timeout_s)
 
     def run(self) -> SessionResult:
         """Run the whole sweep; never leaves the drive moving. Raises SessionError after a trip (points kept)."""
@@ -173,7 +175,8 @@ class BenchSession:
             ready = self._expect(Ready, timeout=60.0)
             self.channels = ready.channels
             self.listener(SessionStarted(self.case.excitation.frequencies_hz, ready.channels, self.plan.where))
-            queue = list(self.case.excitation.frequencies_hz)
+            done = completed_frequencies(self.response, self.bench.output_channels, self.analysis.harmonics)
+            queue = [f for f in self.case.excitation.frequencies_hz if f not in done]
             index = 0
             while queue or self.controls.remeasure:
                 f = self.controls.remeasure.pop(0) if self.controls.remeasure else queue.pop(0)
@@ -319,3 +322,13 @@ def _scope(chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]], f: float
     t = np.concatenate([c[0] for c in chunks])
     keep = t >= t[-1] - 2.0 / f
     return (t[keep], np.concatenate([c[1] for c in chunks])[keep], np.concatenate([c[2] for c in chunks])[keep])
+
+
+def completed_frequencies(response: FrequencyResponse, channels: tuple[str, ...],
+                          harmonics: tuple[int, ...]) -> set[float]:
+    """Frequencies at which every (channel, harmonic) point of a sweep is present."""
+    have: dict[float, set[tuple[str, int]]] = {}
+    for p in response.points:
+        have.setdefault(p.frequency_hz, set()).add((p.channel, p.harmonic))
+    need = {(c, k) for c in channels for k in harmonics}
+    return {f for f, got in have.items() if need <= got}

@@ -23,8 +23,10 @@ from typing import Mapping
 
 import numpy as np
 
+from drivers.errors import LayoutError
 from drivers.layout import Layout, Message
 from drivers.ports import Frame, FramePort
+from sim.faults import ValueFaults
 from sim.plants import Plant
 
 SETPOINT_ECHO = "setpoint_echo"
@@ -64,8 +66,10 @@ class SimulatedController:
     enable frame), the plant gets a zero setpoint.
     """
 
-    def __init__(self, plant: Plant, layout: Layout, timing: ControllerTiming) -> None:
+    def __init__(self, plant: Plant, layout: Layout, timing: ControllerTiming,
+                 faults: ValueFaults | None = None) -> None:
         self.plant = plant
+        self.faults = faults
         self.layout = layout
         self.timing = timing
         self.period = 1.0 / timing.rate_hz
@@ -74,6 +78,8 @@ class SimulatedController:
                 raise ValueError(f"feedback channel {name!r} is not an output of the plant "
                                  f"({', '.join(plant.output_names)}) nor {SETPOINT_ECHO!r}")
         self._sources = [(m, [(name, self._source(name)) for name in m.signal_names]) for m in layout.feedback]
+        self._counter_modulus = layout.counter_modulus or 1  # looked up once: every sample needs them
+        self._timestamp_modulus = layout.timestamp_modulus or 1 << 32
         self.state = plant.initial_state()
         self.tick_count = 0      # control periods stepped
         self.time = 0.0          # controller time at the last sample (s)
@@ -130,23 +136,33 @@ class SimulatedController:
         y = self.plant.run_held(self.state, self._u, dt)[0]
         self.time += dt
         self.tick_count += 1
+        if self.faults is not None:
+            if self.faults.silent(self.time):
+                return []
+            if self.faults.bus_off(self.time):
+                return [Frame(0, b"", False, time.time(), is_error=True)]
         return self._feedback(y)
 
     def _feedback(self, y: np.ndarray) -> list[Frame]:
         frames = []
-        timestamp_us = int(round(self.time * 1e6)) % (self.layout.timestamp_modulus or 1 << 32)
+        timestamp_us = int(round(self.time * 1e6)) % self._timestamp_modulus
+        faults = self.faults
+        counter = self.tick_count if faults is None else faults.counter(self.tick_count)
         for message, sources in self._sources:
             values: dict[str, float] = {}
             for name, index in sources:
                 if name == "counter":
-                    values[name] = self.tick_count % self.layout.counter_modulus
+                    values[name] = counter % self._counter_modulus
                 elif name == "timestamp_us":
                     values[name] = timestamp_us
-                elif index >= 0:
-                    values[name] = float(y[index])
                 else:
-                    values[name] = self.applied
-            frames.append(Frame(message.id, message.encode(values), message.extended, time.time()))
+                    value = float(y[index]) if index >= 0 else self.applied
+                    values[name] = value if faults is None else faults.value(name, value, self.time)
+            try:
+                payload = message.encode(values)
+            except LayoutError:  # a value its integer signal cannot carry: the drive sends its saturated raw value
+                payload = message.encode({k: _saturate(message, k, v) for k, v in values.items()})
+            frames.append(Frame(message.id, payload, message.extended, time.time()))
         return frames
 
     def serve(self, port: FramePort, stop: threading.Event, poll_s: float = 0.05) -> None:
@@ -169,3 +185,17 @@ class SimulatedController:
             next_tick += self.period
             if time.perf_counter() - next_tick > 100 * self.period:  # fell far behind (suspended): resume now
                 next_tick = time.perf_counter() + self.period
+
+
+def _saturate(message: Message, name: str, value: float) -> float:
+    """The nearest value an integer signal can carry (NaN reads 0), as a drive's firmware would clamp it."""
+    signal = message.signal(name) if hasattr(message, "signal") else None
+    limits = signal.raw_range if signal is not None else None
+    if limits is None:
+        return value
+    if math.isnan(value):
+        return 0.0
+    lo = limits[0] * signal.scale + signal.offset
+    hi = limits[1] * signal.scale + signal.offset
+    lo, hi = min(lo, hi), max(lo, hi)
+    return min(max(value, lo), hi)

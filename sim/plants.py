@@ -21,7 +21,6 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
 
 from sim import _kernels
 
@@ -122,7 +121,7 @@ class LinearPlant(Plant):
         if phi is None:
             if len(self._cache) >= _CACHE_SIZE:
                 self._cache.clear()
-            phi = self._cache[key] = expm(_exosystem_matrix(self.a, self.b, amplitude, omega) * h)
+            phi = self._cache[key] = _kernels.expm_small(_exosystem_matrix(self.a, self.b, amplitude, omega) * h)
         out = np.empty((n_steps, self.c.shape[0]))
         _kernels.lti_run(phi, z, n_steps, held, self._c_aug, out)
         state.x[:] = z[: self.a.shape[0]]
@@ -212,7 +211,7 @@ class CoulombOscillator(Plant):
             m_fwd = _exosystem_matrix(self._a, self._b, amplitude, omega, np.array([0.0, -fric]))
             m_bwd = _exosystem_matrix(self._a, self._b, amplitude, omega, np.array([0.0, fric]))
             sub = _substeps(m_fwd[:4, :4], h)
-            found = (m_fwd, m_bwd, expm(m_fwd * (h / sub)), expm(m_bwd * (h / sub)), sub)
+            found = (m_fwd, m_bwd, _kernels.expm_small(m_fwd * (h / sub)), _kernels.expm_small(m_bwd * (h / sub)), sub)
             if len(self._cache) >= _CACHE_SIZE:
                 self._cache.clear()
             self._cache[key] = found

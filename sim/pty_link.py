@@ -104,6 +104,8 @@ class SlcanAdapterPort(FramePort):
         self.is_open = False
 
     def _send(self, frame: Frame) -> None:
+        if frame.is_error:  # the SLCAN protocol carries no error frames
+            return
         ident = f"T{frame.id:08X}" if frame.extended else f"t{frame.id:03X}"
         self._stream.write(f"{ident}{len(frame.data)}{bytes(frame.data).hex().upper()}\r".encode())
 

@@ -17,6 +17,7 @@ from typing import Any, Mapping
 from drivers.layout import Layout
 from drivers.ports import CanPort, Frame, FramePort, SerialPort
 from sim.controller import ControllerTiming, SimulatedController
+from sim.faults import FaultConfig, FaultyPort, ValueFaults
 from sim.plants import plant_from_config
 from sim.pty_link import FdStream, Pty, SlcanAdapterPort
 
@@ -32,10 +33,18 @@ class SimulatorSpec:
     timing: ControllerTiming
     framing: str = "binary"  # serial transport only
     can: Mapping[str, Any] = field(default_factory=dict)  # interface, channel, bitrate, options (CAN buses)
+    faults: FaultConfig | None = None
 
     def controller(self) -> SimulatedController:
         params = dict(self.plant)
-        return SimulatedController(plant_from_config(params.pop("model"), **params), self.layout, self.timing)
+        return SimulatedController(plant_from_config(params.pop("model"), **params), self.layout, self.timing,
+                                   ValueFaults(self.faults) if self.faults is not None else None)
+
+    def wire(self, port: FramePort, raw_write: Any = None) -> FramePort:
+        """The port the controller serves on, with the configured frame faults."""
+        if self.faults is None:
+            return port
+        return FaultyPort(port, self.faults, {m.id for m in self.layout.feedback}, raw_write)
 
 
 class ControllerPort(FramePort):
@@ -91,20 +100,21 @@ def serve_can(spec: SimulatorSpec) -> Serving:
     """Serve on a python-can bus opened from ``spec.can`` (for ``virtual``: in this process)."""
     can = dict(spec.can)
     port = CanPort.open(can["interface"], can.get("channel"), can.get("bitrate"), can.get("options", {}))
-    return Serving(spec.controller(), port)
+    return Serving(spec.controller(), spec.wire(port))
 
 
 def serve_serial_pty(spec: SimulatorSpec) -> tuple[Serving, str]:
     """Serve the serial protocol on a new pseudo-terminal; returns the tty path the instrument opens."""
     pty = Pty()
-    port = SerialPort(FdStream(pty.master), spec.framing, spec.layout)
-    return Serving(spec.controller(), port, [pty]), pty.path
+    stream = FdStream(pty.master)
+    port = SerialPort(stream, spec.framing, spec.layout)
+    return Serving(spec.controller(), spec.wire(port, stream.write), [pty]), pty.path
 
 
 def serve_slcan_pty(spec: SimulatorSpec) -> tuple[Serving, str]:
     """Pose as an SLCAN adapter on a new pseudo-terminal; returns the path for python-can's ``slcan`` interface."""
     pty = Pty()
-    return Serving(spec.controller(), SlcanAdapterPort(pty.master), [pty]), pty.path
+    return Serving(spec.controller(), spec.wire(SlcanAdapterPort(pty.master)), [pty]), pty.path
 
 
 class SimulatorStartError(RuntimeError):

@@ -9,19 +9,18 @@ from __future__ import annotations
 
 import copy
 import math
-import threading
 from pathlib import Path
 from typing import Any
 
-import can
 import numpy as np
 import pytest
 
-from drivers.layout import default_layout
 from instrument.config import parse_config
 from instrument.links import plan_link
 from instrument.response import FrequencyResponse
 from instrument.session import BenchSession, PointProgress, SessionError
+
+from helpers import BusRecorder
 
 FREQS = [3.0, 8.0, 20.0]
 
@@ -112,37 +111,6 @@ def test_jittered_sampling_with_timestamps_agrees(offline_serial: FrequencyRespo
                            simulator={"jitter": 0.05, "seed": 11},
                            analysis={"harmonics": [1], "tolerance_percent": 0.05}))
     compare(session.response, offline_serial, 0.05, 0.2)
-
-
-class BusRecorder:
-    """A third node on the virtual bus that records every setpoint and enable/disable frame."""
-
-    def __init__(self, channel: str) -> None:
-        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        self.layout = default_layout()
-        self.frames: list[can.Message] = []
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while not self.stop.is_set():
-            msg = self.bus.recv(0.05)
-            if msg is not None:
-                self.frames.append(msg)
-
-    def close(self) -> tuple[float, bool]:
-        """(last setpoint sent, whether a disable frame followed it)."""
-        self.stop.set()
-        self.thread.join()
-        self.bus.shutdown()
-        sp, dis = self.layout.setpoint, self.layout.disable
-        setpoints = [i for i, m in enumerate(self.frames) if m.arbitration_id == sp.id]
-        last = setpoints[-1]
-        value = sp.decode(bytes(self.frames[last].data))["setpoint"]
-        disabled = any(m.arbitration_id == dis.id and bytes(m.data) == bytes(dis.data)
-                       for m in self.frames[last:])
-        return value, disabled
 
 
 def test_abort_leaves_zero_setpoint_and_disable_on_the_bus(tmp_path: Path) -> None:

@@ -1,0 +1,763 @@
+"""The terminal UI of a bench session (``bodebench tui CONFIG``).
+
+The sweep runs in a Textual thread worker; its listener (:class:`~instrument.tui.bridge.SessionBridge`)
+queues rare events as messages and leaves the frequent ones for a refresh timer, so the measurement never
+waits on the screen. Every way out of the app (q, Ctrl+Q, an error) aborts a running sweep and joins its
+thread first: the session leaves the drive at setpoint zero, disabled.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+import traceback
+from dataclasses import dataclass, field, replace
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+from rich.text import Text
+from textual.app import App, ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical
+from textual.widget import Widget
+from textual.widgets import Static
+
+from instrument.bus_worker import Health
+from instrument.config import CaseConfig, ExperimentConfig
+from instrument.response import CSV_NAME, FrequencyResponse, ResponsePoint, ResultsError
+from instrument.session import (BenchSession, PointFinished, PointStarted, SessionEnded, SessionError,
+                                SessionFault, SessionStarted)
+from instrument.tui.bridge import CaseBegins, CaseSaved, SessionBridge, SessionEvent, WorkerReport
+from instrument.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
+from instrument.tui.model import BusRates, SweepModel, format_duration
+from instrument.tui.widgets import (STATE_STYLES, AbortLabel, BenchFooter, BodePanel, BusPanel, LivePanel, SweepPanel,
+                                    SweepTable, bus_summary)
+
+VIEWS = ("live", "sweep", "bode", "bus")
+VIEW_TITLES = {"live": "Live", "sweep": "Sweep", "bode": "Bode", "bus": "Bus"}
+JOIN_TIMEOUT_S = 30.0
+
+
+def case_directory(config: ExperimentConfig, out: Path, case: CaseConfig) -> Path:
+    """Where a case's results go: ``out`` itself, or ``out/<case>`` for a config with [cases]."""
+    return out / case.name if config.has_cases else out
+
+
+def load_results(path: Path) -> list[tuple[str, FrequencyResponse]]:
+    """Responses in ``path`` (a results directory, or a directory of them): [(label, response)].
+    Raises ResultsError naming the path when there is none or a file is bad."""
+    if not path.is_dir():
+        raise ResultsError(f"{path}: not a directory")
+    if (path / CSV_NAME).exists():
+        response = FrequencyResponse.load(path)
+        return [(response.case or path.name, response)]
+    found = []
+    for sub in sorted(p for p in path.iterdir() if p.is_dir() and (p / CSV_NAME).exists()):
+        response = FrequencyResponse.load(sub)
+        found.append((f"{path.name}/{sub.name}", response))
+    if not found:
+        raise ResultsError(f"{path}: no {CSV_NAME} here or in its sub-directories")
+    return found
+
+
+def _merge(base: FrequencyResponse, new: list[ResponsePoint], frequency_hz: float) -> FrequencyResponse:
+    """``base`` with its points at ``frequency_hz`` replaced by ``new`` (in their place)."""
+    out: list[ResponsePoint] = []
+    inserted = False
+    for p in base.points:
+        if math.isclose(p.frequency_hz, frequency_hz, rel_tol=1e-9):
+            if not inserted:
+                out.extend(new)
+                inserted = True
+        else:
+            out.append(p)
+    if not inserted:
+        out.extend(new)
+    return FrequencyResponse(out, config=base.config, case=base.case)
+
+
+def _latest_points(response: FrequencyResponse) -> FrequencyResponse:
+    """``response`` keeping only the latest point of each (frequency, harmonic, channel), in first-seen order
+    (a frequency re-measured during the sweep appears once)."""
+    latest: dict[tuple[float, int, str], ResponsePoint] = {}
+    for p in response.points:
+        latest[(p.frequency_hz, p.harmonic, p.channel)] = p
+    return FrequencyResponse(latest.values(), config=response.config, case=response.case)
+
+
+@dataclass
+class RunControl:
+    """Shared between the UI and one session thread: requests made before the session exists are applied
+    when it starts. Plain attributes, each written by one side."""
+
+    run: int
+    abort: bool = False
+    paused: bool = False
+    session: BenchSession | None = None
+    done: threading.Event = field(default_factory=threading.Event)
+    session_s: float = math.nan          # wall time of the last session.run(), s
+    health: Health | None = None         # its last bus health
+
+
+class BodeBenchApp(App[int]):
+    """Sweep the cases of a bench config (``config``), writing results under ``out``."""
+
+    TITLE = "bodebench"
+    ENABLE_COMMAND_PALETTE = False
+    HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-wide")]
+    VERTICAL_BREAKPOINTS = [(0, "-short"), (34, "-tall")]
+    CSS = """
+    #status { height: 1; }
+    #status-text { width: 1fr; height: 1; }
+    #viewbar { height: 1; }
+    #viewbar-views { width: auto; height: 1; }
+    #viewbar-bus { width: 1fr; height: 1; text-align: right; }
+    #panels { height: 1fr; }
+    .view { display: none; height: 1fr; }
+    .view.-current { display: block; }
+    BusPanel { padding: 0 1; }
+    Screen.-wide.-tall #viewbar { display: none; }
+    Screen.-wide.-tall #panels { layout: grid; grid-size: 2 2; grid-columns: 1fr 1fr; grid-rows: 3fr 2fr; }
+    Screen.-wide.-tall .view { display: block; border: round $primary-darken-2; }
+    """
+    BINDINGS = [
+        Binding("a", "abort", "ABORT"),
+        Binding("s", "start", "start"),
+        Binding("p", "pause", "pause"),
+        Binding("n", "skip", "skip"),
+        Binding("r", "remeasure", "redo"),
+        Binding("t", "tolerance", "tol"),
+        Binding("w", "save", "save"),
+        Binding("o", "open", "open"),
+        Binding("q", "quit", "quit"),
+        Binding("1", "view('live')", "live", show=False),
+        Binding("2", "view('sweep')", "sweep", show=False),
+        Binding("3", "view('bode')", "bode", show=False),
+        Binding("4", "view('bus')", "bus", show=False),
+        Binding("tab", "next_view", "next view", show=False),
+    ]
+
+    def __init__(self, config: ExperimentConfig, out: Path, refresh_hz: float = 10.0) -> None:
+        super().__init__()
+        if not config.cases or config.cases[0].tables.get("bench") is None:
+            raise ValueError(f"{config.path}: not a bench config (no [bench] table)")
+        if not refresh_hz > 0:
+            raise ValueError(f"refresh_hz must be > 0, got {refresh_hz!r}")
+        # processes are spawned from the session thread while the app has replaced sys.stderr with an object
+        # whose fileno() is -1, which multiprocessing's resource tracker cannot pass on: start it now
+        from multiprocessing import resource_tracker
+
+        resource_tracker.ensure_running()
+        self.config = config
+        self.out = Path(out)
+        self.refresh_hz = refresh_hz
+        self.case_index = 0
+        self.tolerance_percent: float | None = None   # None: as configured
+        self.view = "live"
+        self.overlays: list[tuple[str, FrequencyResponse]] = []
+        self.results: dict[int, FrequencyResponse] = {}  # per case: the latest finished or loaded response
+        self.live_points: list[ResponsePoint] = []
+        self.control: RunControl | None = None
+        self._runs = 0
+        self.bridge: SessionBridge | None = None
+        self.model = self._new_model(self.case)
+        self.rates = BusRates()
+        self.health: Health | None = None
+        self._health_seen: float | None = None
+        self.bus_rates = (math.nan, math.nan)
+        self.where = ""
+        self.watchdog = "off"
+        self.last_fault: SessionFault | None = None
+        self.last_ended: SessionEnded | None = None
+        self.state = "idle"
+        self._bode_dirty = True
+        self._live_dirty = False
+        self._max_index = -1
+        self._quitting = False
+        self._scope_index: int | None = None
+        self.worker_errors: list[str] = []
+        self._status_text = Text()
+        self._bindings_running = False
+
+    # ------------------------------------------------------------------------------------------ structure
+    @property
+    def case(self) -> CaseConfig:
+        return self.config.cases[self.case_index]
+
+    @property
+    def running(self) -> bool:
+        return self.control is not None and not self.control.done.is_set()
+
+    def _new_model(self, case: CaseConfig, frequencies: tuple[float, ...] | None = None) -> SweepModel:
+        bench = case.tables["bench"]
+        return SweepModel(frequencies or case.excitation.frequencies_hz, case.analysis.harmonics,
+                          bench.output_channels)
+
+    def compose(self) -> ComposeResult:
+        self.w_status = Static("", id="status-text")
+        self.w_abort = AbortLabel(" ABORT  a ", id="abort-label", classes="-idle")
+        self.w_views = Static("", id="viewbar-views")
+        self.w_bus_line = Static("", id="viewbar-bus")
+        self.w_live = LivePanel(id="live", classes="view -current")
+        self.w_bode = BodePanel(id="bode", classes="view")
+        self.w_sweep = SweepPanel(id="sweep", classes="view")
+        self.w_bus = BusPanel(id="bus", classes="view")
+        self.w_table = SweepTable(id="sweep-table")
+        self.w_sweep.table = self.w_table
+        with Horizontal(id="status"):
+            yield self.w_status
+            yield self.w_abort
+        with Horizontal(id="viewbar"):
+            yield self.w_views
+            yield self.w_bus_line
+        with Vertical(id="panels"):
+            yield self.w_live
+            yield self.w_bode
+            yield self.w_sweep
+            yield self.w_bus
+        yield BenchFooter()
+
+    def _sync_bindings(self) -> None:
+        """Refresh the footer's keys when what they can do has changed (a footer rebuild is not free)."""
+        if self.running != self._bindings_running:
+            self._bindings_running = self.running
+            self.refresh_bindings()
+
+    def _panels(self) -> dict[str, Widget]:
+        return {"live": self.w_live, "sweep": self.w_sweep, "bode": self.w_bode, "bus": self.w_bus}
+
+    def on_mount(self) -> None:
+        for view in VIEWS:
+            self._panels()[view].border_title = VIEW_TITLES[view]
+        self._load_previous()
+        self.w_table.fill(self.model.rows)
+        self.model.take_changed()
+        self._show_views()
+        self._refresh_status()
+        self._refresh_bus(force=True)
+        self._refresh_bode()
+        self.set_interval(1.0 / self.refresh_hz, self._tick)
+
+    def _load_previous(self) -> None:
+        """Show the results already in the out directory (a finished sweep) for every case that has them."""
+        for i, case in enumerate(self.config.cases):
+            directory = case_directory(self.config, self.out, case)
+            if not (directory / CSV_NAME).exists():
+                continue
+            try:
+                self.results[i] = FrequencyResponse.load(directory)
+            except ResultsError as exc:
+                self.notify(f"previous results not shown: {exc}", severity="warning", timeout=8)
+        if 0 in self.results:
+            self.model.load_points(self.results[0].points)
+            self.live_points = list(self.results[0].points)
+            self.state = "loaded"
+
+    # --------------------------------------------------------------------------------------------- actions
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        running = self.running
+        if action in ("abort", "pause", "skip"):
+            return True if running else None
+        if action == "start":
+            return None if running else True
+        return True
+
+    def action_view(self, view: str) -> None:
+        if view in VIEWS:
+            self.view = view
+            self._show_views()
+
+    def action_next_view(self) -> None:
+        self.action_view(VIEWS[(VIEWS.index(self.view) + 1) % len(VIEWS)])
+
+    def action_start(self) -> None:
+        if self.running:
+            self.notify("a sweep is already running", severity="warning")
+            return
+        existing = [case_directory(self.config, self.out, c) for c in self.config.cases]
+        existing = [d for d in existing if (d / CSV_NAME).exists()]
+        if not existing:
+            self._launch(None)
+            return
+
+        def answered(yes: bool | None) -> None:
+            if yes:
+                self._launch(None)
+
+        self.push_screen(ConfirmDialog(f"Start a new sweep? It replaces the results in "
+                                       f"{', '.join(str(d) for d in existing)}.", "Start"), answered)
+
+    def action_abort(self) -> None:
+        control = self.control
+        if control is None or control.done.is_set():
+            self.notify("no sweep running")
+            return
+        control.abort = True
+        session = control.session
+        if session is not None:
+            session.request_abort()
+        self.state = "aborting"
+        self._refresh_status()
+
+    def action_pause(self) -> None:
+        control = self.control
+        if not self.running or control is None:
+            return
+        control.paused = not control.paused
+        if control.session is not None:
+            control.session.set_paused(control.paused)
+        self.state = "paused" if control.paused else "running"
+        self._refresh_status()
+
+    def action_skip(self) -> None:
+        control = self.control
+        if not self.running or control is None or control.session is None:
+            return
+        control.session.request_skip()
+        self.notify("skipping the current point")
+
+    def action_remeasure(self) -> None:
+        key = self.w_table.selected_key()
+        if key is None:
+            return
+        row = self.model.rows[key]
+        control = self.control
+        if self.running and control is not None:
+            if control.session is None:
+                self.notify("the session is still starting", severity="warning")
+                return
+            control.session.request_remeasure(row.frequency_hz)
+            self.notify(f"{row.frequency_hz:g} Hz will be measured again next")
+            return
+        if self.case_index not in self.results:
+            self.notify("nothing measured yet to re-measure into: start a sweep (s)", severity="warning")
+            return
+        self._launch(row.frequency_hz)
+
+    def action_tolerance(self) -> None:
+        current = self.tolerance_percent if self.tolerance_percent is not None else self.case.analysis.tolerance_percent
+
+        def check(text: str) -> str | None:
+            try:
+                value = float(text)
+            except ValueError:
+                return f"not a number: {text!r}"
+            if not (math.isfinite(value) and 0.0 < value < 100.0):
+                return f"the tolerance must be between 0 and 100 %, got {text}"
+            return None
+
+        def done(text: str | None) -> None:
+            if text is None:
+                return
+            self.tolerance_percent = float(text)
+            control = self.control
+            if self.running and control is not None and control.session is not None:
+                control.session.set_tolerance(self.tolerance_percent)
+            self.notify(f"tolerance {self.tolerance_percent:g} % for the points not yet started")
+            self._refresh_status()
+
+        self.push_screen(InputDialog("Tolerance for the next points (%)", f"{current:g}", check), done)
+
+    def action_save(self) -> None:
+        response = self._current_response()
+        if response is None or not len(response):
+            self.notify("no points to save yet", severity="warning")
+            return
+        directory = case_directory(self.config, self.out, self.case)
+        self.run_worker(partial(self._save_thread, response, directory), thread=True, exit_on_error=False,
+                        group="save")
+
+    def _save_thread(self, response: FrequencyResponse, directory: Path) -> None:
+        from instrument.experiment import write_case
+
+        try:
+            files = write_case(response, directory)
+        except Exception as exc:  # noqa: BLE001 - reported to the user, never fatal
+            self.call_from_thread(self.notify, f"saving failed: {type(exc).__name__}: {exc}", severity="error",
+                                  timeout=10)
+            return
+        self.call_from_thread(self.notify, f"saved {len(response)} points and "
+                                           f"{', '.join(f.name for f in files)} to {directory}")
+
+    def action_open(self) -> None:
+        def check(text: str) -> str | None:
+            if not text:
+                return "enter a results directory"
+            try:
+                self._pending_open = load_results(Path(text).expanduser())
+            except ResultsError as exc:
+                return str(exc)
+            return None
+
+        def done(text: str | None) -> None:
+            if text is None:
+                return
+            loaded = getattr(self, "_pending_open", [])
+            labels = {label for label, _ in self.overlays}
+            for label, response in loaded:
+                unique, n = label, 2
+                while unique in labels:
+                    unique, n = f"{label} ({n})", n + 1
+                labels.add(unique)
+                self.overlays.append((unique, response))
+            self.notify(f"overlaid {', '.join(label for label, _ in loaded)}")
+            self._bode_dirty = True
+            self._refresh_bode()
+            if self.view not in ("bode",):
+                self.action_view("bode")
+
+        self.push_screen(InputDialog("Open a results directory to overlay on the Bode plot", str(self.out.parent),
+                                     check, placeholder="path/to/results"), done)
+
+    async def action_quit(self) -> None:
+        if self._quitting:
+            return
+        if not self.running:
+            self._quitting = True
+            self.exit(0)
+            return
+
+        def answered(yes: bool | None) -> None:
+            if yes:
+                self._quitting = True
+                self.action_abort()
+                self.notify("aborting the sweep before quitting ...")
+                self.set_timer(JOIN_TIMEOUT_S, lambda: self.exit(1))
+
+        self.push_screen(ConfirmDialog("A sweep is running. Abort it (setpoint to zero, drive disabled) and "
+                                       "quit?", "Abort and quit"), answered)
+
+    # ------------------------------------------------------------------------------------------ the session
+    def _launch(self, frequency_hz: float | None) -> None:
+        """Start a sweep of every case (``frequency_hz``: re-measure that frequency of the current case)."""
+        self._runs += 1
+        control = RunControl(self._runs)
+        bridge = SessionBridge(self.post_message, control.run)
+        self.control, self.bridge = control, bridge
+        self.last_fault = self.last_ended = None
+        self.state = "starting"
+        self.worker_errors = []
+        self._max_index = -1
+        self.rates.reset()
+        if frequency_hz is None:
+            self.case_index = 0
+        cases = [self.case] if frequency_hz is not None else list(self.config.cases)
+        first = self.case_index
+        self.run_worker(partial(self._session_thread, control, bridge, cases, first, frequency_hz), thread=True,
+                        exit_on_error=False, group="session", name=f"session {control.run}")
+        self._sync_bindings()
+        self._refresh_status()
+
+    @staticmethod
+    def worker_mode(case: CaseConfig) -> str:
+        """Where the bus worker runs: as the config says, else its own process even on the lockstep clock, so
+        that the UI's share of the interpreter never delays the lockstep exchange with the drive."""
+        worker = case.tables["bench"].worker
+        return "process" if worker == "auto" else worker
+
+    def _prepare(self, case: CaseConfig) -> CaseConfig:
+        if self.tolerance_percent is None:
+            return case
+        raw = {**case.raw, "analysis": {**case.raw.get("analysis", {}), "tolerance_percent": self.tolerance_percent}}
+        return replace(case, analysis=replace(case.analysis, tolerance_percent=self.tolerance_percent), raw=raw)
+
+    def _session_thread(self, control: RunControl, bridge: SessionBridge, cases: list[CaseConfig], first: int,
+                        frequency_hz: float | None) -> None:
+        """The worker: sweep the cases in turn (own thread; talks to the UI only through messages)."""
+        from instrument.experiment import write_case
+        from instrument.links import plan_link
+
+        completed, error, saved = False, "", ""
+        merged: FrequencyResponse | None = None
+        try:
+            for offset, case in enumerate(cases):
+                if control.abort:
+                    error = "abort: aborted by the user"
+                    break
+                index = first + offset
+                case = self._prepare(case)
+                if frequency_hz is not None:
+                    case = replace(case, excitation=replace(case.excitation, frequencies_hz=(frequency_hz,)))
+                directory = case_directory(self.config, self.out, case)
+                self.post_message(SessionEvent(CaseBegins(index, frequency_hz), control.run))
+                plan = plan_link(case, self.config.path)
+                session = BenchSession(case, plan, None if frequency_hz is not None else directory, bridge,
+                                       worker_mode=self.worker_mode(case))
+                control.session = session
+                if control.paused:
+                    session.set_paused(True)
+                if self.tolerance_percent is not None:
+                    session.set_tolerance(self.tolerance_percent)
+                if control.abort:
+                    session.request_abort()
+                started = time.perf_counter()
+                try:
+                    result = session.run()
+                except SessionError as exc:
+                    error = str(exc)
+                    if session.response.points and frequency_hz is None:
+                        write_case(session.response, directory)
+                        saved = str(directory)
+                    break
+                finally:
+                    control.session_s = time.perf_counter() - started
+                    control.health = session.last_health
+                if frequency_hz is not None:
+                    base = self.results.get(index) or FrequencyResponse(config=case.raw, case=case.name)
+                    merged = _merge(base, list(result.response.points), frequency_hz)
+                    write_case(merged, directory)
+                else:
+                    merged = _latest_points(result.response)
+                    write_case(merged, directory)
+                saved = str(directory)
+                self.post_message(SessionEvent(CaseSaved(index, merged), control.run))
+            else:
+                completed = True
+        except Exception as exc:  # noqa: BLE001 - whatever happens is shown, never a traceback on screen
+            error = f"{type(exc).__name__}: {exc}"
+            self.worker_errors.append(traceback.format_exc())
+        finally:
+            control.done.set()
+            self.post_message(WorkerReport(control.run, completed, error, saved))
+
+    # ------------------------------------------------------------------------------------- session messages
+    def on_session_event(self, message: SessionEvent) -> None:
+        if self.control is None or message.run != self.control.run:
+            return
+        self._drain()
+        event = message.event
+        now = time.monotonic()
+        if isinstance(event, CaseBegins):
+            self.case_index = event.index
+            if event.frequency_hz is None:
+                self.model = self._new_model(self.case)
+                self.w_table.fill(self.model.rows)
+                self.model.take_changed()
+                self.live_points = []
+            self._bode_dirty = True
+        elif isinstance(event, CaseSaved):
+            assert isinstance(event.response, FrequencyResponse)
+            self.results[event.index] = event.response
+            if event.index == self.case_index:
+                self.live_points = list(event.response.points)
+            self._bode_dirty = True
+        elif isinstance(event, SessionStarted):
+            self.where = event.where
+            self.watchdog = "armed"
+            self.model.session_started(now)
+            self.state = "paused" if self.control.paused else "running"
+        elif isinstance(event, PointStarted):
+            self.model.point_started(event.index, event.frequency_hz, now)
+            self._max_index = max(self._max_index, event.index)
+            self._live_dirty = True
+        elif isinstance(event, PointFinished):
+            self.model.point_finished(event.index, event.points, event.skipped, now)
+            if event.points:
+                f = event.points[0].frequency_hz
+                self.live_points = [p for p in self.live_points if not math.isclose(p.frequency_hz, f)]
+                self.live_points.extend(event.points)
+                self._bode_dirty = True
+            self._live_dirty = True
+        elif isinstance(event, SessionFault):
+            self.last_fault = event
+            if event.kind == "watchdog":
+                self.watchdog = "TRIPPED"
+            self.model.fail_current()
+        elif isinstance(event, SessionEnded):
+            self.last_ended = event
+            self.model.session_ended(now)
+            if self.watchdog != "TRIPPED":
+                self.watchdog = "off"
+        self._refresh_rows()
+        self._refresh_status()
+        self._refresh_bus(force=True)
+        self._refresh_bode()
+        self._sync_bindings()
+
+    def on_worker_report(self, message: WorkerReport) -> None:
+        if self.control is None or message.run != self.control.run:
+            return
+        self._drain()
+        if self.watchdog != "TRIPPED":
+            self.watchdog = "off"
+        self.model.session_ended(time.monotonic())
+        fault, ended = self.last_fault, self.last_ended
+        if message.completed:
+            self.state = "done"
+            self.notify(f"sweep complete: results in {message.saved}", timeout=8)
+        elif (fault is not None and fault.kind == "abort") or message.error.startswith("abort"):
+            self.state = "aborted"
+            kept = fault.kept if fault is not None else 0
+            drive = "" if ended is None else (f"drive left at setpoint {ended.last_setpoint:g}"
+                                              f"{', disabled' if ended.disabled else ''}; ")
+            where = f" in {message.saved}" if message.saved else ""
+            self.notify(f"aborted: {drive}{kept} points kept{where}", severity="warning", timeout=10)
+        else:
+            self.state = "failed"
+            lines = [message.error or "the sweep stopped"]
+            kept = fault.kept if fault is not None else len(self.live_points)
+            lines.append(f"{kept} measured points kept" + (f" in {message.saved}" if message.saved else
+                                                           " (nothing written)"))
+            if ended is not None:
+                lines.append(f"Drive left at setpoint {ended.last_setpoint:g}"
+                             f"{', disabled' if ended.disabled else ''} ({ended.reason}).")
+            self.push_screen(MessageDialog("Sweep stopped", "\n".join(lines), error=True))
+        self._refresh_rows()
+        self._refresh_status()
+        self._refresh_bus(force=True)
+        self._refresh_bode()
+        self._sync_bindings()
+        if self._quitting:
+            self.exit(0 if message.completed else 1)
+
+    # ---------------------------------------------------------------------------------------- refreshing
+    def _drain(self) -> None:
+        """Apply queued progress in order: the current point's, dropping older points' (O(queued))."""
+        bridge = self.bridge
+        if bridge is None:
+            return
+        queue = bridge.progress
+        model = self.model
+        applied = False
+        while queue:
+            item = queue[0]
+            if item.index > self._max_index:
+                break  # its PointStarted is not handled yet
+            queue.popleft()
+            if item.index == model.current_index:
+                model.progress(item.index, item.periods, item.states, item.tolerance_percent, item.criterion)
+                applied = True
+        if applied:
+            self._live_dirty = True
+
+    def _tick(self) -> None:
+        self._drain()
+        if self._live_dirty:
+            self._live_dirty = False
+            self._refresh_live()
+        self._refresh_rows()
+        self._refresh_bus()
+        self._refresh_bode()
+        self._refresh_status()
+
+    def _refresh_live(self) -> None:
+        model = self.model
+        panel = self.w_live
+        f = model.frequencies_hz[model.current] if model.current is not None else None
+        panel.show_convergence(f, model.periods, model.traces, model.tolerance_percent, model.criterion)
+        bridge = self.bridge
+        latest = bridge.latest_progress if bridge is not None else None
+        if latest is not None and latest.index == model.current_index:
+            panel.show_scope(latest.scope, self.case.tables["bench"].output_channels[0])
+        elif self._scope_index != model.current_index:
+            panel.show_scope(None, "")
+        self._scope_index = model.current_index
+
+    def _refresh_rows(self) -> None:
+        keys = self.model.take_changed()
+        if not keys:
+            return
+        table = self.w_table
+        for key in keys:
+            table.update_row(key, self.model.rows[key])
+
+    def _refresh_bus(self, force: bool = False) -> None:
+        bridge = self.bridge
+        latest = bridge.latest_health if bridge is not None else None
+        if latest is not None and latest[0] != self._health_seen:
+            self._health_seen, self.health = latest
+            bus = self.health.bus
+            self.bus_rates = self.rates.update(latest[0], bus.frames_in, bus.frames_out)
+        elif not force:
+            return
+        safety = self.case.tables["safety"]
+        watchdog_s = safety.watchdog_s if safety is not None else math.nan
+        self.w_bus.show(self.where, self.health, self.bus_rates, self.watchdog, watchdog_s)
+        self.w_bus_line.update(bus_summary(self.health, self.bus_rates))
+
+    def _current_response(self) -> FrequencyResponse | None:
+        """The current case's points: this sweep's so far (or the loaded ones, re-measured points replaced)."""
+        if not self.live_points:
+            return None
+        return FrequencyResponse(self.live_points, config=self.case.raw, case=self.case.name)
+
+    def _refresh_bode(self) -> None:
+        if not self._bode_dirty:
+            return
+        self._bode_dirty = False
+        responses: list[tuple[str, FrequencyResponse]] = []
+        current = self._current_response()
+        if current is not None and len(current):
+            responses.append((self.case.name, current))
+        for i, response in self.results.items():
+            if i != self.case_index and len(response):
+                responses.append((self.config.cases[i].name, response))
+        responses.extend(self.overlays)
+        self.w_bode.show(responses)
+
+    def _show_views(self) -> None:
+        for view in VIEWS:
+            self._panels()[view].set_class(view == self.view, "-current")
+        bar = Text()
+        for i, view in enumerate(VIEWS, start=1):
+            style = "reverse bold" if view == self.view else ""
+            bar.append(f" {i} {VIEW_TITLES[view]} ", style=style)
+        self.w_views.update(bar)
+
+    def _refresh_status(self) -> None:
+        now = time.monotonic()
+        model = self.model
+        state = self.state
+        colours = {"running": "bold green", "paused": "bold yellow", "aborting": "bold red", "aborted": "bold red",
+                   "failed": "bold red", "done": "bold green", "starting": "bold yellow"}
+        text = Text()
+        text.append(f" {state.upper()} ", style=f"reverse {colours.get(state, 'bold')}")
+        text.append(f" {self.case.name}")
+        done, total = model.done, model.total
+        width = 10
+        filled = round(width * done / total) if total else 0
+        text.append(f"  {done}/{total} ")
+        text.append("█" * filled, style="green")
+        text.append("░" * (width - filled), style="bright_black")
+        elapsed = model.elapsed(now)
+        text.append(f" {format_duration(elapsed)}")
+        text.append(f" ETA {format_duration(model.eta(now))}")
+        tol = self.tolerance_percent if self.tolerance_percent is not None else self.case.analysis.tolerance_percent
+        text.append(f"  tol {tol:g} %")
+        if text != self._status_text:
+            self._status_text = text
+            self.w_status.update(text)
+            counts: dict[str, int] = {}
+            for row in model.rows.values():
+                counts[row.state] = counts.get(row.state, 0) + 1
+            summary = Text(f"{done}/{total} frequencies  elapsed {format_duration(elapsed)}  "
+                           f"to finish {format_duration(model.eta(now))}  ")
+            for name, count in counts.items():
+                summary.append(f" {name} {count}", style=STATE_STYLES.get(name, ""))
+            self.w_sweep.progress.update(summary)
+        self.w_abort.set_class(not self.running, "-idle")
+
+    # -------------------------------------------------------------------------------------------- exit
+    def on_unmount(self) -> None:
+        """Whatever ends the app: abort a running sweep and join its thread (the drive is left at zero)."""
+        self.stop_session(JOIN_TIMEOUT_S)
+
+    def stop_session(self, timeout_s: float) -> bool:
+        """Abort a running sweep and wait up to ``timeout_s`` for its thread; True when it has ended."""
+        control = self.control
+        if control is None:
+            return True
+        if not control.done.is_set():
+            control.abort = True
+            if control.session is not None:
+                control.session.request_abort()
+        return control.done.wait(timeout_s)
+
+
+def run_tui(config: ExperimentConfig, out: Path, **options: Any) -> int:
+    """Open the UI on a bench config; returns the exit status (0: quit normally)."""
+    app = BodeBenchApp(config, out, **options)
+    status = app.run()
+    return int(status or 0)

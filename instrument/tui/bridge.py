@@ -1,0 +1,94 @@
+"""From the session's thread to the UI: a listener that never waits and Textual messages.
+
+The session calls :class:`SessionBridge` on its own thread. Rare events (a point starts or ends, a fault,
+the end) are posted at once as :class:`SessionEvent` messages (``post_message`` only queues, it is
+thread-safe). The frequent ones are coalesced for the UI's refresh timer: progress as a bounded queue of
+small per-update summaries plus the latest full event (for the scope), bus health as the latest reading.
+Every call is O(number of series) and takes no lock that the UI could hold.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from textual.message import Message
+
+from instrument.autointegration import SeriesState
+from instrument.bus_worker import Health
+from instrument.session import BusStatus, PointProgress
+
+#: progress summaries kept between two refreshes of the UI (older ones are dropped first)
+PROGRESS_BACKLOG = 4096
+
+
+class SessionEvent(Message):
+    """A session event (SessionStarted, PointStarted, PointFinished, SessionFault, SessionEnded) of run ``run``."""
+
+    def __init__(self, event: object, run: int) -> None:
+        super().__init__()
+        self.event = event
+        self.run = run
+
+
+class WorkerReport(Message):
+    """The session thread of run ``run`` has ended: ``error`` (empty when none) says what went wrong."""
+
+    def __init__(self, run: int, completed: bool, error: str, saved: str) -> None:
+        super().__init__()
+        self.run = run
+        self.completed = completed
+        self.error = error
+        self.saved = saved
+
+
+@dataclass(frozen=True)
+class CaseBegins:
+    """The session thread starts case ``index`` (``frequency_hz``: re-measuring that frequency only)."""
+
+    index: int
+    frequency_hz: float | None
+
+
+@dataclass(frozen=True)
+class CaseSaved:
+    """Case ``index`` ended and ``response`` (a FrequencyResponse) is on disk."""
+
+    index: int
+    response: object
+
+
+@dataclass(frozen=True)
+class ProgressSummary:
+    """What the convergence plot needs from one PointProgress."""
+
+    index: int
+    periods: int
+    states: tuple[SeriesState, ...]
+    tolerance_percent: float
+    criterion: str
+
+
+class SessionBridge:
+    """The session listener of one run; ``post`` queues a message to the app (thread-safe, non-blocking)."""
+
+    def __init__(self, post: Callable[[Message], object], run: int) -> None:
+        self._post = post
+        self.run = run
+        self.progress: deque[ProgressSummary] = deque(maxlen=PROGRESS_BACKLOG)
+        self.latest_progress: PointProgress | None = None
+        self.latest_health: tuple[float, Health] | None = None
+        self.calls = 0
+
+    def __call__(self, event: object) -> None:
+        self.calls += 1
+        if isinstance(event, PointProgress):
+            self.progress.append(ProgressSummary(event.index, event.periods, event.states,
+                                                 event.tolerance_percent, event.criterion))
+            self.latest_progress = event
+        elif isinstance(event, BusStatus):
+            self.latest_health = (time.monotonic(), event.health)
+        else:
+            self._post(SessionEvent(event, self.run))

@@ -1,0 +1,114 @@
+"""Modal dialogs: a yes/no question, a one-line input with validation, a message."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical
+from textual.screen import ModalScreen
+from textual.widgets import Button, Input, Static
+
+DIALOG_CSS = """
+.dialog-box { width: 70; max-width: 95%; height: auto; max-height: 90%; padding: 1 2;
+              border: thick $primary; background: $surface; }
+.dialog-box.-error { border: thick $error; }
+.dialog-title { text-style: bold; margin-bottom: 1; }
+.dialog-buttons { height: auto; margin-top: 1; align-horizontal: right; }
+.dialog-buttons Button { margin-left: 1; }
+.dialog-error { color: $error; height: auto; }
+"""
+
+
+class ConfirmDialog(ModalScreen[bool]):
+    """A question answered yes (y) or no (n, escape)."""
+
+    DEFAULT_CSS = "ConfirmDialog { align: center middle; }\n" + DIALOG_CSS
+    BINDINGS = [Binding("y", "answer(True)", "yes"), Binding("n", "answer(False)", "no"),
+                Binding("escape", "answer(False)", "no", show=False)]
+
+    def __init__(self, question: str, yes: str = "Yes") -> None:
+        super().__init__()
+        self.question = question
+        self.yes = yes
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog-box"):
+            yield Static(self.question, classes="dialog-title")
+            with Horizontal(classes="dialog-buttons"):
+                yield Button(f"{self.yes} (y)", variant="error", id="yes")
+                yield Button("No (n)", id="no")
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        self.dismiss(event.button.id == "yes")
+
+    def action_answer(self, yes: bool) -> None:
+        self.dismiss(yes)
+
+
+class InputDialog(ModalScreen["str | None"]):
+    """One line of input; ``validate`` returns an error text (shown, the dialog stays) or None to accept.
+    Escape cancels (None)."""
+
+    DEFAULT_CSS = "InputDialog { align: center middle; }\n" + DIALOG_CSS
+    BINDINGS = [Binding("escape", "cancel", "cancel", show=False)]
+
+    def __init__(self, prompt: str, value: str = "", validate: Callable[[str], str | None] | None = None,
+                 placeholder: str = "") -> None:
+        super().__init__()
+        self.prompt = prompt
+        self.value = value
+        self.validate = validate or (lambda text: None)
+        self.placeholder = placeholder
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog-box"):
+            yield Static(self.prompt, classes="dialog-title")
+            yield Input(self.value, placeholder=self.placeholder, id="dialog-input")
+            yield Static("", classes="dialog-error", id="dialog-error")
+            yield Static("enter: accept   escape: cancel", classes="dialog-hint")
+
+    def on_mount(self) -> None:
+        self.query_one(Input).focus()
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        event.stop()
+        text = event.value.strip()
+        error = self.validate(text)
+        if error:
+            self.query_one("#dialog-error", Static).update(error)
+            return
+        self.dismiss(text)
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+
+
+class MessageDialog(ModalScreen[None]):
+    """A message (an error: red border) closed with enter or escape."""
+
+    DEFAULT_CSS = "MessageDialog { align: center middle; }\n" + DIALOG_CSS
+    BINDINGS = [Binding("escape", "close", "close", show=False), Binding("enter", "close", "close", show=False)]
+
+    def __init__(self, title: str, text: str, error: bool = False) -> None:
+        super().__init__()
+        self.title_text = title
+        self.text = text
+        self.error = error
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog-box -error" if self.error else "dialog-box"):
+            yield Static(self.title_text, classes="dialog-title")
+            yield Static(self.text, id="dialog-text")
+            with Horizontal(classes="dialog-buttons"):
+                yield Button("OK", variant="primary", id="ok")
+
+    def on_mount(self) -> None:
+        self.query_one("#ok", Button).focus()
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        self.dismiss(None)
+
+    def action_close(self) -> None:
+        self.dismiss(None)

@@ -1,0 +1,304 @@
+"""What the terminal UI shows, kept apart from the widgets: sweep rows, convergence history, bus rates, ETA.
+
+Pure: session events and numbers in, plain values out (no Textual, no threads, no I/O).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from instrument.autointegration import SeriesState
+from instrument.plots import CAPPED_STATUS
+from instrument.response import ResponsePoint
+
+#: states of a row in the sweep table
+PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, FAILED, SKIPPED = (
+    "pending", "settling", "integrating", "converged", "capped", "failed", "skipped")
+ROW_STATES = (PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, FAILED, SKIPPED)
+ACTIVE_STATES = (SETTLING, INTEGRATING)
+
+
+def relative_error_percent(estimate: complex, uncertainty: float) -> float:
+    """100 * uncertainty / |estimate| (%); NaN when either is unknown or the estimate is zero."""
+    magnitude = abs(estimate)
+    if not (math.isfinite(magnitude) and math.isfinite(uncertainty)) or magnitude == 0.0:
+        return math.nan
+    return 100.0 * uncertainty / magnitude
+
+
+def periods_to_go(periods: Sequence[float], rel_error: Sequence[float], tolerance_percent: float,
+                  fit_points: int = 40) -> float | None:
+    """Periods left until the relative error reaches the tolerance, from a power law ``e = C n**b`` fitted
+    (least squares in log-log) to the last ``fit_points`` finite values; 0 when already within the tolerance;
+    None when unknown (fewer than 4 values, or the error is not falling)."""
+    n = np.asarray(periods, dtype=float)
+    e = np.asarray(rel_error, dtype=float)
+    ok = np.isfinite(n) & np.isfinite(e) & (n > 0) & (e > 0)
+    n, e = n[ok][-fit_points:], e[ok][-fit_points:]
+    if n.size == 0:
+        return None
+    if e[-1] <= tolerance_percent:
+        return 0.0
+    if n.size < 4 or np.ptp(np.log(n)) == 0.0:
+        return None
+    slope, intercept = np.polyfit(np.log(n), np.log(e), 1)
+    if not slope < -1e-3:
+        return None
+    n_reach = math.exp((math.log(tolerance_percent) - intercept) / slope)
+    if not math.isfinite(n_reach):
+        return None
+    return max(0.0, n_reach - float(n[-1]))
+
+
+def remaining_seconds(done: Sequence[tuple[float, float]], remaining_hz: Iterable[float]) -> float | None:
+    """Time to measure the frequencies ``remaining_hz`` (s), assuming a point at f takes c / f seconds with c the
+    mean of ``seconds * f`` over ``done`` = [(frequency_hz, seconds), ...]; None before any point is done."""
+    if not done:
+        return None
+    c = float(np.mean([s * f for f, s in done]))
+    return sum(c / f for f in remaining_hz)
+
+
+def format_duration(seconds: float | None) -> str:
+    """``m:ss`` (``h:mm:ss`` past an hour); ``--`` when unknown."""
+    if seconds is None or not math.isfinite(seconds) or seconds < 0:
+        return "--"
+    s = int(round(seconds))
+    h, rem = divmod(s, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
+
+
+def row_key(position: int, harmonic: int, channel: str) -> str:
+    """Key of a sweep table row (frequency position in the sweep, harmonic, channel)."""
+    return f"{position}:{harmonic}:{channel}"
+
+
+def point_state(point: ResponsePoint) -> str:
+    """converged / capped / failed for a finished point."""
+    if point.converged:
+        return CONVERGED
+    return CAPPED if point.status == CAPPED_STATUS else FAILED
+
+
+@dataclass
+class Row:
+    """One line of the sweep table: a series (harmonic x channel) at one frequency."""
+
+    frequency_hz: float
+    harmonic: int
+    channel: str
+    state: str = PENDING
+    gain_db: float = math.nan
+    phase_deg: float = math.nan
+    periods: int = 0
+
+
+@dataclass
+class SeriesTrace:
+    """Relative error (%) per update of one series of the current point."""
+
+    channel: str
+    harmonic: int
+    periods: list[int] = field(default_factory=list)
+    rel_error: list[float] = field(default_factory=list)
+    uncertainty: float = math.nan
+    estimate: complex = complex(math.nan, math.nan)
+    done: bool = False
+
+    def add(self, state: SeriesState) -> None:
+        self.uncertainty, self.estimate = state.uncertainty, state.estimate
+        self.done = state.verdict is not None
+        e = relative_error_percent(state.estimate, state.uncertainty)
+        if self.periods and state.periods == self.periods[-1]:
+            self.rel_error[-1] = e
+        elif state.periods > 0:
+            self.periods.append(state.periods)
+            self.rel_error.append(e)
+
+
+class SweepModel:
+    """Rows for every (frequency, harmonic, channel) of a sweep, the current point's convergence, and timing.
+
+    Points are found by frequency (a re-measured frequency comes back with a new event index).
+    Times are monotonic seconds supplied by the caller.
+    """
+
+    def __init__(self, frequencies_hz: Sequence[float], harmonics: Sequence[int], channels: Sequence[str]) -> None:
+        if not frequencies_hz:
+            raise ValueError("a sweep needs at least one frequency")
+        self.frequencies_hz = tuple(float(f) for f in frequencies_hz)
+        self.harmonics = tuple(harmonics)
+        self.channels = tuple(channels)
+        self.rows: dict[str, Row] = {
+            row_key(i, k, c): Row(f, k, c) for i, f in enumerate(self.frequencies_hz)
+            for k in self.harmonics for c in self.channels}
+        self.current: int | None = None        # position of the point being measured
+        self.current_index: int | None = None  # its session event index
+        self.traces: list[SeriesTrace] = []
+        self.tolerance_percent = math.nan
+        self.criterion = ""
+        self.periods = 0
+        self.started_at: float | None = None
+        self.ended_at: float | None = None
+        self._point_started: float | None = None
+        self.durations: list[tuple[float, float]] = []
+        self.finished: set[int] = set()
+        self.changed: set[str] = set(self.rows)
+
+    # --- lookups
+    def position(self, frequency_hz: float) -> int:
+        """Position of ``frequency_hz`` in the sweep; ValueError when it is not one of its frequencies."""
+        for i, f in enumerate(self.frequencies_hz):
+            if math.isclose(f, frequency_hz, rel_tol=1e-9, abs_tol=1e-12):
+                return i
+        raise ValueError(f"frequency {frequency_hz:g} Hz is not in this sweep")
+
+    def keys_at(self, position: int) -> list[str]:
+        return [row_key(position, k, c) for k in self.harmonics for c in self.channels]
+
+    def _set(self, key: str, **values: object) -> None:
+        row = self.rows.get(key)
+        if row is None:
+            return
+        for name, value in values.items():
+            setattr(row, name, value)
+        self.changed.add(key)
+
+    # --- events
+    def session_started(self, now: float) -> None:
+        self.started_at, self.ended_at = now, None
+
+    def point_started(self, index: int, frequency_hz: float, now: float) -> None:
+        position = self.position(frequency_hz)
+        self.current, self.current_index = position, index
+        self.traces = [SeriesTrace(c, k) for c in self.channels for k in self.harmonics]
+        self.periods = 0
+        self._point_started = now
+        for key in self.keys_at(position):
+            self._set(key, state=SETTLING, gain_db=math.nan, phase_deg=math.nan, periods=0)
+
+    def progress(self, index: int, periods: int, states: Sequence[SeriesState], tolerance_percent: float,
+                 criterion: str) -> None:
+        if index != self.current_index or self.current is None:
+            return
+        self.periods = periods
+        self.tolerance_percent, self.criterion = tolerance_percent, criterion
+        by_series = {(t.channel, t.harmonic): t for t in self.traces}
+        for s in states:
+            trace = by_series.get((s.channel, s.harmonic))
+            if trace is not None:
+                trace.add(s)
+            key = row_key(self.current, s.harmonic, s.channel)
+            if s.verdict is not None:
+                state = CONVERGED if s.verdict.converged else (
+                    CAPPED if s.verdict.status == CAPPED_STATUS else FAILED)
+            else:
+                state = INTEGRATING if periods > 0 else SETTLING
+            row = self.rows.get(key)
+            if row is not None and (row.state != state or row.periods != s.periods):
+                self._set(key, state=state, periods=s.periods)
+
+    def point_finished(self, index: int, points: Sequence[ResponsePoint], skipped: bool, now: float) -> None:
+        position = self.current if index == self.current_index else None
+        if position is None and points:
+            position = self.position(points[0].frequency_hz)
+        if position is None:
+            return
+        if skipped:
+            for key in self.keys_at(position):
+                self._set(key, state=SKIPPED)
+        for p in points:
+            self._set(row_key(position, p.harmonic, p.channel), state=point_state(p), gain_db=p.gain_db,
+                      phase_deg=p.phase_deg, periods=p.periods)
+        if self._point_started is not None and not skipped and position not in self.finished:
+            self.durations.append((self.frequencies_hz[position], now - self._point_started))
+        self.finished.add(position)
+        self.current = self.current_index = None
+        self._point_started = None
+
+    def fail_current(self) -> None:
+        """The sweep stopped inside a point: its unfinished rows failed."""
+        if self.current is not None:
+            for key in self.keys_at(self.current):
+                if self.rows[key].state in ACTIVE_STATES:
+                    self._set(key, state=FAILED)
+        self.current = self.current_index = None
+
+    def session_ended(self, now: float) -> None:
+        self.ended_at = now
+        self.fail_current()
+
+    def load_points(self, points: Iterable[ResponsePoint]) -> None:
+        """Fill rows from finished points (a results directory); points at other frequencies are ignored."""
+        for p in points:
+            try:
+                position = self.position(p.frequency_hz)
+            except ValueError:
+                continue
+            self._set(row_key(position, p.harmonic, p.channel), state=point_state(p), gain_db=p.gain_db,
+                      phase_deg=p.phase_deg, periods=p.periods)
+            self.finished.add(position)
+
+    # --- summaries
+    @property
+    def total(self) -> int:
+        return len(self.frequencies_hz)
+
+    @property
+    def done(self) -> int:
+        """Frequencies finished (measured or skipped)."""
+        return len(self.finished)
+
+    def elapsed(self, now: float) -> float | None:
+        if self.started_at is None:
+            return None
+        return (self.ended_at if self.ended_at is not None else now) - self.started_at
+
+    def eta(self, now: float) -> float | None:
+        """Seconds to finish the sweep: the points left (the current one counted whole, less its time so far)."""
+        if self.started_at is None or self.ended_at is not None:
+            return None
+        left = [f for i, f in enumerate(self.frequencies_hz) if i not in self.finished]
+        total = remaining_seconds(self.durations, left)
+        if total is None:
+            return None
+        if self._point_started is not None:
+            total = max(0.0, total - (now - self._point_started))
+        return total
+
+    def take_changed(self) -> list[str]:
+        """Keys of rows changed since the last call."""
+        keys = [k for k in self.rows if k in self.changed]
+        self.changed.clear()
+        return keys
+
+
+class BusRates:
+    """Frame rates from counter differences over a sliding window of ``window_s`` seconds."""
+
+    def __init__(self, window_s: float = 1.0) -> None:
+        self.window_s = window_s
+        self._samples: deque[tuple[float, int, int]] = deque()
+
+    def update(self, now: float, frames_in: int, frames_out: int) -> tuple[float, float]:
+        """Add a reading; returns (frames in per s, frames out per s), NaN until two readings span time."""
+        samples = self._samples
+        if samples and (frames_in < samples[-1][1] or frames_out < samples[-1][2]):
+            samples.clear()  # counters restarted (a new session)
+        samples.append((now, frames_in, frames_out))
+        while len(samples) > 2 and now - samples[1][0] >= self.window_s:
+            samples.popleft()
+        t0, i0, o0 = samples[0]
+        dt = now - t0
+        if dt <= 0.0:
+            return math.nan, math.nan
+        return (frames_in - i0) / dt, (frames_out - o0) / dt
+
+    def reset(self) -> None:
+        self._samples.clear()

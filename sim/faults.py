@@ -1,0 +1,194 @@
+"""Fault injection for the simulated servo controller: what broken cables, busy buses and sick drives do.
+
+Faults act where they happen on a real bench: on the feedback values the
+drive reports (a stuck or jumping counter, NaN, a sensor out of range, a drive
+that stops answering) and on the frames on the wire (dropped, duplicated,
+reordered, delayed, error frames, random bytes on a serial line). Configured
+in a bench config's ``[simulator.faults]`` table; every probability is per
+feedback frame.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import time
+from dataclasses import dataclass, fields
+from typing import Any, Mapping
+
+import numpy as np
+
+from drivers.ports import Frame, FramePort
+
+ERROR_FRAME_ID = 0x0  # error frames carry no meaningful id; python-can flags them
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    """What goes wrong, and how often (probabilities per feedback frame, times in s of controller time).
+
+    drop, duplicate, reorder: a feedback frame is not sent / sent twice / held back behind the next one.
+    delay_s, delay_jitter_s: feedback frames leave this much later (plus uniform jitter), wall clock.
+    error_frames: an error frame follows a feedback frame (CAN).
+    garbage: a burst of 1-32 random bytes precedes a frame (serial line).
+    counter_stuck_after: from this tick on the feedback counter no longer advances.
+    counter_jump_at, counter_jump_by: at this tick the counter leaps ahead by ``counter_jump_by``.
+    nan: a float channel value reads NaN (half of them +-inf).
+    out_of_range_after_s: from then on the position reads +1e6 (a broken sensor).
+    stop_after_s: from then on the drive answers nothing (cable pulled, drive crashed).
+    bus_off_after_s: from then on the drive sends only error frames (its CAN controller went bus-off).
+    seed: random seed.
+    """
+
+    drop: float = 0.0
+    duplicate: float = 0.0
+    reorder: float = 0.0
+    delay_s: float = 0.0
+    delay_jitter_s: float = 0.0
+    error_frames: float = 0.0
+    garbage: float = 0.0
+    counter_stuck_after: int = -1
+    counter_jump_at: int = -1
+    counter_jump_by: int = 0
+    nan: float = 0.0
+    out_of_range_after_s: float = -1.0
+    stop_after_s: float = -1.0
+    bus_off_after_s: float = -1.0
+    seed: int = 0
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any]) -> "FaultConfig":
+        """Build from a ``[simulator.faults]`` table; ValueError names the key at fault."""
+        known = {f.name: f for f in fields(cls)}
+        values: dict[str, Any] = {}
+        for key, value in data.items():
+            spec = known.get(key)
+            if spec is None:
+                raise ValueError(f"{key}: unknown key")
+            want = int if spec.type in ("int", int) else float
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or (want is int and
+                                                                               not isinstance(value, int)):
+                raise ValueError(f"{key}: expected {'an integer' if want is int else 'a number'}, got {value!r}")
+            if want is float and not math.isfinite(value):
+                raise ValueError(f"{key}: must be finite, got {value!r}")
+            if key in ("drop", "duplicate", "reorder", "error_frames", "garbage", "nan") and not 0 <= value <= 1:
+                raise ValueError(f"{key}: a probability in [0, 1], got {value!r}")
+            if key in ("delay_s", "delay_jitter_s") and value < 0:
+                raise ValueError(f"{key}: must be >= 0, got {value!r}")
+            values[key] = want(value)
+        return cls(**values)
+
+    @property
+    def any(self) -> bool:
+        return self != FaultConfig(seed=self.seed)
+
+
+class ValueFaults:
+    """Faults of the drive itself, applied to a sample's values before they are encoded."""
+
+    def __init__(self, config: FaultConfig) -> None:
+        self.config = config
+        self.rng = np.random.default_rng(config.seed + 1)
+
+    def silent(self, time_s: float) -> bool:
+        """The drive answers nothing (stopped) at controller time ``time_s``."""
+        c = self.config
+        return 0 <= c.stop_after_s <= time_s
+
+    def bus_off(self, time_s: float) -> bool:
+        c = self.config
+        return 0 <= c.bus_off_after_s <= time_s
+
+    def counter(self, tick: int) -> int:
+        c = self.config
+        if 0 <= c.counter_stuck_after <= tick:
+            tick = c.counter_stuck_after
+        if 0 <= c.counter_jump_at <= tick:
+            tick += c.counter_jump_by
+        return tick
+
+    def value(self, name: str, value: float, time_s: float) -> float:
+        c = self.config
+        if name == "position" and 0 <= c.out_of_range_after_s <= time_s:
+            return 1e6
+        if c.nan and self.rng.random() < c.nan:
+            return (math.nan, math.inf, -math.inf)[int(self.rng.integers(0, 3))]
+        return value
+
+
+class FaultyPort(FramePort):
+    """The drive's side of the wire with frame faults: wraps the port the controller serves on.
+
+    Only feedback frames (ids in ``feedback_ids``) are disturbed; what the host
+    sends reaches the controller unchanged.
+    """
+
+    def __init__(self, inner: FramePort, config: FaultConfig, feedback_ids: set[int],
+                 raw_write: Any = None) -> None:
+        super().__init__(f"{inner.name} (faults)", inner.transport)
+        self.inner = inner
+        self.config = config
+        self.feedback_ids = feedback_ids
+        self.raw_write = raw_write  # serial: writes bytes straight onto the line
+        self.rng = np.random.default_rng(config.seed)
+        self._held: Frame | None = None
+        self._due: list[tuple[float, int, Frame]] = []
+        self._seq = 0
+        self.injected = {"dropped": 0, "duplicated": 0, "reordered": 0, "delayed": 0, "error_frames": 0,
+                         "garbage_bursts": 0}
+
+    def _emit(self, frame: Frame) -> None:
+        c = self.config
+        if c.delay_s or c.delay_jitter_s:
+            due = time.monotonic() + c.delay_s + c.delay_jitter_s * self.rng.random()
+            self._seq += 1
+            heapq.heappush(self._due, (due, self._seq, frame))
+            self.injected["delayed"] += 1
+            return
+        self._write(frame)
+
+    def _write(self, frame: Frame) -> None:
+        c = self.config
+        if self.raw_write is not None and c.garbage and self.rng.random() < c.garbage:
+            self.raw_write(bytes(self.rng.integers(0, 256, int(self.rng.integers(1, 33)), dtype=np.uint8)))
+            self.injected["garbage_bursts"] += 1
+        self.inner.send(frame)
+        if c.error_frames and self.rng.random() < c.error_frames:
+            self.inner.send(Frame(ERROR_FRAME_ID, b"", False, 0.0, is_error=True))
+            self.injected["error_frames"] += 1
+
+    def _flush_due(self) -> None:
+        now = time.monotonic()
+        while self._due and self._due[0][0] <= now:
+            self._write(heapq.heappop(self._due)[2])
+
+    def _send(self, frame: Frame) -> None:
+        self._flush_due()
+        if frame.id not in self.feedback_ids or frame.is_error:
+            self.inner.send(frame)
+            return
+        c = self.config
+        if c.drop and self.rng.random() < c.drop:
+            self.injected["dropped"] += 1
+            return
+        if c.reorder and self._held is None and self.rng.random() < c.reorder:
+            self._held = frame
+            self.injected["reordered"] += 1
+            return
+        self._emit(frame)
+        if c.duplicate and self.rng.random() < c.duplicate:
+            self._emit(frame)
+            self.injected["duplicated"] += 1
+        if self._held is not None:
+            held, self._held = self._held, None
+            self._emit(held)
+
+    def _recv(self, timeout: float, limit: int) -> list[Frame]:
+        if self._due:
+            timeout = min(timeout, max(0.0, self._due[0][0] - time.monotonic()))
+        frames = self.inner.recv(timeout)
+        self._flush_due()
+        return frames
+
+    def _close(self) -> None:
+        self.inner.close()

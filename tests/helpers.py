@@ -1,0 +1,40 @@
+"""Helpers shared by the test modules (imported as ``helpers``: pytest puts tests/ on sys.path)."""
+
+from __future__ import annotations
+
+import threading
+
+import can
+
+from drivers.layout import default_layout
+
+
+class BusRecorder:
+    """A third node on the virtual bus that records every setpoint and enable/disable frame."""
+
+    def __init__(self, channel: str) -> None:
+        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        self.layout = default_layout()
+        self.frames: list[can.Message] = []
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            msg = self.bus.recv(0.05)
+            if msg is not None:
+                self.frames.append(msg)
+
+    def close(self) -> tuple[float, bool]:
+        """(last setpoint sent, whether a disable frame followed it)."""
+        self.stop.set()
+        self.thread.join()
+        self.bus.shutdown()
+        sp, dis = self.layout.setpoint, self.layout.disable
+        setpoints = [i for i, m in enumerate(self.frames) if m.arbitration_id == sp.id]
+        last = setpoints[-1]
+        value = sp.decode(bytes(self.frames[last].data))["setpoint"]
+        disabled = any(m.arbitration_id == dis.id and bytes(m.data) == bytes(dis.data)
+                       for m in self.frames[last:])
+        return value, disabled

@@ -1,0 +1,105 @@
+"""Crash safety: kill -9 mid-sweep, then ``bodebench run --resume``; results files are never half-written."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from instrument.response import FrequencyResponse
+
+CONFIG = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
+
+
+def command() -> list[str]:
+    exe = shutil.which("bodebench")
+    return [exe] if exe else [sys.executable, "-m", "instrument.cli"]
+
+
+def small_config(tmp_path: Path) -> Path:
+    text = CONFIG.read_text().replace("frequencies_hz = [2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 15, 20, 30, 50]",
+                                      "frequencies_hz = [3, 4, 5, 6, 8, 10, 12, 15]")
+    text = text.replace("harmonics = [1, 3]", "harmonics = [1]")
+    path = tmp_path / "bench.toml"
+    path.write_text(text)
+    return path
+
+
+def measured_rows(directory: Path) -> list[str]:
+    return (directory / "response.csv").read_text().splitlines()[1:]
+
+
+def test_kill_9_then_resume_keeps_every_converged_point(tmp_path: Path) -> None:
+    cfg = small_config(tmp_path)
+    out = tmp_path / "out"
+    run = subprocess.Popen(command() + ["run", str(cfg), "--out", str(out), "--quiet"], stdout=subprocess.DEVNULL,
+                           stderr=subprocess.PIPE, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and run.poll() is None:
+        if (out / "response.csv").exists() and len(measured_rows(out)) >= 3:
+            break
+        time.sleep(0.02)
+    assert run.poll() is None, "the sweep ended before it could be killed"
+    os.killpg(run.pid, signal.SIGKILL)
+    run.wait(timeout=30)
+    before = measured_rows(out)
+    assert len(before) >= 3
+    # the files on disk are whole: they load, every row parses, no temporary file is left as the results
+    assert len(FrequencyResponse.load(out).points) == len(before)
+
+    refused = subprocess.run(command() + ["run", str(cfg), "--out", str(out)], capture_output=True, text=True,
+                             timeout=120)
+    assert refused.returncode == 2 and "--resume" in refused.stderr and "response.csv" in refused.stderr
+    assert measured_rows(out) == before
+
+    resumed = subprocess.run(command() + ["run", str(cfg), "--out", str(out), "--resume", "--quiet"],
+                             capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    after = measured_rows(out)
+    assert after[: len(before)] == before  # measured points kept unchanged, in place
+    response = FrequencyResponse.load(out)
+    assert sorted(p.frequency_hz for p in response.points) == [3, 4, 5, 6, 8, 10, 12, 15]
+    assert all(p.converged for p in response.points)
+
+
+def test_resume_refuses_results_of_another_configuration(tmp_path: Path) -> None:
+    cfg = small_config(tmp_path)
+    out = tmp_path / "out"
+    other = tmp_path / "other.toml"
+    other.write_text(cfg.read_text().replace("friction = 0.008", "friction = 0.009"))
+    first = subprocess.run(command() + ["run", str(other), "--out", str(out), "--quiet"], capture_output=True,
+                           text=True, timeout=300)
+    assert first.returncode == 0, first.stderr
+    proc = subprocess.run(command() + ["run", str(cfg), "--out", str(out), "--resume"], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 2
+    assert "response.json" in proc.stderr and "plant" in proc.stderr and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "sidecar"])
+def test_corrupt_results_directory_gives_one_line(tmp_path: Path, damage: str) -> None:
+    cfg = small_config(tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    response = FrequencyResponse(config={}, case="x")
+    response.save(out)
+    csv = out / "response.csv"
+    header = csv.read_text().splitlines()[0]
+    if damage == "truncate":
+        csv.write_text(header + "\n3.0,1,position,0.01,0.7")
+    elif damage == "garbage":
+        csv.write_bytes(b"\x00\xff not a csv \n")
+    else:
+        (out / "response.json").write_text("{ half")
+    proc = subprocess.run(command() + ["run", str(cfg), "--out", str(out), "--resume"], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr
+    assert ("response.json" if damage == "sidecar" else "response.csv") in lines[0]
