@@ -218,9 +218,10 @@ def _lower_timer_slack() -> None:
 
 
 SPIN_S = 2e-4
-"""Realtime clock: the worker sleeps until this long (at most half a period) before a tick's deadline and
-busy-waits the rest, since a sleep can end this late."""
-MIN_SLEEP_S = 5e-5
+"""Realtime clock: the worker sleeps until this long (at most 0.4 periods) before a tick's deadline and
+busy-waits the rest, since a sleep can end this late. Some sleep every period matters under SCHED_FIFO: a task
+that never sleeps is stopped for 50 ms a second by the kernel's realtime throttling."""
+MIN_SLEEP_S = 2e-5
 """Realtime clock: shorter sleeps are not worth their wake-up delay."""
 
 REALTIME_PRIORITY = 20
@@ -303,7 +304,7 @@ class BusWorker:
         self.round_trips: list[float] = []
         self.send_errors = SendErrorHistogram()
         self.overruns = 0
-        self.spin_s = min(SPIN_S, 0.5 * self.h)  # realtime: busy-wait this long before each tick
+        self.spin_s = min(SPIN_S, 0.4 * self.h)  # realtime: busy-wait this long before each tick
         self.fifo = False  # realtime: running under SCHED_FIFO
         self._t: list[float] = []
         self._v: list[tuple[float, ...]] = []

@@ -81,6 +81,8 @@ class SimulatedController:
         self._counter_modulus = layout.counter_modulus or 1  # looked up once: every sample needs them
         self._timestamp_modulus = layout.timestamp_modulus or 1 << 32
         self.state = plant.initial_state()
+        # step a scratch copy once now, so the compiled integrator is ready before the first setpoint arrives
+        plant.run_held(plant.initial_state(), np.zeros(1), self.period)
         self.tick_count = 0      # control periods stepped
         self.time = 0.0          # controller time at the last sample (s)
         self.setpoint = 0.0      # latest setpoint received
