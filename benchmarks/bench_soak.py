@@ -1,0 +1,211 @@
+"""Soak: a long realtime run of the simulated drive at 5 kHz feedback with the terminal UI open.
+
+Prints memory (RSS of every process of the chain: the UI/session process, the bus worker, the simulated
+drive) over time, samples lost, and the pacing error. Targets: memory flat, no lost samples, pacing p99 within
+target. No asserts.
+
+    python benchmarks/bench_soak.py                 # 10 minutes, 5 kHz, UI open (headless Textual app)
+    python benchmarks/bench_soak.py --seconds 60 --no-ui
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+CONFIG = """
+title = "soak"
+[plant]
+model = "coulomb"
+mass = 2.533e-4
+stiffness = 1.0
+friction = 0.008
+[excitation]
+amplitude = 0.01
+frequencies_hz = {freqs}
+[analysis]
+harmonics = [1]
+tolerance_percent = 0.5
+max_periods = 400
+[bench]
+transport = "serial"
+rate_hz = {rate}
+clock = "realtime"
+timebase = "counter"
+reference_channel = "setpoint_echo"
+[serial]
+framing = "binary"
+[frames.setpoint]
+id = 1
+signals = [{{ name = "setpoint", byte = 0, type = "float32" }}, {{ name = "counter", byte = 4, type = "uint16" }}]
+[[frames.feedback]]
+id = 0x81
+signals = [{{ name = "position", byte = 0, type = "float32" }},
+           {{ name = "setpoint_echo", byte = 4, type = "float32" }},
+           {{ name = "counter", byte = 8, type = "uint16" }}]
+[frames.enable]
+id = 0x10
+data = [1]
+[frames.disable]
+id = 0x10
+data = [0]
+[safety]
+max_amplitude = 0.02
+watchdog_s = 1.0
+[simulator]
+"""
+
+
+def rss_mb(pid: int) -> float:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float("nan")
+
+
+def children(pid: int) -> list[int]:
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                out.append(int(entry.name))
+    return out
+
+
+class Probe:
+    """Samples RSS of this process and its children, and keeps the last bus health the session reports."""
+
+    def __init__(self) -> None:
+        self.rows: list[tuple[float, dict[int, float]]] = []
+        self.health = None
+        self.started = time.monotonic()
+
+    def sample(self) -> None:
+        pids = [os.getpid(), *children(os.getpid())]
+        self.rows.append((time.monotonic() - self.started, {p: rss_mb(p) for p in pids}))
+
+    def listener(self, inner):
+        from instrument.session import BusStatus
+
+        def wrapped(event: object) -> None:
+            if isinstance(event, BusStatus):
+                self.health = event.health
+            inner(event)
+        return wrapped
+
+
+def patch_sessions(probe: Probe) -> None:
+    """Route every session's events through the probe as well (the UI builds its own sessions)."""
+    import instrument.session as session_module
+
+    original = session_module.BenchSession.__init__
+
+    def init(self, case, plan, out_dir=None, listener=None, worker_mode=None, resume=None):  # type: ignore[no-untyped-def]
+        original(self, case, plan, out_dir, probe.listener(listener or (lambda e: None)), worker_mode, resume)
+
+    session_module.BenchSession.__init__ = init  # type: ignore[method-assign]
+
+
+def report(probe: Probe, seconds: float, rate: float, ui: bool) -> None:
+    print(f"soak: {seconds:.0f} s requested, realtime clock, {rate:g} Hz feedback, UI {'open' if ui else 'closed'}")
+    if not probe.rows:
+        print("no samples")
+        return
+    warm = [r for r in probe.rows if r[0] >= min(60.0, seconds / 4)] or probe.rows
+    first, last = warm[0], probe.rows[-1]
+    minutes = max(1e-9, (last[0] - first[0]) / 60.0)
+    print(f"{'process':>10} {'RSS at %4.0f s' % first[0]:>14} {'RSS at %4.0f s' % last[0]:>14} {'slope MB/min':>13}")
+    for pid in sorted(set(first[1]) & set(last[1])):
+        a, b = first[1][pid], last[1][pid]
+        label = "session" if pid == os.getpid() else f"pid {pid}"
+        print(f"{label:>10} {a:14.1f} {b:14.1f} {(b - a) / minutes:13.3f}")
+    h = probe.health
+    if h is None:
+        print("no bus health reported")
+        return
+    bus = h.bus
+    print(f"samples in {bus.frames_in}, setpoints out {bus.frames_out}, lost {bus.lost_samples}, "
+          f"incomplete {bus.incomplete_samples}, duplicates {bus.duplicates}, errors {bus.errors}, "
+          f"dropped times {h.time_conflicts}")
+    if h.pacing is not None:
+        p = h.pacing
+        print(f"pacing send-time error: p50 {p.p50 * 1e6:.1f} us, p99 {p.p99 * 1e6:.1f} us, max {p.max * 1e6:.1f} us "
+              f"over {p.count} setpoints, {p.overruns} overruns (target p99 < 50 us at 1 kHz)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=600.0)
+    parser.add_argument("--rate", type=float, default=5000.0)
+    parser.add_argument("--no-ui", action="store_true")
+    args = parser.parse_args(argv)
+
+    from instrument.config import load_config
+
+    freqs = [round(2.0 + 0.5 * i, 2) for i in range(190)] * 5  # more points than any soak needs
+    freqs = sorted(set(freqs))
+    tmp = Path(tempfile.mkdtemp(prefix="bodebench-soak-"))
+    cfg = tmp / "soak.toml"
+    cfg.write_text(CONFIG.format(freqs=freqs, rate=args.rate))
+    config = load_config(cfg)
+    probe = Probe()
+    patch_sessions(probe)
+
+    if args.no_ui:
+        from instrument.links import plan_link
+        from instrument.session import BenchSession
+
+        case = config.cases[0]
+        session = BenchSession(case, plan_link(case, cfg), tmp / "out")
+        runner = threading.Thread(target=lambda: _run_quietly(session), daemon=True)
+        runner.start()
+        end = time.monotonic() + args.seconds
+        while time.monotonic() < end and runner.is_alive():
+            probe.sample()
+            time.sleep(5.0)
+        session.request_abort()
+        runner.join(30)
+    else:
+        asyncio.run(_with_ui(config, tmp / "out", probe, args.seconds))
+    report(probe, args.seconds, args.rate, not args.no_ui)
+    return 0
+
+
+def _run_quietly(session) -> None:  # type: ignore[no-untyped-def]
+    from instrument.session import SessionError
+
+    try:
+        session.run()
+    except SessionError:
+        pass
+
+
+async def _with_ui(config, out: Path, probe: Probe, seconds: float) -> None:  # type: ignore[no-untyped-def]
+    from instrument.tui.app import BodeBenchApp
+
+    app = BodeBenchApp(config, out)
+    async with app.run_test(size=(120, 40)) as pilot:
+        await pilot.press("s")
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            probe.sample()
+            await asyncio.sleep(5.0)
+        await pilot.press("a")
+        await asyncio.sleep(2.0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
