@@ -15,6 +15,7 @@ import ctypes
 import gc
 import math
 import os
+import select
 import threading
 import time
 from dataclasses import dataclass, field
@@ -329,6 +330,13 @@ class BusWorker:
                                np.array(self._u), self.tick - 1))
             self._t, self._v, self._u = [], [], []
 
+    def _session_can_take(self) -> bool:
+        """Whether a message to the session goes out now without blocking (its end of the pipe has room)."""
+        try:
+            return bool(select.select([], [self.conn.fileno()], [], 0)[1])
+        except (OSError, ValueError):
+            return True  # _post reports a pipe that is gone
+
     def _health(self) -> None:
         assert self.driver is not None
         pacing = None
@@ -535,13 +543,20 @@ class BusWorker:
                 else:
                     self._realtime_tick(scheduled)
                     scheduled += self.h
-                    if time.perf_counter() - scheduled > 0.1:  # suspended: resume the schedule from now
-                        scheduled = time.perf_counter() + self.h
+                    behind = time.perf_counter() - scheduled
+                    if behind > 0.1:
+                        # suspended: resume from now, skipping the ticks missed so that tick * period stays the
+                        # time of the schedule (the drive's clock went on; the session times points by ticks)
+                        missed = math.floor(behind / self.h) + 1
+                        self.tick += missed
+                        scheduled += missed * self.h
                 now = time.monotonic()
-                if now >= next_ship:
+                # on the realtime clock a session that falls behind must not stall the pacing: samples wait
+                # (in a bigger batch) and health skips a turn until the pipe can take them without blocking
+                if now >= next_ship and (self.lockstep or self._session_can_take()):
                     self._ship()
                     next_ship = now + self.spec.batch_s
-                if now >= next_health:
+                if now >= next_health and (self.lockstep or self._session_can_take()):
                     self._health()
                     next_health = now + self.spec.health_s
         except _Trip as trip:

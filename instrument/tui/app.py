@@ -38,6 +38,7 @@ from instrument.tui.widgets import (STATE_STYLES, AbortLabel, BenchFooter, BodeP
 VIEWS = ("live", "sweep", "bode", "bus")
 VIEW_TITLES = {"live": "Live", "sweep": "Sweep", "bode": "Bode", "bus": "Bus"}
 JOIN_TIMEOUT_S = 30.0
+ROW_PERIODS_EVERY = 3  # refresh ticks between redraws of the table for period counts alone
 
 
 def case_directory(config: ExperimentConfig, out: Path, case: CaseConfig) -> Path:
@@ -139,7 +140,7 @@ class BodeBenchApp(App[int]):
         Binding("tab", "next_view", "next view", show=False),
     ]
 
-    def __init__(self, config: ExperimentConfig, out: Path, refresh_hz: float = 10.0) -> None:
+    def __init__(self, config: ExperimentConfig, out: Path, refresh_hz: float = 5.0) -> None:
         super().__init__()
         if not config.cases or config.cases[0].tables.get("bench") is None:
             raise ValueError(f"{config.path}: not a bench config (no [bench] table)")
@@ -180,6 +181,8 @@ class BodeBenchApp(App[int]):
         self.worker_errors: list[str] = []
         self._status_text = Text()
         self._bindings_running = False
+        self._display_error_shown = False
+        self._ticks = 0
 
     # ------------------------------------------------------------------------------------------ structure
     @property
@@ -190,10 +193,17 @@ class BodeBenchApp(App[int]):
     def running(self) -> bool:
         return self.control is not None and not self.control.done.is_set()
 
-    def _new_model(self, case: CaseConfig, frequencies: tuple[float, ...] | None = None) -> SweepModel:
+    def _new_model(self, case: CaseConfig) -> SweepModel:
         bench = case.tables["bench"]
-        return SweepModel(frequencies or case.excitation.frequencies_hz, case.analysis.harmonics,
-                          bench.output_channels)
+        return SweepModel(case.excitation.frequencies_hz, case.analysis.harmonics, bench.output_channels)
+
+    def _display_error(self, where: str) -> None:
+        """A fault in drawing is reported, not fatal: the measurement goes on (traceback kept for diagnosis)."""
+        self.worker_errors.append(traceback.format_exc())
+        if not self._display_error_shown:
+            self._display_error_shown = True
+            self.notify(f"display error in {where}: {traceback.format_exc(limit=0).strip()}", severity="error",
+                        timeout=10)
 
     def compose(self) -> ComposeResult:
         self.w_status = Static("", id="status-text")
@@ -268,6 +278,8 @@ class BodeBenchApp(App[int]):
         if view in VIEWS:
             self.view = view
             self._show_views()
+            if view == "sweep":
+                self.w_table.focus()
 
     def action_next_view(self) -> None:
         self.action_view(VIEWS[(VIEWS.index(self.view) + 1) % len(VIEWS)])
@@ -526,8 +538,13 @@ class BodeBenchApp(App[int]):
     def on_session_event(self, message: SessionEvent) -> None:
         if self.control is None or message.run != self.control.run:
             return
+        try:
+            self._session_event(message.event)
+        except Exception:  # noqa: BLE001 - see _display_error
+            self._display_error("a session event")
+
+    def _session_event(self, event: object) -> None:
         self._drain()
-        event = message.event
         now = time.monotonic()
         if isinstance(event, CaseBegins):
             self.case_index = event.index
@@ -579,6 +596,14 @@ class BodeBenchApp(App[int]):
     def on_worker_report(self, message: WorkerReport) -> None:
         if self.control is None or message.run != self.control.run:
             return
+        try:
+            self._worker_report(message)
+        except Exception:  # noqa: BLE001 - see _display_error
+            self._display_error("the end of the sweep")
+        if self._quitting:
+            self.exit(0 if message.completed else 1)
+
+    def _worker_report(self, message: WorkerReport) -> None:
         self._drain()
         if self.watchdog != "TRIPPED":
             self.watchdog = "off"
@@ -609,8 +634,6 @@ class BodeBenchApp(App[int]):
         self._refresh_bus(force=True)
         self._refresh_bode()
         self._sync_bindings()
-        if self._quitting:
-            self.exit(0 if message.completed else 1)
 
     # ---------------------------------------------------------------------------------------- refreshing
     def _drain(self) -> None:
@@ -633,11 +656,18 @@ class BodeBenchApp(App[int]):
             self._live_dirty = True
 
     def _tick(self) -> None:
+        try:
+            self._refresh_all()
+        except Exception:  # noqa: BLE001 - see _display_error
+            self._display_error("the periodic refresh")
+
+    def _refresh_all(self) -> None:
         self._drain()
         if self._live_dirty:
             self._live_dirty = False
             self._refresh_live()
-        self._refresh_rows()
+        self._ticks += 1
+        self._refresh_rows(periods_too=self._ticks % ROW_PERIODS_EVERY == 0)
         self._refresh_bus()
         self._refresh_bode()
         self._refresh_status()
@@ -655,7 +685,11 @@ class BodeBenchApp(App[int]):
             panel.show_scope(None, "")
         self._scope_index = model.current_index
 
-    def _refresh_rows(self) -> None:
+    def _refresh_rows(self, periods_too: bool = True) -> None:
+        """Redraw changed rows: at once when a state changed, else (period counts only) when ``periods_too``
+        (redrawing the table is one of the UI's dearest operations)."""
+        if not (self.model.state_changed or periods_too):
+            return
         keys = self.model.take_changed()
         if not keys:
             return
@@ -675,7 +709,7 @@ class BodeBenchApp(App[int]):
         safety = self.case.tables["safety"]
         watchdog_s = safety.watchdog_s if safety is not None else math.nan
         self.w_bus.show(self.where, self.health, self.bus_rates, self.watchdog, watchdog_s)
-        self.w_bus_line.update(bus_summary(self.health, self.bus_rates))
+        self.w_bus_line.update(bus_summary(self.health, self.bus_rates), layout=False)
 
     def _current_response(self) -> FrequencyResponse | None:
         """The current case's points: this sweep's so far (or the loaded ones, re-measured points replaced)."""
@@ -728,7 +762,7 @@ class BodeBenchApp(App[int]):
         text.append(f"  tol {tol:g} %")
         if text != self._status_text:
             self._status_text = text
-            self.w_status.update(text)
+            self.w_status.update(text, layout=False)
             counts: dict[str, int] = {}
             for row in model.rows.values():
                 counts[row.state] = counts.get(row.state, 0) + 1
@@ -736,7 +770,7 @@ class BodeBenchApp(App[int]):
                            f"to finish {format_duration(model.eta(now))}  ")
             for name, count in counts.items():
                 summary.append(f" {name} {count}", style=STATE_STYLES.get(name, ""))
-            self.w_sweep.progress.update(summary)
+            self.w_sweep.progress.update(summary, layout=False)
         self.w_abort.set_class(not self.running, "-idle")
 
     # -------------------------------------------------------------------------------------------- exit

@@ -150,6 +150,7 @@ class SweepModel:
         self.durations: list[tuple[float, float]] = []
         self.finished: set[int] = set()
         self.changed: set[str] = set(self.rows)
+        self.state_changed = True  # a row changed more than its period count since take_changed
 
     # --- lookups
     def position(self, frequency_hz: float) -> int:
@@ -167,6 +168,8 @@ class SweepModel:
         if row is None:
             return
         for name, value in values.items():
+            if name != "periods" and getattr(row, name) != value:
+                self.state_changed = True
             setattr(row, name, value)
         self.changed.add(key)
 
@@ -276,6 +279,7 @@ class SweepModel:
         """Keys of rows changed since the last call."""
         keys = [k for k in self.rows if k in self.changed]
         self.changed.clear()
+        self.state_changed = False
         return keys
 
 

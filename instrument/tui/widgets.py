@@ -154,7 +154,10 @@ class LivePanel(Vertical):
                 plot_traces.append(Trace(x, y, colour))
                 values.append(y)
                 xs.append(x)
-        self.query_one("#live-stats", Static).update(stats)
+        stats_view = self.query_one("#live-stats", Static)
+        lines = stats.plain.count("\n")
+        stats_view.update(stats, layout=lines != getattr(self, "_stats_lines", -1))
+        self._stats_lines = lines
         conv = self.query_one("#convergence", PlotView)
         if not plot_traces:
             conv.clear()
@@ -314,7 +317,7 @@ class BusPanel(Static):
                                f"overruns {p.overruns}", "bold red" if p.overruns else "")
         style = {"TRIPPED": "bold white on red", "armed": "green"}.get(watchdog.split(" ")[0], "bright_black")
         line("watchdog", f"{watchdog}  (trips after {watchdog_s:g} s without feedback)", style)
-        self.update(text)
+        self.update(text, layout=False)
 
 
 def bus_summary(health: Health | None, rates: tuple[float, float]) -> Text:
@@ -336,8 +339,8 @@ class AbortLabel(Static):
     AbortLabel.-idle { background: $panel; color: $text-muted; text-style: none; }
     """
 
-    def on_click(self) -> None:
-        self.app.run_action("abort")
+    async def on_click(self) -> None:
+        await self.app.run_action("abort")
 
 
 class BenchFooter(Footer):

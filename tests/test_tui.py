@@ -1,0 +1,579 @@
+"""The terminal UI: its pure parts against independent numbers, every key against the simulated drive on the
+lockstep clock (Pilot), snapshots of the main screens, and the real command in tmux."""
+
+from __future__ import annotations
+
+import asyncio
+import cmath
+import math
+import os
+import shutil
+import subprocess
+import sys
+import time
+import unicodedata
+import uuid
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pytest
+
+from instrument.autointegration import SeriesState
+from instrument.config import ExperimentConfig, load_config
+from instrument.response import FrequencyResponse, ResponsePoint
+from instrument.rules import Verdict
+from instrument.tui import BodeBenchApp
+from instrument.tui.braille import Axis, BrailleCanvas, HLine, PlotError, Trace, auto_axis, render_plot
+from instrument.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
+from instrument.tui.model import (CONVERGED, FAILED, INTEGRATING, PENDING, SETTLING, SKIPPED, BusRates,
+                                  SweepModel, format_duration, periods_to_go, relative_error_percent,
+                                  remaining_seconds, row_key)
+from instrument.tui.widgets import PlotView
+
+from helpers import BusRecorder
+
+ROOT = Path(__file__).resolve().parent.parent
+FREQS = (3.0, 8.0, 20.0)
+
+# ------------------------------------------------------------------------------------------- braille plots
+
+
+def braille_dots(char: str) -> set[int]:
+    """Dot numbers (1..8) of a braille character, from its Unicode name."""
+    name = unicodedata.name(char)
+    if name == "BRAILLE PATTERN BLANK":
+        return set()
+    prefix = "BRAILLE PATTERN DOTS-"
+    assert name.startswith(prefix), name
+    return {int(d) for d in name[len(prefix):]}
+
+
+# the standard braille numbering: left column dots 1, 2, 3, 7 from the top, right column 4, 5, 6, 8
+STANDARD_DOT = {(0, 0): 1, (0, 1): 2, (0, 2): 3, (0, 3): 7, (1, 0): 4, (1, 1): 5, (1, 2): 6, (1, 3): 8}
+
+
+@pytest.mark.parametrize("px,py", sorted(STANDARD_DOT))
+def test_each_dot_is_the_standard_braille_dot(px: int, py: int) -> None:
+    canvas = BrailleCanvas(1, 1)
+    canvas.dot(px, py, "red")
+    [line] = canvas.lines()
+    assert braille_dots(line.plain) == {STANDARD_DOT[(px, py)]}
+
+
+def lit_dots(lines: list) -> set[tuple[int, int]]:
+    """(px, py) of every dot set in canvas lines."""
+    inverse = {n: xy for xy, n in STANDARD_DOT.items()}
+    dots = set()
+    for r, line in enumerate(lines):
+        for c, ch in enumerate(line.plain):
+            for n in braille_dots(ch):
+                x, y = inverse[n]
+                dots.add((2 * c + x, 4 * r + y))
+    return dots
+
+
+def test_lines_are_connected_and_reach_both_ends() -> None:
+    canvas = BrailleCanvas(10, 3)
+    canvas.line(0, 11, 19, 0, "white")
+    dots = lit_dots(canvas.lines())
+    assert (0, 11) in dots and (19, 0) in dots
+    assert len({x for x, _ in dots}) == 20  # one column per x (shallow line), none skipped
+    for x, y in dots:  # every dot within one dot of the ideal line
+        assert abs(y - (11 - 11 * x / 19)) <= 1.0
+
+
+def test_log_axis_positions_and_decade_ticks() -> None:
+    axis = Axis(0.01, 100.0, log=True)
+    assert axis.fraction(np.array([1.0]))[0] == pytest.approx(0.5)
+    assert axis.fraction(np.array([0.1]))[0] == pytest.approx(0.25)
+    assert np.isnan(axis.fraction(np.array([-1.0]))[0])
+    assert axis.ticks(10) == pytest.approx([0.01, 0.1, 1.0, 10.0, 100.0])
+    linear = Axis(-1.0, 1.0)
+    ticks = linear.ticks(4)
+    assert ticks[0] >= -1.0 and ticks[-1] <= 1.0 and 0.0 in ticks
+    with pytest.raises(PlotError, match="lo > 0"):
+        Axis(0.0, 1.0, log=True)
+    with pytest.raises(PlotError, match="lo < hi"):
+        Axis(1.0, 1.0)
+
+
+def test_render_places_points_and_the_tolerance_line() -> None:
+    """A point at the middle of both axes, a dashed line at 1/3 of a log axis, labels in the margin."""
+    x_axis, y_axis = Axis(0.0, 2.0), Axis(0.01, 10.0, log=True)
+    lines = render_plot([Trace(np.array([1.0]), np.array([math.sqrt(0.1)]), "cyan")], 30, 11, x_axis, y_axis,
+                        [HLine(0.1, "red")])
+    assert len(lines) == 11 and all(len(line) <= 30 for line in lines)
+    margin = max(len(t) for t in ("0.01", "0.1", "1", "10"))
+    body = [line[margin + 1:] for line in lines[:-1]]
+    dots = lit_dots(body)
+    width, height = 2 * (30 - margin - 1), 4 * 10
+    point = (round(0.5 * (width - 1)), round(0.5 * (height - 1)))
+    tolerance_row = round((1 - 1 / 3) * (height - 1))
+    assert point in dots
+    dashed = {x for x, y in dots if y == tolerance_row}
+    assert dashed == {px for px in range(width) if px % 4 < 2}  # dashes: two dots on, two off
+    assert lines[-1].plain.startswith(" " * margin + "└0")
+    assert any(line.plain.lstrip().startswith("10┤") for line in lines)
+
+
+def test_non_finite_values_break_the_line() -> None:
+    x = np.array([0.0, 1.0, 2.0, 3.0])
+    y = np.array([0.0, 0.0, np.nan, 0.0])
+    canvas_lines = render_plot([Trace(x, y)], 40, 5, Axis(0.0, 3.0), Axis(-1.0, 1.0))
+    margin = len("-1")
+    dots = lit_dots([line[margin + 1:] for line in canvas_lines[:-1]])
+    width = 2 * (40 - margin - 1)
+    xs = sorted(px for px, _ in dots)
+    third = round((width - 1) / 3)
+    # drawn from x=0 to x=1, then a lone dot at x=3: nothing between 1 and 3
+    assert all(px <= third or px == width - 1 for px in xs)
+    assert width - 1 in xs
+
+
+def test_auto_axis_covers_data_and_included_values() -> None:
+    axis = auto_axis([np.array([0.3, 7.0, np.nan, -1.0])], log=True, include=[0.05])
+    assert (axis.lo, axis.hi) == (0.01, 10.0)
+    lin = auto_axis(np.array([2.0, 4.0]))
+    assert lin.lo < 2.0 and lin.hi > 4.0
+    assert auto_axis(np.array([np.nan])) == Axis(-1.0, 1.0)
+
+
+# -------------------------------------------------------------------------------------------------- model
+
+
+def test_periods_to_go_follows_a_power_law() -> None:
+    n = np.arange(1, 101, dtype=float)
+    e = 10.0 * n ** -0.5  # reaches 0.1 % at n = (10 / 0.1)**2 = 10000
+    assert periods_to_go(n, e, 0.1) == pytest.approx(10000 - 100, rel=1e-6)
+    assert periods_to_go(n, 5.0 / n, 0.01) == pytest.approx(500 - 100, rel=1e-6)
+    assert periods_to_go(n, e, 5.0) == 0.0
+    assert periods_to_go(n, 1.0 + 0.0 * n, 0.1) is None  # not falling
+    assert periods_to_go(n[:3], e[:3], 0.1) is None
+    assert periods_to_go([], [], 0.1) is None
+
+
+def test_relative_error_and_durations() -> None:
+    assert relative_error_percent(complex(3, 4), 0.05) == pytest.approx(1.0)
+    assert math.isnan(relative_error_percent(complex(3, 4), math.nan))
+    assert math.isnan(relative_error_percent(0j, 1.0))
+    assert format_duration(3725) == "1:02:05" and format_duration(65.4) == "1:05" and format_duration(None) == "--"
+
+
+def test_remaining_time_scales_with_the_period() -> None:
+    c = 12.0  # seconds x Hz: each point lasts c / f
+    done = [(2.0, c / 2.0), (5.0, c / 5.0)]
+    assert remaining_seconds(done, [10.0, 20.0]) == pytest.approx(c / 10 + c / 20)
+    assert remaining_seconds([], [10.0]) is None
+
+
+def test_bus_rates_from_counter_differences() -> None:
+    rates = BusRates(window_s=1.0)
+    result = (math.nan, math.nan)
+    for i in range(30):
+        t = 0.1 * i
+        result = rates.update(t, int(2000 * t), int(1000 * t))
+    assert result == pytest.approx((2000.0, 1000.0), rel=1e-3)
+    assert all(math.isnan(v) for v in BusRates().update(0.0, 5, 5))
+    restarted = rates.update(3.1, 10, 10)  # counters of a new session: no negative rate
+    assert all(math.isnan(v) for v in restarted)
+
+
+def _state(harmonic: int, periods: int, z: complex, u: float, verdict: Verdict | None = None) -> SeriesState:
+    return SeriesState("position", harmonic, periods, z, u, verdict)
+
+
+def _point(f: float, k: int, status: str = "converged", converged: bool = True) -> ResponsePoint:
+    return ResponsePoint(f, k, "position", 0.01, 0.006, -0.008, 12, converged, status, 1e-6)
+
+
+def test_sweep_model_follows_a_sweep_with_skip_and_remeasure() -> None:
+    model = SweepModel(FREQS, (1, 3), ("position",))
+    assert {r.state for r in model.rows.values()} == {PENDING}
+    model.session_started(0.0)
+    model.point_started(0, 3.0, 0.0)
+    assert model.rows[row_key(0, 1, "position")].state == SETTLING
+    model.progress(0, 2, (_state(1, 2, 1 + 0j, 0.01), _state(3, 2, 0.1j, 0.01)), 0.1, "adaptive")
+    assert model.rows[row_key(0, 1, "position")].state == INTEGRATING
+    assert model.traces[0].rel_error == [pytest.approx(1.0)] and model.traces[1].rel_error == [pytest.approx(10.0)]
+    model.point_finished(0, (_point(3.0, 1), _point(3.0, 3, "capped", False)), False, 1.0)
+    assert model.rows[row_key(0, 1, "position")].state == CONVERGED
+    assert model.rows[row_key(0, 3, "position")].state == "capped"
+    assert model.rows[row_key(0, 1, "position")].gain_db == pytest.approx(20 * math.log10(0.01 / 0.01))
+    model.point_started(1, 8.0, 1.0)
+    model.point_finished(1, (), True, 1.5)
+    assert model.rows[row_key(1, 3, "position")].state == SKIPPED
+    model.point_started(2, 3.0, 1.5)  # a re-measure: new index, same frequency
+    assert model.current == 0 and model.rows[row_key(0, 1, "position")].state == SETTLING
+    model.point_finished(2, (_point(3.0, 1), _point(3.0, 3)), False, 2.0)
+    assert model.done == 2 and len(model.durations) == 1  # a re-measure is not a new point for the ETA
+    # 20 Hz left: one point at 3 Hz took 1 s, so c = 3 s Hz and 20 Hz should take 3 / 20 s
+    assert model.eta(2.0) == pytest.approx(3.0 / 20.0)
+    model.point_started(3, 20.0, 2.0)
+    model.session_ended(2.5)
+    assert model.rows[row_key(2, 1, "position")].state == FAILED
+    assert model.elapsed(99.0) == pytest.approx(2.5) and model.eta(3.0) is None
+    with pytest.raises(ValueError, match="7 Hz"):
+        model.position(7.0)
+
+
+# ------------------------------------------------------------------------------------------- Pilot tests
+
+
+def write_bench_config(tmp_path: Path, channel: str, *, freqs: tuple[float, ...] = FREQS, tolerance: float = 0.1,
+                       simulator: bool = True, watchdog_s: float = 2.0, name: str = "bench",
+                       worker: str = "auto") -> ExperimentConfig:
+    """A small virtual-CAN bench config on its own channel, lockstep clock. python-can's virtual bus lives in
+    one process: a test that records the bus runs the bus worker in a thread (``worker``)."""
+    text = f"""
+title = "TUI test bench"
+[plant]
+model = "coulomb"
+mass = 2.533e-4
+stiffness = 1.0
+friction = 0.008
+[excitation]
+amplitude = 0.01
+frequencies_hz = [{", ".join(repr(f) for f in freqs)}]
+[analysis]
+harmonics = [1, 3]
+tolerance_percent = {tolerance!r}
+[bench]
+transport = "can"
+rate_hz = 1000
+clock = "lockstep"
+timebase = "counter"
+worker = "{worker}"
+[can]
+interface = "virtual"
+channel = "{channel}"
+[safety]
+max_amplitude = 0.02
+max_rate = 5.0
+watchdog_s = {watchdog_s!r}
+""" + ("[simulator]\n" if simulator else "")
+    path = tmp_path / f"{name}.toml"
+    path.write_text(text)
+    return load_config(path)
+
+
+def channel_name() -> str:
+    return f"tui-{uuid.uuid4().hex[:10]}"
+
+
+async def wait_for(pilot, predicate: Callable[[], bool], what: str, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        await pilot.pause(0.02)
+
+
+def finished(app: BodeBenchApp) -> bool:
+    return app.control is not None and app.control.done.is_set() and app.state not in ("starting", "running",
+                                                                                         "paused", "aborting")
+
+
+def integrating(app: BodeBenchApp, frequency_hz: float) -> bool:
+    m = app.model
+    return m.current is not None and m.frequencies_hz[m.current] == frequency_hz and m.periods >= 1
+
+
+def states(app: BodeBenchApp, frequency_hz: float) -> set[str]:
+    return {r.state for r in app.model.rows.values() if r.frequency_hz == frequency_hz}
+
+
+def table_states(app: BodeBenchApp) -> list[str]:
+    """The state column as the table shows it (cells addressed by row and column keys)."""
+    table = app.w_table
+    return [str(table.get_cell(key, "state")) for key in app.model.rows]
+
+
+@pytest.mark.asyncio
+async def test_start_runs_the_sweep_and_the_screen_follows(tmp_path: Path) -> None:
+    config = write_bench_config(tmp_path, channel_name())
+    out = tmp_path / "out"
+    app = BodeBenchApp(config, out)
+    async with app.run_test(size=(80, 24)) as pilot:
+        assert app.state == "idle" and table_states(app) == [PENDING] * 6
+        await pilot.press("s")
+        await wait_for(pilot, lambda: integrating(app, 3.0), "the first point integrating")
+        await pilot.pause(0.2)
+        assert app.w_live.query_one("#convergence", PlotView).traces  # the relative error is plotted
+        await wait_for(pilot, lambda: finished(app), "the end of the sweep")
+        await pilot.pause(0.3)
+        assert app.state == "done", app.worker_errors
+        assert table_states(app) == [CONVERGED] * 6
+        assert "3/3" in app.w_status.render().plain and "DONE" in app.w_status.render().plain
+        on_disk = FrequencyResponse.load(out)
+        assert sorted((p.frequency_hz, p.harmonic) for p in on_disk.points) == sorted(
+            (f, k) for f in FREQS for k in (1, 3))
+        assert (out / "bode.png").exists() and (out / "periods.svg").exists()
+        for p in on_disk.points:  # the table shows what is on disk
+            row = app.model.rows[row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel)]
+            assert str(app.w_table.get_cell(row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel),
+                                            "gain")) == f"{p.gain_db:+.2f}"
+            assert row.periods == p.periods
+        assert len(app.w_bode.query_one("#bode-gain", PlotView).traces) == 1
+        await pilot.press("q")
+    assert app.return_value == 0
+
+
+@pytest.mark.asyncio
+async def test_pause_skip_and_remeasure_during_a_sweep(tmp_path: Path) -> None:
+    config = write_bench_config(tmp_path, channel_name())
+    out = tmp_path / "out"
+    app = BodeBenchApp(config, out)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await pilot.press("s")
+        await wait_for(pilot, lambda: integrating(app, 3.0), "3 Hz integrating")
+        await pilot.press("p")
+        assert app.state == "paused" and "PAUSED" in app.w_status.render().plain
+        await pilot.pause(0.3)
+        held = app.model.periods
+        await pilot.pause(0.5)
+        assert app.model.periods == held, "periods went on while paused"
+        await pilot.press("2")  # the sweep view; the cursor is on the first row (3 Hz)
+        await pilot.press("r")  # measure 3 Hz again after this point
+        await pilot.press("p")
+        assert app.state == "running"
+        await wait_for(pilot, lambda: integrating(app, 8.0), "8 Hz integrating")
+        await pilot.press("p")
+        await pilot.press("n")  # skip 8 Hz while paused
+        await pilot.press("p")
+        await wait_for(pilot, lambda: finished(app), "the end of the sweep")
+        assert app.state == "done", app.worker_errors
+        assert states(app, 8.0) == {SKIPPED} and states(app, 3.0) == states(app, 20.0) == {CONVERGED}
+        measured = [p.frequency_hz for p in app.control.session.response.points]
+        assert measured.count(3.0) == 4 and 8.0 not in measured  # 3 Hz twice (2 harmonics each)
+        on_disk = FrequencyResponse.load(out)
+        assert sorted(p.frequency_hz for p in on_disk.points) == [3.0, 3.0, 20.0, 20.0]  # the latest 3 Hz only
+
+
+@pytest.mark.asyncio
+async def test_abort_leaves_a_zero_setpoint_and_keeps_the_measured_points(tmp_path: Path) -> None:
+    channel = channel_name()
+    recorder = BusRecorder(channel)
+    config = write_bench_config(tmp_path, channel, worker="thread")
+    out = tmp_path / "out"
+    app = BodeBenchApp(config, out)
+    try:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("s")
+            await wait_for(pilot, lambda: integrating(app, 8.0), "8 Hz integrating")
+            await pilot.press("a")
+            await wait_for(pilot, lambda: finished(app), "the end of the aborted sweep")
+            assert app.state == "aborted"
+            assert states(app, 3.0) == {CONVERGED} and states(app, 8.0) == {FAILED}
+            assert states(app, 20.0) == {PENDING}
+            assert not isinstance(app.screen, MessageDialog)  # a user abort is a notice, not an error
+            assert app.last_ended is not None and app.last_ended.last_setpoint == 0.0 and app.last_ended.disabled
+    finally:
+        value, disabled = recorder.close()
+    assert value == 0.0 and disabled
+    kept = FrequencyResponse.load(out)
+    assert sorted(p.frequency_hz for p in kept.points) == [3.0, 3.0]
+
+
+@pytest.mark.asyncio
+async def test_tolerance_remeasure_after_the_sweep_save_and_overlay(tmp_path: Path) -> None:
+    config = write_bench_config(tmp_path, channel_name(), freqs=(3.0, 20.0))
+    out = tmp_path / "out"
+    other = tmp_path / "other"
+    reference = lag_response(tmp_path, (3.0, 20.0))
+    reference.save(other)
+    app = BodeBenchApp(config, out)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await pilot.press("t")
+        assert isinstance(app.screen, InputDialog)
+        await pilot.press("ctrl+a", "ctrl+k", *"abc", "enter")
+        assert isinstance(app.screen, InputDialog)  # refused, with the reason
+        assert "not a number" in str(app.screen.query_one("#dialog-error").render())
+        await pilot.press("ctrl+a", "ctrl+k", *"0.2", "enter")
+        assert not isinstance(app.screen, InputDialog) and app.tolerance_percent == 0.2
+        await pilot.press("s")
+        await wait_for(pilot, lambda: finished(app), "the first sweep")
+        assert app.state == "done" and app.model.tolerance_percent == 0.2
+        first = {(p.frequency_hz, p.harmonic): p for p in FrequencyResponse.load(out).points}
+        # tighter tolerance, then re-measure the selected row (20 Hz) after the sweep
+        await pilot.press("t", "ctrl+a", "ctrl+k", *"0.02", "enter")
+        await pilot.press("2", "down", "down", "r")
+        await wait_for(pilot, lambda: app.control.run == 2 and finished(app), "the re-measure")
+        assert app.state == "done", app.worker_errors
+        second = {(p.frequency_hz, p.harmonic): p for p in FrequencyResponse.load(out).points}
+        assert second.keys() == first.keys()
+        assert second[(3.0, 1)] == first[(3.0, 1)]  # untouched
+        assert second[(20.0, 1)].periods > first[(20.0, 1)].periods  # 10x tighter needs more periods
+        assert states(app, 20.0) == {CONVERGED}
+        # save: the plots come back
+        (out / "bode.png").unlink()
+        await pilot.press("w")
+        await wait_for(pilot, lambda: (out / "bode.png").exists(), "bode.png written again", timeout=30)
+        # overlay another run
+        await pilot.press("o")
+        assert isinstance(app.screen, InputDialog)
+        await pilot.press("ctrl+a", "ctrl+k", *str(tmp_path / "nowhere"), "enter")
+        assert "not a directory" in str(app.screen.query_one("#dialog-error").render())
+        await pilot.press("ctrl+a", "ctrl+k", *str(other), "enter")
+        await pilot.pause(0.1)
+        assert [label for label, _ in app.overlays] == ["lag"]
+        traces = app.w_bode.query_one("#bode-gain", PlotView).traces
+        assert len(traces) == 2 and traces[0].style != traces[1].style
+        np.testing.assert_allclose(traces[1].y, reference.select(harmonic=1).gain_db)
+
+
+@pytest.mark.asyncio
+async def test_quit_asks_while_a_sweep_runs_then_aborts_safely(tmp_path: Path) -> None:
+    channel = channel_name()
+    recorder = BusRecorder(channel)
+    config = write_bench_config(tmp_path, channel, tolerance=0.01, worker="thread")
+    app = BodeBenchApp(config, tmp_path / "out")
+    try:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("s")
+            await wait_for(pilot, lambda: integrating(app, 3.0), "3 Hz integrating")
+            await pilot.press("q")
+            assert isinstance(app.screen, ConfirmDialog)
+            await pilot.press("n")
+            assert not isinstance(app.screen, ConfirmDialog) and app.running
+            await pilot.press("q")
+            await pilot.press("y")
+            await wait_for(pilot, lambda: not app.is_running, "the app to exit")
+    finally:
+        value, disabled = recorder.close()
+    assert app.control.done.is_set()
+    assert value == 0.0 and disabled
+
+
+@pytest.mark.asyncio
+async def test_a_fault_is_explained_in_a_dialog(tmp_path: Path) -> None:
+    """No drive on the bus: the watchdog trips; the dialog says so and what was kept; the bus ends at zero."""
+    channel = channel_name()
+    recorder = BusRecorder(channel)
+    config = write_bench_config(tmp_path, channel, simulator=False, watchdog_s=0.3, worker="thread")
+    app = BodeBenchApp(config, tmp_path / "out")
+    try:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("s")
+            await wait_for(pilot, lambda: finished(app), "the watchdog trip")
+            await pilot.pause(0.1)
+            assert app.state == "failed" and isinstance(app.screen, MessageDialog)
+            text = str(app.screen.query_one("#dialog-text").render())
+            assert "watchdog" in text and "0 measured points kept" in text and "setpoint 0" in text
+            await pilot.press("enter")
+            await pilot.press("4")
+            assert "TRIPPED" in str(app.w_bus.render())
+    finally:
+        value, disabled = recorder.close()
+    assert value == 0.0 and disabled
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("size,shown", [((80, 24), 1), ((160, 45), 4)])
+async def test_layout_degrades_to_one_view_at_80x24(tmp_path: Path, size: tuple[int, int], shown: int) -> None:
+    config = write_bench_config(tmp_path, channel_name())
+    app = BodeBenchApp(config, tmp_path / "out")
+    async with app.run_test(size=size) as pilot:
+        await pilot.pause(0.1)
+        panels = app._panels().values()
+        visible = [p for p in panels if p.display and p.region.width > 0 and p.region.height > 0]
+        assert len(visible) == shown
+        for panel in visible:
+            assert panel.region.right <= size[0] and panel.region.bottom <= size[1] - 1  # above the footer
+        if shown == 1:
+            await pilot.press("3")
+            assert [p.id for p in panels if p.display and p.region.height > 0] == ["bode"]
+
+
+# ---------------------------------------------------------------------------------------------- snapshots
+
+SNAP_FREQS = (3.0, 8.0, 20.0)
+LAG_TIME_CONSTANT_S = 0.01
+
+
+def lag_response(tmp_path: Path, freqs: tuple[float, ...], case: str = "lag") -> FrequencyResponse:
+    """Points of G = 1 / (1 + j w T) (harmonic 3 at 1 % of it), as a finished sweep would hold them."""
+    points = []
+    for f in freqs:
+        g = 1.0 / (1.0 + 1j * 2 * math.pi * f * LAG_TIME_CONSTANT_S)
+        for k, scale in ((1, 1.0), (3, 0.01)):
+            z = 0.01 * g * scale
+            points.append(ResponsePoint(f, k, "position", 0.01, z.real, z.imag, 10 * k, True, "converged", 1e-7))
+    return FrequencyResponse(points, config={"title": "lag"}, case=case)
+
+
+def loaded_app(tmp_path: Path) -> BodeBenchApp:
+    config = write_bench_config(tmp_path, "tui-snapshot", freqs=SNAP_FREQS)
+    lag_response(tmp_path, SNAP_FREQS, case="bench").save(tmp_path / "out")
+    return BodeBenchApp(config, tmp_path / "out")
+
+
+def test_a_finished_sweep_is_loaded_from_its_results_directory(tmp_path: Path) -> None:
+    async def check() -> None:
+        app = loaded_app(tmp_path)
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.pause(0.1)
+            assert app.state == "loaded" and table_states(app) == [CONVERGED] * 6
+            for i, f in enumerate(SNAP_FREQS):
+                gain_db = 20 * math.log10(abs(1 / (1 + 1j * 2 * math.pi * f * LAG_TIME_CONSTANT_S)))
+                phase = math.degrees(cmath.phase(1 / (1 + 1j * 2 * math.pi * f * LAG_TIME_CONSTANT_S)))
+                assert str(app.w_table.get_cell(row_key(i, 1, "position"), "gain")) == f"{gain_db:+.2f}"
+                assert str(app.w_table.get_cell(row_key(i, 1, "position"), "phase")) == f"{phase:.1f}"
+            await pilot.press("s")  # a new sweep would replace these results: asked first
+            assert isinstance(app.screen, ConfirmDialog) and app.control is None
+            await pilot.press("n")
+            assert app.control is None and app.state == "loaded"
+
+    asyncio.run(check())
+
+
+@pytest.mark.parametrize("size,keys", [((80, 24), ("2",)), ((80, 24), ("3",)), ((160, 45), ())],
+                         ids=["sweep-80x24", "bode-80x24", "all-160x45"])
+def test_snapshots_of_the_main_screens(snap_compare, tmp_path: Path, size: tuple[int, int],
+                                       keys: tuple[str, ...]) -> None:
+    assert snap_compare(loaded_app(tmp_path), press=keys, terminal_size=size)
+
+
+# -------------------------------------------------------------------------------------------- the command
+
+
+def test_the_command_in_tmux(tmp_path: Path) -> None:
+    tmux = shutil.which("tmux")
+    assert tmux is not None, "tmux is needed (apt-get install tmux)"
+    script = Path(sys.executable).parent / "bodebench"
+    command = str(script) if script.exists() else shutil.which("bodebench")
+    assert command, "the bodebench command is not installed (pip install -e .)"
+    config = write_bench_config(tmp_path, channel_name())
+    out = tmp_path / "results"
+    socket = f"bodebench-test-{uuid.uuid4().hex[:8]}"
+    base = [tmux, "-L", socket]
+    env = {**os.environ, "TERM": "xterm-256color"}
+    shell = f"cd {ROOT} && {command} tui {config.path} --out {out}; echo EXIT=$?; sleep 60"
+    subprocess.run([*base, "new-session", "-d", "-s", "tui", "-x", "100", "-y", "30", shell], check=True, env=env)
+
+    def screen() -> str:
+        return subprocess.run([*base, "capture-pane", "-p", "-t", "tui"], capture_output=True, text=True,
+                              check=True).stdout
+
+    def wait_screen(text: str, timeout: float) -> str:
+        deadline = time.monotonic() + timeout
+        while True:
+            shown = screen()
+            if text in shown:
+                return shown
+            if time.monotonic() > deadline:
+                raise AssertionError(f"{text!r} not on screen after {timeout:g} s:\n{shown}")
+            time.sleep(0.2)
+
+    try:
+        wait_screen("IDLE", 30)
+        subprocess.run([*base, "send-keys", "-t", "tui", "s"], check=True)
+        shown = wait_screen("DONE", 60)
+        assert "3/3" in shown
+        subprocess.run([*base, "send-keys", "-t", "tui", "q"], check=True)
+        wait_screen("EXIT=0", 30)
+    finally:
+        subprocess.run([*base, "kill-server"], capture_output=True)
+    response = FrequencyResponse.load(out)
+    assert len(response.points) == 6 and all(p.converged for p in response.points)
+    assert (out / "bode.png").exists()
