@@ -14,7 +14,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-BENCHMARKS: tuple[str, ...] = ("bench_sampler", "bench_speed", "bench_rules")
+BENCHMARKS: tuple[str, ...] = ("bench_sampler", "bench_speed", "bench_rules", "bench_pacing", "bench_lockstep")
 
 
 def run(name: str) -> tuple[int, float]:

@@ -16,6 +16,7 @@ import gc
 import math
 import os
 import select
+import statistics
 import threading
 import time
 from dataclasses import dataclass, field
@@ -472,7 +473,7 @@ class BusWorker:
             wait = self.spec.limits.watchdog_s
         else:
             typical = self.round_trips[-64:]
-            wait = min(self.spec.reply_timeout_s, max(2e-3, 8 * float(np.median(typical)) if typical else 2e-3))
+            wait = min(self.spec.reply_timeout_s, max(2e-3, 8 * statistics.median(typical) if typical else 2e-3))
         deadline = time.monotonic() + wait
         while True:
             samples = self.driver.receive(max(0.0, min(0.05, deadline - time.monotonic())))

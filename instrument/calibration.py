@@ -27,8 +27,6 @@ from __future__ import annotations
 import functools
 import json
 import math
-import os
-import tempfile
 from collections.abc import Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
@@ -40,6 +38,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline, PchipInterpolator
 from scipy.optimize import brentq
 
+from instrument.response import atomic_write_text
 from sim.plants import CoulombOscillator, PlantState
 
 __all__ = [
@@ -422,16 +421,7 @@ class CalibrationTable:
         """Write the table as JSON (through a temporary file in the same directory, then renamed)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        text = self.to_text()
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as handle:
-                handle.write(text)
-            os.chmod(tmp, 0o644)  # package data: readable by everyone (mkstemp creates it private)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        atomic_write_text(path, self.to_text())
 
     @classmethod
     def from_json(cls, data: Any, source: str = "<calibration>") -> CalibrationTable:

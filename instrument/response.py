@@ -237,7 +237,7 @@ def _current_umask() -> int:
 _UMASK = _current_umask()
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
+def atomic_write_text(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` through a synced temporary file in the same directory and os.replace."""
     fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
@@ -552,8 +552,8 @@ class FrequencyResponse:
             "software": {"name": "bodebench", "version": _software_version()},
         }
         csv_text = "".join(line + "\n" for line in [",".join(CSV_COLUMNS), *map(_point_row, self.points)])
-        _atomic_write_text(directory / SIDECAR_NAME, json.dumps(sidecar, indent=2) + "\n")
-        _atomic_write_text(directory / CSV_NAME, csv_text)
+        atomic_write_text(directory / SIDECAR_NAME, json.dumps(sidecar, indent=2) + "\n")
+        atomic_write_text(directory / CSV_NAME, csv_text)
 
     @classmethod
     def load(cls, directory: str | Path) -> FrequencyResponse:
