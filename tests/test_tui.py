@@ -10,6 +10,7 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
 import time
 import unicodedata
 import uuid
@@ -23,7 +24,9 @@ from instrument.autointegration import SeriesState
 from instrument.config import ExperimentConfig, load_config
 from instrument.response import FrequencyResponse, ResponsePoint
 from instrument.rules import Verdict
+from instrument.session import PointProgress
 from instrument.tui import BodeBenchApp
+from instrument.tui.bridge import SessionBridge
 from instrument.tui.braille import Axis, BrailleCanvas, HLine, PlotError, Trace, auto_axis, render_plot
 from instrument.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
 from instrument.tui.model import (CONVERGED, FAILED, INTEGRATING, PENDING, SETTLING, SKIPPED, BusRates,
@@ -222,9 +225,10 @@ def test_sweep_model_follows_a_sweep_with_skip_and_remeasure() -> None:
 
 def write_bench_config(tmp_path: Path, channel: str, *, freqs: tuple[float, ...] = FREQS, tolerance: float = 0.1,
                        simulator: bool = True, watchdog_s: float = 2.0, name: str = "bench",
-                       worker: str = "auto") -> ExperimentConfig:
-    """A small virtual-CAN bench config on its own channel, lockstep clock. python-can's virtual bus lives in
-    one process: a test that records the bus runs the bus worker in a thread (``worker``)."""
+                       worker: str = "thread") -> ExperimentConfig:
+    """A small virtual-CAN bench config on its own channel, lockstep clock. The bus worker runs in a thread
+    (quicker to start; and python-can's virtual bus lives in one process, so a recorder can only see it then);
+    ``worker="auto"`` lets the UI choose (its own process)."""
     text = f"""
 title = "TUI test bench"
 [plant]
@@ -274,11 +278,36 @@ def finished(app: BodeBenchApp) -> bool:
                                                                                          "paused", "aborting")
 
 
-def integrating(app: BodeBenchApp, frequency_hz: float) -> bool:
-    """The session is integrating periods at ``frequency_hz`` (read from the listener, which sees every
-    progress event at once: the screen shows them at its refresh rate)."""
-    latest = app.bridge.latest_progress if app.bridge is not None else None
-    return latest is not None and latest.frequency_hz == frequency_hz and latest.periods >= 1
+class Gate:
+    """Holds the session's thread inside its listener at chosen moments - the first progress event at each
+    (frequency_hz, periods or more), in turn - until the test opens the gate: keys pressed meanwhile act at a
+    known point of the sweep, however fast the lockstep simulation runs."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, *conditions: tuple[float, int]) -> None:
+        self.conditions = list(conditions)
+        self.reached = threading.Event()
+        self.release = threading.Event()
+        gate = self
+
+        class GatedBridge(SessionBridge):
+            def __call__(self, event: object) -> None:
+                super().__call__(event)
+                if (gate.conditions and isinstance(event, PointProgress)
+                        and event.frequency_hz == gate.conditions[0][0] and event.periods >= gate.conditions[0][1]):
+                    gate.conditions.pop(0)
+                    gate.release.clear()
+                    gate.reached.set()
+                    gate.release.wait(30.0)
+
+        monkeypatch.setattr("instrument.tui.app.SessionBridge", GatedBridge)
+
+    async def wait(self, pilot, what: str) -> None:
+        await wait_for(pilot, self.reached.is_set, what)
+        self.reached.clear()
+        await pilot.pause(0.3)  # a few refreshes of the screen
+
+    def open(self) -> None:
+        self.release.set()
 
 
 def states(app: BodeBenchApp, frequency_hz: float) -> set[str]:
@@ -292,16 +321,21 @@ def table_states(app: BodeBenchApp) -> list[str]:
 
 
 @pytest.mark.asyncio
-async def test_start_runs_the_sweep_and_the_screen_follows(tmp_path: Path) -> None:
-    config = write_bench_config(tmp_path, channel_name())
+async def test_start_runs_the_sweep_and_the_screen_follows(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    gate = Gate(monkeypatch, (3.0, 4))
+    config = write_bench_config(tmp_path, channel_name(), worker="auto")  # the bus worker in its own process
     out = tmp_path / "out"
     app = BodeBenchApp(config, out)
     async with app.run_test(size=(80, 24)) as pilot:
         assert app.state == "idle" and table_states(app) == [PENDING] * 6
         await pilot.press("s")
-        await wait_for(pilot, lambda: integrating(app, 3.0), "the first point integrating")
-        await pilot.pause(0.2)
-        assert app.w_live.query_one("#convergence", PlotView).traces  # the relative error is plotted
+        await gate.wait(pilot, "the first point integrating")
+        assert app.state == "running" and table_states(app)[:2] == [INTEGRATING] * 2
+        convergence = app.w_live.query_one("#convergence", PlotView).traces
+        assert len(convergence) == 2 and convergence[0].x[-1] >= 4  # relative error per period, both series
+        scope = app.w_live.query_one("#scope", PlotView).traces
+        assert len(scope) == 2 and scope[0].x[-1] == pytest.approx(2 / 3.0, rel=0.02)  # the last two periods
+        gate.open()
         await wait_for(pilot, lambda: finished(app), "the end of the sweep")
         await pilot.pause(0.3)
         assert app.state == "done", app.worker_errors
@@ -322,27 +356,29 @@ async def test_start_runs_the_sweep_and_the_screen_follows(tmp_path: Path) -> No
 
 
 @pytest.mark.asyncio
-async def test_pause_skip_and_remeasure_during_a_sweep(tmp_path: Path) -> None:
+async def test_pause_skip_and_remeasure_during_a_sweep(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    gate = Gate(monkeypatch, (3.0, 1), (8.0, 1))
     config = write_bench_config(tmp_path, channel_name())
     out = tmp_path / "out"
     app = BodeBenchApp(config, out)
     async with app.run_test(size=(80, 24)) as pilot:
         await pilot.press("s")
-        await wait_for(pilot, lambda: integrating(app, 3.0), "3 Hz integrating")
+        await gate.wait(pilot, "3 Hz integrating")
+        assert states(app, 3.0) == {INTEGRATING}
         await pilot.press("p")
         assert app.state == "paused" and "PAUSED" in app.w_status.render().plain
+        gate.open()
         await pilot.pause(0.3)
-        held = app.model.periods
+        held = app.bridge.latest_progress.periods
         await pilot.pause(0.5)
-        assert app.model.periods == held, "periods went on while paused"
+        assert app.bridge.latest_progress.periods == held, "periods went on while paused"
         await pilot.press("2")  # the sweep view; the cursor is on the first row (3 Hz)
         await pilot.press("r")  # measure 3 Hz again after this point
         await pilot.press("p")
         assert app.state == "running"
-        await wait_for(pilot, lambda: integrating(app, 8.0), "8 Hz integrating")
-        await pilot.press("p")
-        await pilot.press("n")  # skip 8 Hz while paused
-        await pilot.press("p")
+        await gate.wait(pilot, "8 Hz integrating")
+        await pilot.press("n")  # skip 8 Hz
+        gate.open()
         await wait_for(pilot, lambda: finished(app), "the end of the sweep")
         assert app.state == "done", app.worker_errors
         assert states(app, 8.0) == {SKIPPED} and states(app, 3.0) == states(app, 20.0) == {CONVERGED}
@@ -353,17 +389,20 @@ async def test_pause_skip_and_remeasure_during_a_sweep(tmp_path: Path) -> None:
 
 
 @pytest.mark.asyncio
-async def test_abort_leaves_a_zero_setpoint_and_keeps_the_measured_points(tmp_path: Path) -> None:
+async def test_abort_leaves_a_zero_setpoint_and_keeps_the_measured_points(tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    gate = Gate(monkeypatch, (8.0, 2))
     channel = channel_name()
     recorder = BusRecorder(channel)
-    config = write_bench_config(tmp_path, channel, worker="thread", tolerance=0.01)
+    config = write_bench_config(tmp_path, channel)
     out = tmp_path / "out"
     app = BodeBenchApp(config, out)
     try:
         async with app.run_test(size=(80, 24)) as pilot:
             await pilot.press("s")
-            await wait_for(pilot, lambda: integrating(app, 8.0), "8 Hz integrating")
+            await gate.wait(pilot, "8 Hz integrating")
             await pilot.press("a")
+            gate.open()
             await wait_for(pilot, lambda: finished(app), "the end of the aborted sweep")
             assert app.state == "aborted"
             assert states(app, 3.0) == {CONVERGED} and states(app, 8.0) == {FAILED}
@@ -405,7 +444,8 @@ async def test_tolerance_remeasure_after_the_sweep_save_and_overlay(tmp_path: Pa
         second = {(p.frequency_hz, p.harmonic): p for p in FrequencyResponse.load(out).points}
         assert second.keys() == first.keys()
         assert second[(3.0, 1)] == first[(3.0, 1)]  # untouched
-        assert second[(20.0, 1)].periods > first[(20.0, 1)].periods  # 10x tighter needs more periods
+        redone = second[(20.0, 1)]
+        assert 100 * redone.uncertainty / redone.magnitude <= 0.02  # measured again to the new tolerance
         assert states(app, 20.0) == {CONVERGED}
         # save: the plots come back
         (out / "bode.png").unlink()
@@ -425,21 +465,24 @@ async def test_tolerance_remeasure_after_the_sweep_save_and_overlay(tmp_path: Pa
 
 
 @pytest.mark.asyncio
-async def test_quit_asks_while_a_sweep_runs_then_aborts_safely(tmp_path: Path) -> None:
+async def test_quit_asks_while_a_sweep_runs_then_aborts_safely(tmp_path: Path,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    gate = Gate(monkeypatch, (3.0, 1))
     channel = channel_name()
     recorder = BusRecorder(channel)
-    config = write_bench_config(tmp_path, channel, tolerance=0.01, worker="thread")
+    config = write_bench_config(tmp_path, channel)
     app = BodeBenchApp(config, tmp_path / "out")
     try:
         async with app.run_test(size=(80, 24)) as pilot:
             await pilot.press("s")
-            await wait_for(pilot, lambda: integrating(app, 3.0), "3 Hz integrating")
+            await gate.wait(pilot, "3 Hz integrating")
             await pilot.press("q")
             assert isinstance(app.screen, ConfirmDialog)
             await pilot.press("n")
             assert not isinstance(app.screen, ConfirmDialog) and app.running
             await pilot.press("q")
             await pilot.press("y")
+            gate.open()
             await wait_for(pilot, lambda: not app.is_running, "the app to exit")
     finally:
         value, disabled = recorder.close()
@@ -452,7 +495,7 @@ async def test_a_fault_is_explained_in_a_dialog(tmp_path: Path) -> None:
     """No drive on the bus: the watchdog trips; the dialog says so and what was kept; the bus ends at zero."""
     channel = channel_name()
     recorder = BusRecorder(channel)
-    config = write_bench_config(tmp_path, channel, simulator=False, watchdog_s=0.3, worker="thread")
+    config = write_bench_config(tmp_path, channel, simulator=False, watchdog_s=0.3)
     app = BodeBenchApp(config, tmp_path / "out")
     try:
         async with app.run_test(size=(80, 24)) as pilot:
@@ -545,7 +588,7 @@ def test_the_command_in_tmux(tmp_path: Path) -> None:
     script = Path(sys.executable).parent / "bodebench"
     command = str(script) if script.exists() else shutil.which("bodebench")
     assert command, "the bodebench command is not installed (pip install -e .)"
-    config = write_bench_config(tmp_path, channel_name())
+    config = write_bench_config(tmp_path, channel_name(), worker="auto")
     out = tmp_path / "results"
     socket = f"bodebench-test-{uuid.uuid4().hex[:8]}"
     base = [tmux, "-L", socket]
