@@ -30,6 +30,8 @@ class BusRecorder:
         """(last setpoint sent, whether a disable frame followed it)."""
         self.stop.set()
         self.thread.join()
+        while (msg := self.bus.recv(0.05)) is not None:  # frames still queued when the reader stopped
+            self.frames.append(msg)
         self.bus.shutdown()
         sp, dis = self.layout.setpoint, self.layout.disable
         setpoints = [i for i, m in enumerate(self.frames) if m.arbitration_id == sp.id]
