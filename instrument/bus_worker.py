@@ -649,7 +649,3 @@ def start_worker(spec: WorkerSpec, mode: str) -> tuple[Connection, Any]:
     thread = threading.Thread(target=worker_main, args=(spec, theirs), name="bodebench-bus", daemon=True)
     thread.start()
     return ours, thread
-
-
-def pid_of(handle: Any) -> int:
-    return getattr(handle, "pid", None) or os.getpid()
