@@ -22,6 +22,7 @@ from .errors import LayoutError
 __all__ = [
     "COUNTER",
     "SETPOINT",
+    "SETPOINT_ECHO",
     "SIGNAL_TYPES",
     "TIMESTAMP",
     "Codec",
@@ -37,6 +38,8 @@ COUNTER = "counter"
 """Name of the rolling sample counter signal (setpoint and feedback messages)."""
 TIMESTAMP = "timestamp_us"
 """Name of the optional controller time signal of the feedback messages (microseconds, rolling)."""
+SETPOINT_ECHO = "setpoint_echo"
+"""Name of the feedback channel carrying the setpoint the drive applied (the two-channel reference of choice)."""
 
 # type name -> (struct code, size in bytes, is integer, is signed)
 _TYPES: dict[str, tuple[str, int, bool, bool]] = {

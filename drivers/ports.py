@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import os
 import select
+import struct
 import time
 from abc import ABC, abstractmethod
 from collections import deque
@@ -29,6 +30,10 @@ from .serial_framing import (
     encode_ascii,
     encode_binary,
 )
+
+if os.name == "posix":
+    import fcntl
+    import termios
 
 __all__ = ["MAX_BATCH", "CanPort", "Frame", "FramePort", "SerialPort"]
 
@@ -288,13 +293,21 @@ class SerialPort(FramePort):
     _CHUNK = 4096  # bytes read per call at most
     _MAX_READS = 16  # reads per poll at most
 
-    def __init__(self, ser: Any, framing: str, layout: Layout, *, name: str | None = None) -> None:
-        """Wrap the open serial object ``ser``; ``framing`` "binary" or "ascii"; ``layout`` is validated for it."""
+    def __init__(self, ser: Any, framing: str, layout: Layout, *, name: str | None = None,
+                 send_timeout: float = 1.0) -> None:
+        """Wrap the open serial object ``ser``; ``framing`` "binary" or "ascii"; ``layout`` is validated for it.
+        ``send_timeout`` (s) bounds each send on a line that does not take the bytes."""
         if framing not in _FRAMINGS:
             raise LayoutError(f'serial framing: one of "binary", "ascii", got {framing!r}')
         layout.validate(f"serial-{framing}")
         super().__init__(name or f"serial {getattr(ser, 'port', None) or type(ser).__name__}", f"serial-{framing}")
         self._ser = ser
+        self._send_timeout = send_timeout
+        self._fd = self._fileno()
+        """The line's non-blocking descriptor (POSIX pyserial): read and written directly, since pyserial's
+        blocking write waits in select() after every write (up to ms on a busy machine)."""
+        if self._fd is not None:
+            os.set_blocking(self._fd, False)
         self.framing = framing
         self.layout = layout
         self.ignored = 0
@@ -346,14 +359,40 @@ class SerialPort(FramePort):
                 wire = ascii_line(frame.id, [frame.data.hex().upper()])
             else:
                 wire = encode_ascii(msg, msg.decode(frame.data))
-        self._ser.write(wire)
+        if self._fd is None:
+            self._ser.write(wire)
+            return
+        view = memoryview(wire)
+        deadline = time.monotonic() + self._send_timeout
+        while view:
+            try:
+                view = view[os.write(self._fd, view):]
+            except BlockingIOError:
+                pass
+            if view:  # the line's buffer is full: wait until it drains, but not forever
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or not select.select([], [self._fd], [], remaining)[1]:
+                    raise self._timeout_errors[0](f"write timed out with {len(view)} of {len(wire)} bytes unsent")
+
+    def _read_some(self) -> bytes:
+        """What the line holds now, at most ``_CHUNK`` bytes (b"" when nothing)."""
+        if self._fd is None:
+            return bytes(self._ser.read(min(max(int(self._ser.in_waiting), 1), self._CHUNK)))
+        # ask the count first: a read (or select) on a tty with nothing queued waits for the kernel's flush worker,
+        # which on a busy machine can take milliseconds
+        waiting = struct.unpack("i", fcntl.ioctl(self._fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+        if waiting <= 0:
+            return b""
+        try:
+            return os.read(self._fd, min(waiting, self._CHUNK))
+        except BlockingIOError:
+            return b""
 
     def _read_available(self) -> list[Frame]:
         """Read and deframe what the line holds now (bounded, so a busy line cannot keep the caller here)."""
         frames: list[Frame] = []
         for _ in range(self._MAX_READS):
-            waiting = self._ser.in_waiting
-            data = self._ser.read(min(max(int(waiting), 1), self._CHUNK))
+            data = self._read_some()
             if not data:
                 break
             now = time.time()
@@ -372,7 +411,7 @@ class SerialPort(FramePort):
                         self._note_error(f"ASCII line id 0x{frame_id:X}: {exc}")
                         continue
                     frames.append(self._frame(frame_id, payload, now))
-            if len(frames) >= MAX_BATCH or (len(data) < self._CHUNK and not self._ser.in_waiting):
+            if len(frames) >= MAX_BATCH or len(data) < self._CHUNK:
                 break
         self._count_framing_errors()
         return frames
@@ -392,7 +431,7 @@ class SerialPort(FramePort):
 
     def _recv(self, timeout: float, limit: int) -> list[Frame]:
         deadline = time.monotonic() + timeout
-        fd = self._fileno()
+        fd = self._fd
         while True:
             frames = self._read_available()
             if frames:

@@ -11,7 +11,6 @@ disable frame.
 
 from __future__ import annotations
 
-import ctypes
 import gc
 import math
 import os
@@ -19,6 +18,7 @@ import select
 import statistics
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from typing import Any
@@ -27,7 +27,9 @@ import numpy as np
 
 from drivers.driver import BusHealth, Driver, FeedbackSample
 from drivers.errors import DriverError
+from drivers.layout import SETPOINT_ECHO
 from drivers.ports import FramePort
+from drivers.realtime import keep_to, lower_timer_slack, pacing_cpu, request_fifo
 
 # ------------------------------------------------------------------------------------------- messages to the worker
 
@@ -89,13 +91,14 @@ class Samples:
 @dataclass(frozen=True)
 class PacingStats:
     """Send-time error of paced setpoints against their schedule (s): p50, p99, max; overruns = ticks late by
-    more than one period."""
+    more than one period; ``scheduling`` says what the OS granted the pacing loop (e.g. "SCHED_FIFO 20, CPU 1")."""
 
     p50: float
     p99: float
     max: float
     count: int
     overruns: int
+    scheduling: str = "normal priority"
 
 
 @dataclass(frozen=True)
@@ -210,15 +213,6 @@ class SineProgram:
 # ------------------------------------------------------------------------------------------------------ the loop
 
 
-def _lower_timer_slack() -> None:
-    """Ask Linux for 1 ns timer slack so sleeps end on time (PR_SET_TIMERSLACK = 29)."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(29, 1, 0, 0, 0)
-    except (OSError, AttributeError):
-        pass
-
-
 SPIN_S = 2e-4
 """Realtime clock: the worker sleeps until this long (at most 0.4 periods) before a tick's deadline and
 busy-waits the rest, since a sleep can end this late. Some sleep every period matters under SCHED_FIFO: a task
@@ -226,19 +220,9 @@ that never sleeps is stopped for 50 ms a second by the kernel's realtime throttl
 MIN_SLEEP_S = 2e-5
 """Realtime clock: shorter sleeps are not worth their wake-up delay."""
 
-REALTIME_PRIORITY = 20
-"""SCHED_FIFO priority the worker process asks for on the realtime clock (above every normal task, below the
-kernel's interrupt threads at 50)."""
-
-
-def _raise_priority() -> bool:
-    """Where the OS permits it, run this process under SCHED_FIFO so a ready tick preempts every normal task
-    (the loop sleeps through most of each period, so it never holds a CPU for long). True when granted."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
-    except (OSError, AttributeError):
-        return False
-    return True
+WORKER_PRIORITY = 20
+"""SCHED_FIFO priority the worker process asks for on the realtime clock (above every normal task and a simulated
+drive, below the kernel's interrupt threads at 50)."""
 
 
 class SendErrorHistogram:
@@ -303,11 +287,14 @@ class BusWorker:
         self.last_feedback = 0.0
         self.offset: float | None = None     # session time = raw time - offset
         self.wall0 = 0.0
-        self.round_trips: list[float] = []
+        self.round_trips: list[float] = []  # s; lockstep: setpoint to its reply; realtime: setpoint to its echo
+        self._echo_index: int | None = None  # realtime: the setpoint_echo channel, when the drive has one
+        self._sent_at: dict[float, float] = {}  # realtime: recent setpoint values (float32) -> wall time sent
+        self._sent_order: deque[float] = deque()
         self.send_errors = SendErrorHistogram()
         self.overruns = 0
         self.spin_s = min(SPIN_S, 0.4 * self.h)  # realtime: busy-wait this long before each tick
-        self.fifo = False  # realtime: running under SCHED_FIFO
+        self.scheduling = "normal priority"  # realtime: what the OS granted the loop
         self._t: list[float] = []
         self._v: list[tuple[float, ...]] = []
         self._u: list[float] = []
@@ -343,7 +330,7 @@ class BusWorker:
         pacing = None
         e = self.send_errors
         if e.count:
-            pacing = PacingStats(e.percentile(50), e.percentile(99), e.max, e.count, self.overruns)
+            pacing = PacingStats(e.percentile(50), e.percentile(99), e.max, e.count, self.overruns, self.scheduling)
         rt = float(np.median(self.round_trips)) if self.round_trips else math.nan
         self._post(Health(self.driver.health.snapshot(), rt, pacing, self.tick, self.time_conflicts,
                           self.invalid_samples, self.missed_replies, self.counter_anomalies))
@@ -436,6 +423,8 @@ class BusWorker:
                 self.time_conflicts += 1
                 continue
             self._last_t = t
+            if self._echo_index is not None and answered_tick is None:
+                self._match_echo(s)
             self.last_feedback = time.monotonic()
             self._t.append(t)
             self._v.append(s.values)
@@ -455,6 +444,28 @@ class BusWorker:
             self.offset = (self.offset or 0.0) + round((t - expected) / self.h) * self.h
             self._anomalies_in_row = 0
         return True
+
+    def _note_round_trip(self, seconds: float) -> None:
+        self.round_trips.append(seconds)
+        if len(self.round_trips) > 4096:
+            del self.round_trips[:2048]
+
+    def _remember_sent(self, u: float) -> None:
+        """Realtime with an echo channel: when and at what wall time a new setpoint value went out."""
+        key = float(np.float32(u))
+        if key not in self._sent_at:
+            self._sent_at[key] = time.time()
+            self._sent_order.append(key)
+            if len(self._sent_order) > 256:
+                self._sent_at.pop(self._sent_order.popleft(), None)
+
+    def _match_echo(self, s: FeedbackSample) -> None:
+        """Realtime round trip: a sample whose echoed setpoint is a value sent recently came back this long after
+        that value went out (its first echo only; values the drive cannot echo exactly never match)."""
+        assert self._echo_index is not None
+        sent = self._sent_at.pop(float(np.float32(s.values[self._echo_index])), None)
+        if sent is not None and 0.0 <= s.receive_time - sent < 1.0:
+            self._note_round_trip(s.receive_time - sent)
 
     def _watchdog(self) -> None:
         if time.monotonic() - self.last_feedback > self.spec.limits.watchdog_s:
@@ -478,9 +489,7 @@ class BusWorker:
         while True:
             samples = self.driver.receive(max(0.0, min(0.05, deadline - time.monotonic())))
             if samples:
-                self.round_trips.append(time.perf_counter() - sent)
-                if len(self.round_trips) > 4096:
-                    del self.round_trips[:2048]
+                self._note_round_trip(time.perf_counter() - sent)
                 self._accept(samples, self.tick)
                 break
             self._watchdog()
@@ -499,6 +508,8 @@ class BusWorker:
             pass
         actual = time.perf_counter()
         self._send(u)
+        if self._echo_index is not None:
+            self._remember_sent(u)
         self.send_errors.add(actual - scheduled)
         if actual - scheduled > self.h:
             self.overruns += 1
@@ -514,12 +525,18 @@ class BusWorker:
                 gc.collect()
                 gc.freeze()
                 gc.disable()
-                _lower_timer_slack()
+                lower_timer_slack()
                 if threading.current_thread() is threading.main_thread():  # a process of its own
-                    self.fifo = _raise_priority()
+                    granted = [f"SCHED_FIFO {WORKER_PRIORITY}"] if request_fifo(WORKER_PRIORITY) else []
+                    cpu = pacing_cpu()
+                    if cpu is not None and keep_to({cpu}):
+                        granted.append(f"CPU {cpu}")
+                    self.scheduling = ", ".join(granted) or self.scheduling
             port, self.layout, self.resources = self.spec.open_link()
             self.driver = Driver(port, self.layout)
             self.layout_channels = self.layout.channels
+            if SETPOINT_ECHO in self.layout_channels:
+                self._echo_index = self.layout_channels.index(SETPOINT_ECHO)
             self.driver.enable()
             self._post(Ready(self.layout.channels, self.h))
             self.wall0 = time.time()

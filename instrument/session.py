@@ -9,6 +9,7 @@ UI) receive typed events; they never touch the measurement.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 import time
@@ -18,6 +19,7 @@ from typing import Callable
 
 import numpy as np
 
+from drivers.realtime import pacing_cpu_left_alone
 from instrument.autointegration import Autointegrator, SeriesState
 from instrument.bench_config import BenchConfig, SafetyConfig
 from instrument.bus_worker import (Credit, Fault, Health, Limits, Ready, Samples, SineStarted, StartSine, Stop,
@@ -171,6 +173,10 @@ class BenchSession:
         stopped: Stopped | None = None
         completed = False
         reason = "sweep complete"
+        # a pacing process gets a CPU of its own: this process (analysis, UI) keeps off it while the sweep runs
+        cpu_yielded = contextlib.ExitStack()
+        if self.bench.clock == "realtime" and self.worker_mode == "process":
+            cpu_yielded.enter_context(pacing_cpu_left_alone())
         try:
             ready = self._expect(Ready, timeout=60.0)
             self.channels = ready.channels
@@ -194,6 +200,7 @@ class BenchSession:
             stopped = self._shutdown(reason, abort=not completed)
             join = getattr(handle, "join")
             join(timeout=10)
+            cpu_yielded.close()
             self.plan.close()
             self.listener(SessionEnded(reason if stopped is None else stopped.reason, completed,
                                        stopped.last_setpoint if stopped else math.nan,

@@ -16,6 +16,7 @@ It is transport-agnostic: ``handle``/``tick`` turn frames into frames, and
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -24,13 +25,15 @@ from typing import Mapping
 import numpy as np
 
 from drivers.errors import LayoutError
-from drivers.layout import Layout, Message
+from drivers.layout import SETPOINT_ECHO, Layout, Message
 from drivers.ports import Frame, FramePort
+from drivers.realtime import keep_to, lower_timer_slack, pacing_cpu, request_fifo
 from sim.faults import ValueFaults
 from sim.plants import Plant
 
-SETPOINT_ECHO = "setpoint_echo"
 CLOCKS = ("lockstep", "realtime")
+DRIVE_PRIORITY = 10
+"""SCHED_FIFO priority of a simulated drive's realtime loop where the OS permits it (below the bus worker's)."""
 
 
 @dataclass(frozen=True)
@@ -175,6 +178,13 @@ class SimulatedController:
                     for out in self.handle(frame):
                         port.send(out)
             return
+        # a drive ticks on its own hardware clock: where permitted, this thread gets realtime priority too (below
+        # the instrument's pacing loop) so that a busy bench PC does not slow the simulated drive
+        lower_timer_slack()
+        request_fifo(DRIVE_PRIORITY)
+        cpu = pacing_cpu()
+        if cpu is not None:
+            keep_to(os.sched_getaffinity(0) - {cpu})
         next_tick = time.perf_counter() + self.period
         while not stop.is_set():
             for frame in port.recv(0.0):

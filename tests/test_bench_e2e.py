@@ -18,7 +18,7 @@ import pytest
 from instrument.config import parse_config
 from instrument.links import plan_link
 from instrument.response import FrequencyResponse
-from instrument.session import BenchSession, PointProgress, SessionError
+from instrument.session import BenchSession, BusStatus, PointProgress, SessionError
 
 from helpers import BusRecorder
 
@@ -111,6 +111,39 @@ def test_jittered_sampling_with_timestamps_agrees(offline_serial: FrequencyRespo
                            simulator={"jitter": 0.05, "seed": 11},
                            analysis={"harmonics": [1], "tolerance_percent": 0.05}))
     compare(session.response, offline_serial, 0.05, 0.2)
+
+
+def test_realtime_clock_over_a_serial_pty_agrees_with_lockstep() -> None:
+    """A short run on the wall clock: the drive, in its own process behind a pty, ticks at 1 kHz on its own clock;
+    the worker paces setpoints on another. Position over the echoed setpoint (two-channel mode) takes out what the
+    unlocked clocks do to the input, so a damped linear oscillator measures as on the lockstep clock."""
+    tables: dict[str, Any] = {
+        "excitation": {"frequencies_hz": [5.0, 12.0]},
+        "analysis": {"harmonics": [1], "tolerance_percent": 0.2, "max_periods": 60},
+        "bench": {"transport": "serial", "reference_channel": "setpoint_echo"},
+        "can": None, "serial": {"framing": "binary"}, "frames": SERIAL_FRAMES,
+    }
+    data = config(**tables)
+    data["plant"] = {"model": "linear", "mass": 2.533e-4, "stiffness": 1.0, "damping_ratio": 0.2}
+    lockstep = sweep(data, direct=True).response
+    data["bench"]["clock"] = "realtime"
+    health: list[Any] = []
+
+    def listener(event: object) -> None:
+        if isinstance(event, BusStatus):
+            health.append(event.health)
+
+    realtime = sweep(data, listener=listener).response
+    assert [p.frequency_hz for p in realtime.points] == [5.0, 12.0]
+    assert np.max(np.abs(realtime.gain_db - lockstep.gain_db)) <= 0.05
+    assert np.max(np.abs(realtime.phase_deg - lockstep.phase_deg)) <= 0.2
+    last = health[-1]
+    assert last.pacing is not None and last.pacing.count > 500  # every setpoint's send time was measured
+    assert last.pacing.scheduling  # what the OS granted the loop is reported
+    # setpoint to its echo: the drive applies it at its next tick and the worker reads the echo on one of its own
+    assert 0.0 < last.round_trip_s < 5e-3
+    assert last.bus.frames_in >= 0.9 * last.bus.frames_out  # the drive kept up: a sample per setpoint
+    assert last.bus.lost_samples <= 0.01 * last.bus.frames_in
 
 
 def test_abort_leaves_zero_setpoint_and_disable_on_the_bus(tmp_path: Path) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import random
+import re
 import select
 import struct
 import threading
@@ -467,6 +468,35 @@ def test_serial_over_pty(pty_pair: tuple[int, str], framing: str) -> None:
         assert got == [(0x01, ["01"]), (0x21, ["3.5", "44"])]
     driver.close()
     assert port.closed
+
+
+def test_serial_send_times_out_on_a_line_that_does_not_drain(pty_pair: tuple[int, str]) -> None:
+    """Nobody reads the far end: sends go out until the tty's buffer is full, then one waits send_timeout and
+    fails with the port's name; once the far end reads, sending works again."""
+    import serial
+
+    master, path = pty_pair
+    layout = Layout.from_mapping(SERIAL_TABLE, "serial.toml")
+    port = SerialPort(serial.Serial(path, 115200, timeout=0), "binary", layout, name=f"serial {path}",
+                      send_timeout=0.2)
+    frame = Frame(0x21, struct.pack("<fB", 1.0, 1))
+    sent = 0
+    with pytest.raises(DriverTimeoutError, match=re.escape(path)) as info:
+        for _ in range(1_000_000):
+            start = time.monotonic()
+            port.send(frame)
+            sent += 1
+    waited = time.monotonic() - start
+    assert 0.2 <= waited < 1.0, waited
+    assert "unsent" in str(info.value)
+    assert port.frames_out == sent > 100
+    drained = 0
+    while select.select([master], [], [], 0.05)[0]:
+        drained += len(os.read(master, 65536))
+    assert drained >= sent * len(encode_binary(0x21, frame.data))
+    port.send(frame)
+    assert port.frames_out == sent + 1
+    port.close()
 
 
 def test_serial_ascii_unknown_id_and_bad_fields() -> None:

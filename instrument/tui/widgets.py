@@ -314,7 +314,7 @@ class BusPanel(Static):
             else:
                 p = health.pacing
                 line("pacing", f"p50 {_si_time(p.p50)}  p99 {_si_time(p.p99)}  max {_si_time(p.max)}  "
-                               f"overruns {p.overruns}", "bold red" if p.overruns else "")
+                               f"overruns {p.overruns}  ({p.scheduling})", "bold red" if p.overruns else "")
         style = {"TRIPPED": "bold white on red", "armed": "green"}.get(watchdog.split(" ")[0], "bright_black")
         line("watchdog", f"{watchdog}  (trips after {watchdog_s:g} s without feedback)", style)
         self.update(text, layout=False)

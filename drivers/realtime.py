@@ -1,0 +1,94 @@
+"""Timely wake-ups on Linux for loops paced on the wall clock: 1 ns timer slack, SCHED_FIFO where permitted, and
+a CPU of their own.
+
+All but ``pacing_cpu_left_alone`` act on the calling thread only and do nothing (returning False where they report) on other systems.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+__all__ = ["keep_to", "lower_timer_slack", "pacing_cpu", "pacing_cpu_left_alone", "request_fifo"]
+
+_PR_SET_TIMERSLACK = 29
+
+
+def lower_timer_slack() -> None:
+    """Ask for 1 ns timer slack, so sleeps of this thread end on time rather than up to 50 us late."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+def request_fifo(priority: int) -> bool:
+    """Run this thread under SCHED_FIFO at ``priority`` (1-99), so it preempts every normal task when it wakes;
+    True when the OS granted it. A FIFO loop must sleep every period: one that never does is stopped for 50 ms a
+    second by the kernel's realtime throttling."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, AttributeError):
+        return False
+    return True
+
+
+def pacing_cpu() -> int | None:
+    """The CPU a bench's pacing loop keeps to itself: the last one this process may use (None with only one).
+    A simulated drive on the same machine keeps off it, so its timer interrupts never land on the pacing loop."""
+    try:
+        cpus = os.sched_getaffinity(0)
+    except (OSError, AttributeError):
+        return None
+    return max(cpus) if len(cpus) > 1 else None
+
+
+def keep_to(cpus: set[int]) -> bool:
+    """Run this thread on ``cpus`` only; True when the OS accepted it (False for an empty set)."""
+    if not cpus:
+        return False
+    try:
+        os.sched_setaffinity(0, cpus)
+    except (OSError, AttributeError, ValueError):
+        return False
+    return True
+
+
+@contextmanager
+def pacing_cpu_left_alone() -> Iterator[int | None]:
+    """While inside, every thread of this process, and every thread they start, keeps off ``pacing_cpu()`` (the
+    CPU yielded; None when there is nothing to leave): their timers would otherwise fire on the pacing loop's CPU
+    and interrupt it. Start the pacing process before entering. On exit each thread gets its CPUs back."""
+    cpu = pacing_cpu()
+    tasks = _threads()
+    if cpu is None or not tasks:
+        yield None
+        return
+    before: dict[int, set[int]] = {}
+    for tid in tasks:
+        try:
+            before[tid] = os.sched_getaffinity(tid)
+            if before[tid] - {cpu}:
+                os.sched_setaffinity(tid, before[tid] - {cpu})
+        except OSError:  # the thread ended meanwhile
+            pass
+    everywhere = before.get(os.getpid(), os.sched_getaffinity(0) | {cpu})
+    try:
+        yield cpu
+    finally:
+        for tid in _threads():
+            try:
+                os.sched_setaffinity(tid, before.get(tid, everywhere))
+            except OSError:
+                pass
+
+
+def _threads() -> list[int]:
+    """Thread ids of this process (Linux), [] where /proc does not list them."""
+    try:
+        return [int(t) for t in os.listdir("/proc/self/task")]
+    except (OSError, ValueError):
+        return []
