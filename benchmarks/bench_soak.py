@@ -127,11 +127,17 @@ def report(probe: Probe, seconds: float, rate: float, ui: bool) -> None:
     warm = [r for r in probe.rows if r[0] >= min(60.0, seconds / 4)] or probe.rows
     first, last = warm[0], probe.rows[-1]
     minutes = max(1e-9, (last[0] - first[0]) / 60.0)
-    print(f"{'process':>10} {'RSS at %4.0f s' % first[0]:>14} {'RSS at %4.0f s' % last[0]:>14} {'slope MB/min':>13}")
-    for pid in sorted(set(first[1]) & set(last[1])):
-        a, b = first[1][pid], last[1][pid]
+    pids = sorted(set(first[1]) & set(last[1]))
+    print(f"processes of the chain running at the start and at the end: {len(pids)} (the session, the "
+          f"multiprocessing resource tracker, the simulated drive, the bus worker)")
+    marks = [r for r in probe.rows if r is first or r is last or int(r[0] // 60) != int((r[0] - 5.0) // 60)]
+    print(f"{'RSS MB at':>12} " + " ".join(f"{r[0]:7.0f} s" for r in marks) + f" {'slope MB/min':>13} (from "
+          f"{first[0]:.0f} s)")
+    for pid in pids:
         label = "session" if pid == os.getpid() else f"pid {pid}"
-        print(f"{label:>10} {a:14.1f} {b:14.1f} {(b - a) / minutes:13.3f}")
+        a, b = first[1][pid], last[1][pid]
+        print(f"{label:>12} " + " ".join(f"{r[1].get(pid, float('nan')):9.1f}" for r in marks)
+              + f" {(b - a) / minutes:13.3f}")
     h = probe.health
     if h is None:
         print("no bus health reported")
@@ -155,8 +161,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from instrument.config import load_config
 
-    freqs = [round(2.0 + 0.5 * i, 2) for i in range(190)] * 5  # more points than any soak needs
-    freqs = sorted(set(freqs))
+    freqs = [round(2.0 + 0.1 * i, 1) for i in range(981)]  # 2 to 100 Hz: a sweep longer than the soak (~1.6 s a point)
     tmp = Path(tempfile.mkdtemp(prefix="bodebench-soak-"))
     cfg = tmp / "soak.toml"
     cfg.write_text(CONFIG.format(freqs=freqs, rate=args.rate))

@@ -374,25 +374,32 @@ class SerialPort(FramePort):
                 if remaining <= 0 or not select.select([], [self._fd], [], remaining)[1]:
                     raise self._timeout_errors[0](f"write timed out with {len(view)} of {len(wire)} bytes unsent")
 
-    def _read_some(self) -> bytes:
-        """What the line holds now, at most ``_CHUNK`` bytes (b"" when nothing)."""
+    def _read_some(self, readable: bool = False) -> bytes:
+        """What the line holds now, at most ``_CHUNK`` bytes (b"" when nothing). ``readable``: select() just said
+        so; then no bytes at all means the far end hung up (OSError)."""
         if self._fd is None:
             return bytes(self._ser.read(min(max(int(self._ser.in_waiting), 1), self._CHUNK)))
-        # ask the count first: a read (or select) on a tty with nothing queued waits for the kernel's flush worker,
-        # which on a busy machine can take milliseconds
-        waiting = struct.unpack("i", fcntl.ioctl(self._fd, termios.FIONREAD, b"\0\0\0\0"))[0]
-        if waiting <= 0:
-            return b""
+        size = self._CHUNK
+        if not readable:
+            # ask the count first: a read (or select) on a tty with nothing queued waits for the kernel's flush
+            # worker, which on a busy machine can take milliseconds
+            size = min(size, struct.unpack("i", fcntl.ioctl(self._fd, termios.FIONREAD, b"\0\0\0\0"))[0])
+            if size <= 0:
+                return b""
         try:
-            return os.read(self._fd, min(waiting, self._CHUNK))
+            data = os.read(self._fd, size)
         except BlockingIOError:
             return b""
+        if readable and not data:
+            raise OSError("the line hung up (end of file)")
+        return data
 
-    def _read_available(self) -> list[Frame]:
-        """Read and deframe what the line holds now (bounded, so a busy line cannot keep the caller here)."""
+    def _read_available(self, readable: bool = False) -> list[Frame]:
+        """Read and deframe what the line holds now (bounded, so a busy line cannot keep the caller here);
+        ``readable`` as for ``_read_some``."""
         frames: list[Frame] = []
-        for _ in range(self._MAX_READS):
-            data = self._read_some()
+        for i in range(self._MAX_READS):
+            data = self._read_some(readable and i == 0)
             if not data:
                 break
             now = time.time()
@@ -432,15 +439,16 @@ class SerialPort(FramePort):
     def _recv(self, timeout: float, limit: int) -> list[Frame]:
         deadline = time.monotonic() + timeout
         fd = self._fd
+        readable = False
         while True:
-            frames = self._read_available()
+            frames = self._read_available(readable)
             if frames:
                 return frames
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return []
             if fd is not None:  # wake as soon as bytes arrive
-                select.select([fd], [], [], remaining)
+                readable = bool(select.select([fd], [], [], remaining)[0])
             else:
                 time.sleep(min(self._POLL_S, remaining))
 

@@ -287,7 +287,8 @@ class BusWorker:
         self.last_feedback = 0.0
         self.offset: float | None = None     # session time = raw time - offset
         self.wall0 = 0.0
-        self.round_trips: list[float] = []  # s; lockstep: setpoint to its reply; realtime: setpoint to its echo
+        # s, the latest (few, so their median stays cheap); lockstep: setpoint to its reply; realtime: to its echo
+        self.round_trips: deque[float] = deque(maxlen=256)
         self._echo_index: int | None = None  # realtime: the setpoint_echo channel, when the drive has one
         self._sent_at: dict[float, float] = {}  # realtime: recent setpoint values (float32) -> wall time sent
         self._sent_order: deque[float] = deque()
@@ -331,7 +332,7 @@ class BusWorker:
         e = self.send_errors
         if e.count:
             pacing = PacingStats(e.percentile(50), e.percentile(99), e.max, e.count, self.overruns, self.scheduling)
-        rt = float(np.median(self.round_trips)) if self.round_trips else math.nan
+        rt = statistics.median(self.round_trips) if self.round_trips else math.nan
         self._post(Health(self.driver.health.snapshot(), rt, pacing, self.tick, self.time_conflicts,
                           self.invalid_samples, self.missed_replies, self.counter_anomalies))
 
@@ -445,11 +446,6 @@ class BusWorker:
             self._anomalies_in_row = 0
         return True
 
-    def _note_round_trip(self, seconds: float) -> None:
-        self.round_trips.append(seconds)
-        if len(self.round_trips) > 4096:
-            del self.round_trips[:2048]
-
     def _remember_sent(self, u: float) -> None:
         """Realtime with an echo channel: when and at what wall time a new setpoint value went out."""
         key = float(np.float32(u))
@@ -465,7 +461,7 @@ class BusWorker:
         assert self._echo_index is not None
         sent = self._sent_at.pop(float(np.float32(s.values[self._echo_index])), None)
         if sent is not None and 0.0 <= s.receive_time - sent < 1.0:
-            self._note_round_trip(s.receive_time - sent)
+            self.round_trips.append(s.receive_time - sent)
 
     def _watchdog(self) -> None:
         if time.monotonic() - self.last_feedback > self.spec.limits.watchdog_s:
@@ -483,13 +479,13 @@ class BusWorker:
         if self.offset is None:
             wait = self.spec.limits.watchdog_s
         else:
-            typical = self.round_trips[-64:]
+            typical = list(self.round_trips)[-64:]
             wait = min(self.spec.reply_timeout_s, max(2e-3, 8 * statistics.median(typical) if typical else 2e-3))
         deadline = time.monotonic() + wait
         while True:
             samples = self.driver.receive(max(0.0, min(0.05, deadline - time.monotonic())))
             if samples:
-                self._note_round_trip(time.perf_counter() - sent)
+                self.round_trips.append(time.perf_counter() - sent)
                 self._accept(samples, self.tick)
                 break
             self._watchdog()

@@ -499,6 +499,22 @@ def test_serial_send_times_out_on_a_line_that_does_not_drain(pty_pair: tuple[int
     port.close()
 
 
+def test_serial_far_end_hanging_up_is_an_error_at_once() -> None:
+    """The far end of the line goes away while the port waits for a frame: an operation error naming the port,
+    long before the wait would have ended, not a silent spin."""
+    master, slave = os.openpty()
+    path = os.ttyname(slave)
+    layout = Layout.from_mapping(SERIAL_TABLE, "serial.toml")
+    port = SerialPort.open(path, 115200, "binary", layout)
+    os.close(master)
+    os.close(slave)
+    start = time.monotonic()
+    with pytest.raises(DriverOperationError, match=re.escape(path)):
+        port.recv(5.0)
+    assert time.monotonic() - start < 1.0
+    port.close()
+
+
 def test_serial_ascii_unknown_id_and_bad_fields() -> None:
     layout = Layout.from_mapping(SERIAL_TABLE, "serial.toml")
     port = SerialPort.open("loop://", 115200, "ascii", layout)
