@@ -1,6 +1,6 @@
 """What the terminal UI costs the measurement.
 
-Run: python benchmarks/bench_tui.py
+Run: python benchmarks/bench_tui.py [--only lockstep|realtime]
 
 1. Lockstep: the wall time of the sweep of configs/sim_can.toml (BenchSession.run, the simulated drive on a
    virtual CAN bus) without the UI (no listener) and with the UI open (the app headless via run_test, the
@@ -10,7 +10,8 @@ Run: python benchmarks/bench_tui.py
 2. Realtime: the pacing error's p99 (Health.pacing, the bus worker in its own process) of a short realtime
    run over a serial pty - configs/sim_serial.toml with clock = "realtime", reference_channel =
    "setpoint_echo", tolerance 1 %, 2 frequencies, at most MAX_PERIODS_REALTIME periods each - without and with
-   the UI.
+   the UI, REPEATS_REALTIME of each. The p99 sits at the clock's floor (under 1 us) unless the machine stalls,
+   so its cost is judged against the 50 us pacing target, not against that floor.
 
 Runs alternate without/with, REPEATS of each; medians and minima are printed (other work on the machine
 makes single runs vary a lot; the minimum is the least disturbed), and the CPU time the UI's thread used as a
@@ -38,6 +39,8 @@ from instrument.session import BenchSession  # noqa: E402
 from instrument.tui import BodeBenchApp  # noqa: E402
 
 REPEATS = 3
+REPEATS_REALTIME = 7  # short runs whose p99 a single stall of the machine moves: more of them
+PACING_TARGET_S = 50e-6  # p99 of the send-time error at 1 kHz (benchmarks/bench_pacing.py)
 UI_SIZE = (160, 45)   # every panel on screen: the most drawing
 TARGET = 0.10
 MAX_PERIODS_REALTIME = 60  # bounds a realtime run whose points do not reach 1 % (jitter of a loaded machine)
@@ -93,15 +96,17 @@ def with_ui(config: ExperimentConfig, out: Path) -> tuple[float, float]:
 
 
 def compare(label: str, config: ExperimentConfig, index: int, unit: str, scale: float,
-            extra_thread_baseline: bool) -> None:
-    """Alternate runs without and with the UI; print the medians and the UI's cost."""
+            extra_thread_baseline: bool, repeats: int = REPEATS, budget: float | None = None) -> None:
+    """Alternate runs without and with the UI; print the medians and the UI's cost: relative to the figure without
+    the UI, or with ``budget`` relative to that (a p99 of a few us is the clock's floor, so 10 % of it means
+    nothing; 10 % of the 50 us pacing target does)."""
     ui_mode = BodeBenchApp.worker_mode(config.cases[0])
     variants: dict[str, list[float]] = {f"without UI (worker: {ui_mode})": []}
     if extra_thread_baseline:
         variants["without UI (worker: thread)"] = []
     variants["with UI"] = []
     with tempfile.TemporaryDirectory() as tmp:
-        for r in range(REPEATS):
+        for r in range(repeats):
             for name, values in variants.items():
                 out = Path(tmp) / f"{len(values)}-{r}-{name.split()[0]}{len(name)}"
                 if name == "with UI":
@@ -116,25 +121,34 @@ def compare(label: str, config: ExperimentConfig, index: int, unit: str, scale: 
         ui = stat(variants["with UI"])
         for name, values in variants.items():
             if name != "with UI":
-                cost = (ui - stat(values)) / stat(values)
-                print(f"  UI cost ({stat.__name__}s) against {name}: {cost * 100:+.1f} %   (target < "
+                cost = (ui - stat(values)) / (budget if budget is not None else stat(values))
+                of = f"of the {budget * scale:g} {unit} target" if budget is not None else "of the time"
+                print(f"  UI cost ({stat.__name__}s) against {name}: {cost * 100:+.1f} % {of}   (target < "
                       f"{TARGET * 100:.0f} %: {'met' if cost < TARGET else 'NOT met'})", flush=True)
-    print(f"  UI thread CPU during the sweeps: {', '.join(f'{c * 100:.1f} %' for c in UI_CPU[-REPEATS:])} of the "
+    print(f"  UI thread CPU during the sweeps: {', '.join(f'{c * 100:.1f} %' for c in UI_CPU[-repeats:])} of the "
           f"sweep's wall time", flush=True)
 
 
-def main() -> None:
-    lockstep = load_config(ROOT / "configs" / "sim_can.toml")
-    case = lockstep.cases[0]
-    print(f"lockstep: {lockstep.path.name}, {len(case.excitation.frequencies_hz)} frequencies, "
-          f"tolerance {case.analysis.tolerance_percent:g} %, UI size {UI_SIZE[0]}x{UI_SIZE[1]}, "
-          f"median of {REPEATS}", flush=True)
-    compare("lockstep sweep wall time", lockstep, 0, "s", 1.0, True)
-    realtime = realtime_config()
-    print(f"\nrealtime: sim_serial.toml on the realtime clock, frequencies "
-          f"{list(realtime.cases[0].excitation.frequencies_hz)} Hz, tolerance 1 %", flush=True)
-    compare("realtime pacing error p99", realtime, 1, "us", 1e6, False)
+def main(argv: list[str]) -> None:
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", choices=("lockstep", "realtime"), help="run one of the two comparisons")
+    args = parser.parse_args(argv)
+    if args.only != "realtime":
+        lockstep = load_config(ROOT / "configs" / "sim_can.toml")
+        case = lockstep.cases[0]
+        print(f"lockstep: {lockstep.path.name}, {len(case.excitation.frequencies_hz)} frequencies, "
+              f"tolerance {case.analysis.tolerance_percent:g} %, UI size {UI_SIZE[0]}x{UI_SIZE[1]}, "
+              f"median of {REPEATS}", flush=True)
+        compare("lockstep sweep wall time", lockstep, 0, "s", 1.0, True)
+    if args.only != "lockstep":
+        realtime = realtime_config()
+        print(f"\nrealtime: sim_serial.toml on the realtime clock, frequencies "
+              f"{list(realtime.cases[0].excitation.frequencies_hz)} Hz, tolerance 1 %, median of "
+              f"{REPEATS_REALTIME}", flush=True)
+        compare("realtime pacing error p99", realtime, 1, "us", 1e6, False, REPEATS_REALTIME, PACING_TARGET_S)
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

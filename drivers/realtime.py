@@ -1,7 +1,8 @@
 """Timely wake-ups on Linux for loops paced on the wall clock: 1 ns timer slack, SCHED_FIFO where permitted, and
 a CPU of their own.
 
-All but ``pacing_cpu_left_alone`` act on the calling thread only and do nothing (returning False where they report) on other systems.
+All but ``pacing_cpu_left_alone`` act on the calling thread only. On other systems they do nothing (and report
+False where they report).
 """
 
 from __future__ import annotations

@@ -447,7 +447,7 @@ class BusWorker:
         return True
 
     def _remember_sent(self, u: float) -> None:
-        """Realtime with an echo channel: when and at what wall time a new setpoint value went out."""
+        """Realtime with an echo channel: the wall time (s) a new setpoint value went out."""
         key = float(np.float32(u))
         if key not in self._sent_at:
             self._sent_at[key] = time.time()
@@ -550,6 +550,9 @@ class BusWorker:
                         self._ship()
                         self._health()
                         self._poll_commands(0.5)
+                        # a lockstep drive answers setpoints only: its silence while none is asked for (a paused
+                        # or slow session) is not a fault, so the watchdog counts from the next setpoint
+                        self.last_feedback = time.monotonic()
                         continue
                     self._lockstep_tick()
                     if self.tick > self.credit:

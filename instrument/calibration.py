@@ -38,7 +38,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline, PchipInterpolator
 from scipy.optimize import brentq
 
-from instrument.response import atomic_write_text
+from instrument.response import atomic_write_text, read_json_file
 from sim.plants import CoulombOscillator, PlantState
 
 __all__ = [
@@ -508,16 +508,7 @@ def load_calibration(path: str | Path | None = None) -> CalibrationTable:
 
 
 def _read_table(path: Path) -> CalibrationTable:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise CalibrationError(f"{path}: calibration file not found (run bodebench calibrate)") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CalibrationError(f"{path}: cannot read calibration file: {exc}") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise CalibrationError(f"{path}: not valid JSON: {exc}") from None
+    data = read_json_file(path, CalibrationError, "calibration file", " (run bodebench calibrate)")
     return CalibrationTable.from_json(data, str(path))
 
 

@@ -375,17 +375,23 @@ def _parse_row(path: Path, lineno: int, row: dict[str, str]) -> ResponsePoint:
     return point
 
 
-def _parse_sidecar(path: Path) -> tuple[str, dict[str, Any]]:
+def read_json_file(path: Path, error: type[Exception], what: str, missing_hint: str = "") -> Any:
+    """The JSON value stored in ``path``; ``error`` naming the file (and the line) when it is missing (with
+    ``missing_hint`` appended), unreadable or not JSON. ``what`` names the file's role, e.g. "sidecar file"."""
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ResultsError(f"{path}: sidecar file not found") from None
+        raise error(f"{path}: {what} not found{missing_hint}") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise ResultsError(f"{path}: cannot read sidecar file: {exc}") from None
+        raise error(f"{path}: cannot read {what}: {exc}") from None
     try:
-        data = json.loads(text)
+        return json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ResultsError(f"{path}: line {exc.lineno}: sidecar is not valid JSON: {exc.msg}") from None
+        raise error(f"{path}: line {exc.lineno}: {what} is not valid JSON: {exc.msg}") from None
+
+
+def _parse_sidecar(path: Path) -> tuple[str, dict[str, Any]]:
+    data = read_json_file(path, ResultsError, "sidecar file")
     if not isinstance(data, dict):
         raise ResultsError(f"{path}: sidecar must hold a JSON object, got {type(data).__name__}")
     for key in ("format", "version", "case", "config"):

@@ -239,6 +239,11 @@ def test_calibrate_command_reproduces_a_direct_computation(tmp_path: Path, monke
     bad.write_text(json.dumps(data))
     with pytest.raises(CalibrationError, match=r"bad\.json.*version 99"):
         load_calibration(bad)
+    bad.write_text(out.read_text()[:200])  # cut short, as by a crash mid-write
+    with pytest.raises(CalibrationError, match=r"bad\.json: line \d+: calibration file is not valid JSON"):
+        load_calibration(bad)
+    with pytest.raises(CalibrationError, match=r"missing\.json: calibration file not found \(run bodebench "):
+        load_calibration(tmp_path / "missing.json")
 
 
 # ----------------------------------------------------------------------------------------- the procedure
