@@ -59,15 +59,18 @@ def keep_to(cpus: set[int]) -> bool:
 
 
 @contextmanager
-def pacing_cpu_left_alone() -> Iterator[int | None]:
-    """While inside, every thread of this process, and every thread they start, keeps off ``pacing_cpu()`` (the
-    CPU yielded; None when there is nothing to leave): their timers would otherwise fire on the pacing loop's CPU
-    and interrupt it. Start the pacing process before entering. On exit each thread gets its CPUs back."""
-    cpu = pacing_cpu()
+def pacing_cpu_left_alone(cpu: int | None = None) -> Iterator[int | None]:
+    """While inside, every thread of this process, and every thread they start, keeps off ``cpu`` (default
+    ``pacing_cpu()``; the CPU is yielded, None when there is nothing to leave): their timers would otherwise fire
+    on the pacing loop's CPU and interrupt it. Start the pacing process before entering. On exit each thread gets
+    its CPUs back."""
+    if cpu is None:
+        cpu = pacing_cpu()
     tasks = _threads()
     if cpu is None or not tasks:
         yield None
         return
+    everywhere = os.sched_getaffinity(0)  # for threads started inside: what their starter had before
     before: dict[int, set[int]] = {}
     for tid in tasks:
         try:
@@ -76,7 +79,6 @@ def pacing_cpu_left_alone() -> Iterator[int | None]:
                 os.sched_setaffinity(tid, before[tid] - {cpu})
         except OSError:  # the thread ended meanwhile
             pass
-    everywhere = before.get(os.getpid(), os.sched_getaffinity(0) | {cpu})
     try:
         yield cpu
     finally:

@@ -9,6 +9,7 @@ in ``instrument.config.TABLES``; the cross-table checks run once per case.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
@@ -61,6 +62,9 @@ class BenchConfig:
     reply_timeout_s: float = field(default=0.05, metadata={
         "min": 0, "min_exclusive": True,
         "doc": "lockstep: longest wait for a setpoint's reply (8 typical round trips, at least 2 ms, are waited), s"})
+    pacing_cpu: int | None = field(default=None, metadata={
+        "min": 0, "doc": "realtime: the CPU the bus worker keeps to itself (e.g. one isolated with isolcpus); "
+                         "default: the last CPU the process may use"})
 
 
 @dataclass(frozen=True)
@@ -213,6 +217,10 @@ def check_bench_case(case: "CaseConfig", key: Callable[[str, str], str], source:
         raise CaseCheckError(key("can", "channel"), "missing (only a [simulator] provides its own)")
     if isinstance(link, SerialConfig) and not link.port and not simulated:
         raise CaseCheckError(key("serial", "port"), "missing (only a [simulator] provides its own)")
+    cpus = os.cpu_count() or 1
+    if bench.clock == "realtime" and bench.pacing_cpu is not None and bench.pacing_cpu >= cpus:
+        raise CaseCheckError(key("bench", "pacing_cpu"),
+                             f"CPU {bench.pacing_cpu} does not exist on this machine ({cpus} CPUs, numbered from 0)")
     if bench.clock == "lockstep" and bench.timebase == "receive":
         raise CaseCheckError(key("bench", "timebase"), "receive times mean nothing on the lockstep clock")
     safety: SafetyConfig | None = tables.get("safety")

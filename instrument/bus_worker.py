@@ -161,6 +161,7 @@ class WorkerSpec:
     batch_s: float = 0.01
     health_s: float = 0.1
     reply_timeout_s: float = 0.05  # lockstep: how long a setpoint's reply may take before it counts as lost
+    pacing_cpu: int | None = None  # realtime: the CPU the worker process keeps to (None: the last it may use)
 
 
 class _Trip(Exception):
@@ -524,7 +525,7 @@ class BusWorker:
                 lower_timer_slack()
                 if threading.current_thread() is threading.main_thread():  # a process of its own
                     granted = [f"SCHED_FIFO {WORKER_PRIORITY}"] if request_fifo(WORKER_PRIORITY) else []
-                    cpu = pacing_cpu()
+                    cpu = self.spec.pacing_cpu if self.spec.pacing_cpu is not None else pacing_cpu()
                     if cpu is not None and keep_to({cpu}):
                         granted.append(f"CPU {cpu}")
                     self.scheduling = ", ".join(granted) or self.scheduling

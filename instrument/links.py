@@ -91,7 +91,7 @@ def simulator_spec(case: CaseConfig, layout: Layout, *, jitter: bool = True) -> 
     bench: BenchConfig = case.tables["bench"]
     sim: SimulatorConfig | None = case.tables.get("simulator")
     timing = ControllerTiming(bench.rate_hz, bench.clock, sim.jitter if (sim and jitter) else 0.0,
-                              sim.seed if sim else 0)
+                              sim.seed if sim else 0, bench.pacing_cpu)
     serial: SerialConfig | None = case.tables.get("serial")
     can: CanConfig | None = case.tables.get("can")
     can_map: dict[str, Any] = {}

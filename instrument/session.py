@@ -164,7 +164,8 @@ class BenchSession:
                         {k: (float(v[0]), float(v[1])) for k, v in safety.feedback_limits.items()},
                         safety.watchdog_s)
         return WorkerSpec(self.plan.open_link, self.bench.rate_hz, self.bench.clock, self.bench.timebase, limits,
-                          batch_s=self.bench.batch_ms / 1000.0, reply_timeout_s=self.bench.reply_timeout_s)
+                          batch_s=self.bench.batch_ms / 1000.0, reply_timeout_s=self.bench.reply_timeout_s,
+                          pacing_cpu=self.bench.pacing_cpu)
 
     def run(self) -> SessionResult:
         """Run the whole sweep; never leaves the drive moving. Raises SessionError after a trip (points kept)."""
@@ -176,7 +177,7 @@ class BenchSession:
         # a pacing process gets a CPU of its own: this process (analysis, UI) keeps off it while the sweep runs
         cpu_yielded = contextlib.ExitStack()
         if self.bench.clock == "realtime" and self.worker_mode == "process":
-            cpu_yielded.enter_context(pacing_cpu_left_alone())
+            cpu_yielded.enter_context(pacing_cpu_left_alone(self.bench.pacing_cpu))
         try:
             ready = self._expect(Ready, timeout=60.0)
             self.channels = ready.channels

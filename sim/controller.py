@@ -43,13 +43,16 @@ class ControllerTiming:
     rate_hz: control and sampling rate (Hz); clock: lockstep or realtime;
     jitter: sampling-instant jitter as a fraction of the control period
     (uniform in +-jitter; the feedback timestamp reports the true instant);
-    seed: random seed of the jitter.
+    seed: random seed of the jitter;
+    pacing_cpu: realtime: the CPU the instrument's pacing loop keeps to itself, which the controller keeps off
+    (None: ``drivers.realtime.pacing_cpu()``).
     """
 
     rate_hz: float
     clock: str = "lockstep"
     jitter: float = 0.0
     seed: int = 0
+    pacing_cpu: int | None = None
 
     def __post_init__(self) -> None:
         if self.clock not in CLOCKS:
@@ -182,7 +185,7 @@ class SimulatedController:
         # the instrument's pacing loop) so that a busy bench PC does not slow the simulated drive
         lower_timer_slack()
         request_fifo(DRIVE_PRIORITY)
-        cpu = pacing_cpu()
+        cpu = self.timing.pacing_cpu if self.timing.pacing_cpu is not None else pacing_cpu()
         if cpu is not None:
             keep_to(os.sched_getaffinity(0) - {cpu})
         next_tick = time.perf_counter() + self.period

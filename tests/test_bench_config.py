@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import os
 from typing import Any
 
 import pytest
@@ -82,3 +83,13 @@ def test_feedback_window_must_be_low_high() -> None:
 
 def test_bench_tables_without_a_bench() -> None:
     assert "bench.toml: can: needs a [bench] table" in error(lambda d: d.pop("bench"))
+
+
+def test_pacing_cpu_must_exist_on_this_machine() -> None:
+    cpus = os.cpu_count() or 1
+    text = error(lambda d: d["bench"].update(clock="realtime", pacing_cpu=cpus))
+    assert "bench.pacing_cpu" in text and f"CPU {cpus} does not exist" in text
+    assert "bench.pacing_cpu" in error(lambda d: d["bench"].update(pacing_cpu=-1))
+    data = copy.deepcopy(GOOD)
+    data["bench"].update(clock="realtime", pacing_cpu=cpus - 1)
+    assert parse_config(data, "bench.toml").cases[0].tables["bench"].pacing_cpu == cpus - 1

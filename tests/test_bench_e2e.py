@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -113,7 +114,8 @@ def test_jittered_sampling_with_timestamps_agrees(offline_serial: FrequencyRespo
     compare(session.response, offline_serial, 0.05, 0.2)
 
 
-def test_realtime_clock_over_a_serial_pty_agrees_with_lockstep() -> None:
+@pytest.mark.parametrize("pacing_cpu", [None, 0])
+def test_realtime_clock_over_a_serial_pty_agrees_with_lockstep(pacing_cpu: int | None) -> None:
     """A short run on the wall clock: the drive, in its own process behind a pty, ticks at 1 kHz on its own clock;
     the worker paces setpoints on another. Position over the echoed setpoint (two-channel mode) takes out what the
     unlocked clocks do to the input, so a damped linear oscillator measures as on the lockstep clock."""
@@ -127,6 +129,8 @@ def test_realtime_clock_over_a_serial_pty_agrees_with_lockstep() -> None:
     data["plant"] = {"model": "linear", "mass": 2.533e-4, "stiffness": 1.0, "damping_ratio": 0.2}
     lockstep = sweep(data, direct=True).response
     data["bench"]["clock"] = "realtime"
+    if pacing_cpu is not None:
+        data["bench"]["pacing_cpu"] = pacing_cpu
     health: list[Any] = []
 
     def listener(event: object) -> None:
@@ -139,7 +143,10 @@ def test_realtime_clock_over_a_serial_pty_agrees_with_lockstep() -> None:
     assert np.max(np.abs(realtime.phase_deg - lockstep.phase_deg)) <= 0.2
     last = health[-1]
     assert last.pacing is not None and last.pacing.count > 500  # every setpoint's send time was measured
-    assert last.pacing.scheduling  # what the OS granted the loop is reported
+    # what the OS granted the loop is reported; the worker keeps to the chosen CPU, by default the last one
+    cpus = os.sched_getaffinity(0)
+    expected = pacing_cpu if pacing_cpu is not None else (max(cpus) if len(cpus) > 1 else None)
+    assert last.pacing.scheduling.endswith(f"CPU {expected}") if expected is not None else last.pacing.scheduling
     # setpoint to its echo: the drive applies it at its next tick and the worker reads the echo on one of its own
     assert 0.0 < last.round_trip_s < 5e-3
     assert last.bus.frames_in >= 0.9 * last.bus.frames_out  # the drive kept up: a sample per setpoint

@@ -64,3 +64,25 @@ def test_every_thread_keeps_off_the_pacing_cpu_and_gets_its_cpus_back() -> None:
     finally:
         stop.set()
         early.join()
+
+
+def test_a_chosen_cpu_is_left_alone_and_nothing_is_added_on_exit() -> None:
+    """An explicit CPU (say one isolated from the scheduler) is taken out of every thread's set while inside; on
+    exit a thread started inside gets its starter's former set, never the yielded CPU added to it."""
+    mine = os.sched_getaffinity(0)
+    chosen = min(mine)
+    stop = threading.Event()
+    started: list[threading.Thread] = []
+    try:
+        with pacing_cpu_left_alone(chosen) as cpu:
+            assert cpu == chosen
+            if len(mine) > 1:
+                assert chosen not in os.sched_getaffinity(0)
+            started.append(threading.Thread(target=stop.wait))
+            started[0].start()
+        assert os.sched_getaffinity(0) == mine
+        assert os.sched_getaffinity(started[0].native_id) == mine
+    finally:
+        stop.set()
+        for t in started:
+            t.join()
