@@ -37,9 +37,12 @@ def request_fifo(priority: int) -> bool:
     return True
 
 
-def pacing_cpu() -> int | None:
-    """The CPU a bench's pacing loop keeps to itself: the last one this process may use (None with only one).
-    A simulated drive on the same machine keeps off it, so its timer interrupts never land on the pacing loop."""
+def pacing_cpu(chosen: int | None = None) -> int | None:
+    """The CPU a bench's pacing loop keeps to itself: ``chosen`` when given (``bench.pacing_cpu``), else the last
+    one this process may use (None with only one). A simulated drive on the same machine keeps off it, so its timer
+    interrupts never land on the pacing loop."""
+    if chosen is not None:
+        return chosen
     try:
         cpus = os.sched_getaffinity(0)
     except (OSError, AttributeError):
@@ -64,8 +67,7 @@ def pacing_cpu_left_alone(cpu: int | None = None) -> Iterator[int | None]:
     ``pacing_cpu()``; the CPU is yielded, None when there is nothing to leave): their timers would otherwise fire
     on the pacing loop's CPU and interrupt it. Start the pacing process before entering. On exit each thread gets
     its CPUs back."""
-    if cpu is None:
-        cpu = pacing_cpu()
+    cpu = pacing_cpu(cpu)
     tasks = _threads()
     if cpu is None or not tasks:
         yield None

@@ -525,7 +525,7 @@ class BusWorker:
                 lower_timer_slack()
                 if threading.current_thread() is threading.main_thread():  # a process of its own
                     granted = [f"SCHED_FIFO {WORKER_PRIORITY}"] if request_fifo(WORKER_PRIORITY) else []
-                    cpu = self.spec.pacing_cpu if self.spec.pacing_cpu is not None else pacing_cpu()
+                    cpu = pacing_cpu(self.spec.pacing_cpu)
                     if cpu is not None and keep_to({cpu}):
                         granted.append(f"CPU {cpu}")
                     self.scheduling = ", ".join(granted) or self.scheduling

@@ -185,7 +185,7 @@ class SimulatedController:
         # the instrument's pacing loop) so that a busy bench PC does not slow the simulated drive
         lower_timer_slack()
         request_fifo(DRIVE_PRIORITY)
-        cpu = self.timing.pacing_cpu if self.timing.pacing_cpu is not None else pacing_cpu()
+        cpu = pacing_cpu(self.timing.pacing_cpu)
         if cpu is not None:
             keep_to(os.sched_getaffinity(0) - {cpu})
         next_tick = time.perf_counter() + self.period
