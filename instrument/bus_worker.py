@@ -98,7 +98,7 @@ class PacingStats:
     max: float
     count: int
     overruns: int
-    scheduling: str = "normal priority"
+    scheduling: str
 
 
 @dataclass(frozen=True)
