@@ -65,7 +65,8 @@ class Autointegrator:
         self._rules: list[list[StoppingRule]] = [
             [make_rule(analysis.criterion, tolerance_percent=analysis.tolerance_percent,
                        skip_periods=analysis.skip_periods, window=analysis.window,
-                       settle_periods=analysis.settle_periods, average_periods=analysis.average_periods)
+                       settle_periods=analysis.settle_periods, average_periods=analysis.average_periods,
+                       max_periods=analysis.max_periods)
              for _ in self.harmonics] for _ in self.channels]
         self._verdicts: list[list[Verdict | None]] = [[None] * len(self.harmonics) for _ in self.channels]
         self.periods = 0
@@ -107,7 +108,7 @@ class Autointegrator:
                         continue
                     verdict = self._rules[c][k].check(self._histories[c][k], n, reference)
                     if verdict is None and n >= self.max_periods:
-                        verdict = self._rules[c][k].capped(self._histories[c][k], n)
+                        verdict = self._rules[c][k].capped(self._histories[c][k], n, reference)
                     self._verdicts[c][k] = verdict
             if self.done:
                 break
@@ -146,5 +147,7 @@ class Autointegrator:
                 assert v is not None
                 pts.append(ResponsePoint(frequency_hz=self.frequency_hz, harmonic=harmonic, channel=name,
                                          amplitude=self.amplitude, p=v.p, q=v.q, periods=v.period,
-                                         converged=v.converged, status=v.status, uncertainty=v.uncertainty))
+                                         converged=v.converged, status=v.status, uncertainty=v.uncertainty,
+                                         uncertainty_1d=v.uncertainty_1d, within_eps=v.within_eps,
+                                         periods_needed=v.periods_needed))
         return pts

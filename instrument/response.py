@@ -40,7 +40,7 @@ PHASE_UNDEFINED_STATUSES: tuple[str, ...] = ("below_resolution",)
 CSV_NAME = "response.csv"
 SIDECAR_NAME = "response.json"
 FORMAT_NAME = "bodebench-response"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 #: Columns of response.csv, in file order.
 CSV_COLUMNS: tuple[str, ...] = (
@@ -60,7 +60,12 @@ CSV_COLUMNS: tuple[str, ...] = (
     "gain_ci",
     "gain_db_ci",
     "phase_ci_deg",
+    "uncertainty_1d",
+    "within_eps",
+    "periods_needed",
 )
+#: Columns of a version-1 response.csv (read; the added columns take their defaults).
+_CSV_COLUMNS_V1 = CSV_COLUMNS[:16]
 _DERIVED_COLUMNS: tuple[str, ...] = ("gain", "gain_db", "phase_deg", "gain_ci", "gain_db_ci", "phase_ci_deg")
 _DERIVED_RTOL = 1e-9
 _FORBIDDEN_TOKEN_CHARS = frozenset(',"\r\n')
@@ -100,8 +105,12 @@ class ResponsePoint:
     """One measured point: harmonic ``harmonic`` of channel ``channel`` at excitation frequency ``frequency_hz``.
 
     ``p``/``q`` are the averaged sine/cosine coefficients (output units), ``amplitude`` the input amplitude
-    (input units, > 0), ``periods`` the periods integrated including skipped ones, ``uncertainty`` the half-width
-    of the 95 % confidence region of the vector ``(p, q)`` (output units; NaN when unknown).
+    (input units, > 0), ``periods`` the periods integrated including skipped ones, ``uncertainty`` the radius
+    of the 95 % confidence disc of the vector ``(p, q)`` (output units; NaN when unknown), ``uncertainty_1d``
+    the 95 % half-width of its projection on one direction, from which the gain and phase intervals derive
+    (output units; NaN: not stated, then ``uncertainty`` stands in), ``within_eps`` whether the stated
+    uncertainty is within the requested tolerance, ``periods_needed`` for a noise-limited point the periods
+    the requested tolerance would take (0: not estimated).
     ``p`` and ``q`` may be NaN (e.g. a failed point) but not infinite.
     """
 
@@ -115,12 +124,15 @@ class ResponsePoint:
     converged: bool
     status: str
     uncertainty: float = math.nan
+    uncertainty_1d: float = math.nan
+    within_eps: bool = False
+    periods_needed: int = 0
 
     def __post_init__(self) -> None:
         def set_(name: str, value: object) -> None:
             object.__setattr__(self, name, value)
 
-        for name in ("frequency_hz", "amplitude", "p", "q", "uncertainty"):
+        for name in ("frequency_hz", "amplitude", "p", "q", "uncertainty", "uncertainty_1d"):
             value = getattr(self, name)
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
                 raise ValueError(f"{name} must be a real number, got {value!r}")
@@ -132,17 +144,22 @@ class ResponsePoint:
         for name in ("p", "q"):
             if math.isinf(getattr(self, name)):
                 raise ValueError(f"{name} must be finite or NaN, got {getattr(self, name)!r}")
-        if not (math.isnan(self.uncertainty) or self.uncertainty >= 0.0):
-            raise ValueError(f"uncertainty must be >= 0 or NaN, got {self.uncertainty!r}")
+        for name in ("uncertainty", "uncertainty_1d"):
+            if not (math.isnan(getattr(self, name)) or getattr(self, name) >= 0.0):
+                raise ValueError(f"{name} must be >= 0 or NaN, got {getattr(self, name)!r}")
+        for name in ("within_eps", "converged"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
+            set_(name, bool(getattr(self, name)))
+        if not _is_int(self.periods_needed) or self.periods_needed < 0:
+            raise ValueError(f"periods_needed must be an integer >= 0, got {self.periods_needed!r}")
+        set_("periods_needed", int(self.periods_needed))
         if not _is_int(self.harmonic) or self.harmonic < 1:
             raise ValueError(f"harmonic must be an integer >= 1, got {self.harmonic!r}")
         set_("harmonic", int(self.harmonic))
         if not _is_int(self.periods) or self.periods < 0:
             raise ValueError(f"periods must be an integer >= 0, got {self.periods!r}")
         set_("periods", int(self.periods))
-        if not isinstance(self.converged, (bool, np.bool_)):
-            raise ValueError(f"converged must be a bool, got {self.converged!r}")
-        set_("converged", bool(self.converged))
         _check_token("channel", self.channel)
         _check_token("status", self.status)
 
@@ -166,20 +183,26 @@ class ResponsePoint:
 
     @property
     def phase_deg(self) -> float:
-        """Phase lag in degrees folded into (-360, 0]; NaN when the status makes the phase undefined."""
-        if self.status in PHASE_UNDEFINED_STATUSES:
+        """Phase lag in degrees folded into (-360, 0]; NaN when the status makes the phase undefined, or when
+        a point that did not converge has a confidence disc that contains zero."""
+        if self.status in PHASE_UNDEFINED_STATUSES or (not self.converged and self.uncertainty >= self.magnitude):
             return math.nan
         return _fold_phase_deg(self.p, self.q)
 
     @property
+    def _line_uncertainty(self) -> float:
+        """The 95 % half-width along one direction: ``uncertainty_1d``, or the disc radius where it is not stated."""
+        return self.uncertainty if math.isnan(self.uncertainty_1d) else self.uncertainty_1d
+
+    @property
     def gain_ci(self) -> float:
-        """Half-width of the gain confidence interval (output units per input unit)."""
-        return self.uncertainty / self.amplitude
+        """Half-width of the 95 % gain confidence interval (output units per input unit)."""
+        return self._line_uncertainty / self.amplitude
 
     @property
     def gain_db_ci(self) -> float:
-        """Half-width of the gain confidence interval in dB, 20 log10((|c| + u) / |c|); inf if u >= |c|."""
-        u, c = self.uncertainty, self.magnitude
+        """Half-width of the 95 % gain confidence interval in dB, 20 log10((|c| + u) / |c|); inf if u >= |c|."""
+        u, c = self._line_uncertainty, self.magnitude
         if math.isnan(u) or math.isnan(c):
             return math.nan
         if u >= c:
@@ -188,8 +211,8 @@ class ResponsePoint:
 
     @property
     def phase_ci_deg(self) -> float:
-        """Half-width of the phase confidence interval in degrees, asin(u / |c|); 180 if u >= |c|."""
-        u, c = self.uncertainty, self.magnitude
+        """Half-width of the 95 % phase confidence interval in degrees, asin(u / |c|); 180 if u >= |c|."""
+        u, c = self._line_uncertainty, self.magnitude
         if math.isnan(u) or math.isnan(c):
             return math.nan
         if u >= c:
@@ -281,6 +304,9 @@ def _point_row(point: ResponsePoint) -> str:
         "converged": "true" if point.converged else "false",
         "status": point.status,
         "uncertainty": _format_float(point.uncertainty),
+        "uncertainty_1d": _format_float(point.uncertainty_1d),
+        "within_eps": "true" if point.within_eps else "false",
+        "periods_needed": str(point.periods_needed),
     }
     for name in _DERIVED_COLUMNS:
         values[name] = _format_float(getattr(point, name))
@@ -308,7 +334,8 @@ def _parse_csv(path: Path) -> list[ResponsePoint]:
     if not lines:
         raise ResultsError(f"{path}: line 1: empty file, expected header {','.join(CSV_COLUMNS)!r}")
     header = lines[0].rstrip("\r").split(",")
-    if tuple(header) != CSV_COLUMNS:
+    columns = _CSV_COLUMNS_V1 if tuple(header) == _CSV_COLUMNS_V1 else CSV_COLUMNS
+    if tuple(header) != columns:
         for index, (got, want) in enumerate(zip(header, CSV_COLUMNS)):
             if got != want:
                 raise ResultsError(
@@ -320,9 +347,9 @@ def _parse_csv(path: Path) -> list[ResponsePoint]:
     points: list[ResponsePoint] = []
     for lineno, line in enumerate(lines[1:], start=2):
         cells = line.rstrip("\r").split(",")
-        if len(cells) != len(CSV_COLUMNS):
-            raise ResultsError(f"{path}: line {lineno}: {len(cells)} columns, expected {len(CSV_COLUMNS)}")
-        row = dict(zip(CSV_COLUMNS, cells))
+        if len(cells) != len(columns):
+            raise ResultsError(f"{path}: line {lineno}: {len(cells)} columns, expected {len(columns)}")
+        row = dict(zip(columns, cells))
         points.append(_parse_row(path, lineno, row))
     return points
 
@@ -344,9 +371,12 @@ def _parse_row(path: Path, lineno: int, row: dict[str, str]) -> ResponsePoint:
         except ValueError:
             raise ResultsError(f"{where}: column {name!r}: cannot parse {cell!r} as an integer") from None
 
-    converged_cell = row["converged"]
-    if converged_cell not in ("true", "false"):
-        raise ResultsError(f"{where}: column 'converged': expected 'true' or 'false', got {converged_cell!r}")
+    def boolean(name: str) -> bool:
+        cell = row.get(name, "false")
+        if cell not in ("true", "false"):
+            raise ResultsError(f"{where}: column {name!r}: expected 'true' or 'false', got {cell!r}")
+        return cell == "true"
+
     try:
         point = ResponsePoint(
             frequency_hz=number("frequency_hz"),
@@ -356,9 +386,12 @@ def _parse_row(path: Path, lineno: int, row: dict[str, str]) -> ResponsePoint:
             p=number("p"),
             q=number("q"),
             periods=integer("periods"),
-            converged=converged_cell == "true",
+            converged=boolean("converged"),
             status=row["status"],
             uncertainty=number("uncertainty"),
+            uncertainty_1d=number("uncertainty_1d") if "uncertainty_1d" in row else math.nan,
+            within_eps=boolean("within_eps"),
+            periods_needed=integer("periods_needed") if "periods_needed" in row else 0,
         )
     except ResultsError:
         raise
@@ -399,7 +432,7 @@ def _parse_sidecar(path: Path) -> tuple[str, dict[str, Any]]:
             raise ResultsError(f"{path}: key {key!r} missing from sidecar")
     if data["format"] != FORMAT_NAME:
         raise ResultsError(f"{path}: key 'format': unknown format {data['format']!r}, expected {FORMAT_NAME!r}")
-    if not _is_int(data["version"]) or data["version"] != FORMAT_VERSION:
+    if not _is_int(data["version"]) or data["version"] not in (1, FORMAT_VERSION):
         raise ResultsError(
             f"{path}: key 'version': unsupported version {data['version']!r}, expected {FORMAT_VERSION}"
         )

@@ -20,7 +20,7 @@ from instrument.response import FrequencyResponse, ResponsePoint, ResultsError
 
 HEADER = (
     "frequency_hz,harmonic,channel,amplitude,gain,gain_db,phase_deg,p,q,periods,converged,status,"
-    "uncertainty,gain_ci,gain_db_ci,phase_ci_deg"
+    "uncertainty,gain_ci,gain_db_ci,phase_ci_deg,uncertainty_1d,within_eps,periods_needed"
 )
 
 
@@ -304,7 +304,7 @@ def test_csv_layout(tmp_path: Path) -> None:
 def test_sidecar_content(tmp_path: Path) -> None:
     sample_response().save(tmp_path)
     data = json.loads((tmp_path / "response.json").read_text())
-    assert data["format"] == "bodebench-response" and data["version"] == 1
+    assert data["format"] == "bodebench-response" and data["version"] == 2
     assert data["case"] == "friction Fbar=0.8"
     assert data["config"]["frequencies_hz"] == [1.0, 1.3, 2.0]
     assert data["software"]["name"] == "bodebench" and isinstance(data["software"]["version"], str)
@@ -390,7 +390,7 @@ def test_missing_files(tmp_path: Path) -> None:
         ("{not json", "not valid JSON"),
         ("[1, 2]", "JSON object"),
         (json.dumps({"format": "other", "version": 1, "case": "", "config": {}}), "'format'"),
-        (json.dumps({"format": "bodebench-response", "version": 2, "case": "", "config": {}}), "'version'"),
+        (json.dumps({"format": "bodebench-response", "version": 3, "case": "", "config": {}}), "'version'"),
         (json.dumps({"format": "bodebench-response", "version": 1, "case": ""}), "'config'"),
     ],
 )
@@ -452,3 +452,18 @@ def test_plots_reject_empty_input(tmp_path: Path) -> None:
         plot_bode(FrequencyResponse(), tmp_path / "x")
     with pytest.raises(ValueError, match="FrequencyResponse"):
         plot_periods({"a": [1, 2]}, tmp_path / "x")  # type: ignore[dict-item]
+
+
+def test_a_version_1_results_file_still_loads(tmp_path: Path) -> None:
+    """Files written before the added columns load, the new fields taking their defaults."""
+    response = sample_response()
+    response.save(tmp_path)
+    csv = tmp_path / "response.csv"
+    lines = csv.read_text().splitlines()
+    csv.write_text("\n".join(",".join(line.split(",")[:16]) for line in lines) + "\n")
+    sidecar = json.loads((tmp_path / "response.json").read_text())
+    sidecar["version"] = 1
+    (tmp_path / "response.json").write_text(json.dumps(sidecar))
+    loaded = FrequencyResponse.load(tmp_path)
+    assert [repr((p.p, p.q)) for p in loaded.points] == [repr((p.p, p.q)) for p in response.points]
+    assert all(math.isnan(p.uncertainty_1d) and not p.within_eps and p.periods_needed == 0 for p in loaded.points)
