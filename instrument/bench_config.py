@@ -144,7 +144,11 @@ class SimulatorConfig:
 
     jitter: float = field(default=0.0, metadata={"min": 0, "max": 0.5, "max_exclusive": True,
                                                  "doc": "sampling-instant jitter, fraction of a period"})
-    seed: int = field(default=0, metadata={"doc": "jitter random seed"})
+    noise: float = field(default=0.0, metadata={"min": 0, "doc": "standard deviation of white noise added to "
+                                                                 "every feedback channel, the channel's units"})
+    quantization: float = field(default=0.0, metadata={"min": 0, "doc": "least significant bit of every feedback "
+                                                                        "channel, the channel's units (0: none)"})
+    seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of the jitter and the noise"})
     faults: dict = field(default_factory=dict, metadata={"doc": "fault injection (sim/faults.py FaultConfig)"})
 
     def validate(self, where: Callable[[str], str]) -> None:

@@ -14,8 +14,8 @@ from typing import Any
 from drivers.layout import Layout
 from drivers.ports import CanPort, FramePort, SerialPort
 from instrument.bench_config import BenchConfig, CanConfig, SerialConfig, SimulatorConfig, build_layout
-from instrument.config import CaseConfig
-from sim.controller import ControllerTiming
+from instrument.config import CaseConfig, ConfigError
+from sim.controller import ControllerTiming, FeedbackSensing
 from sim.faults import FaultConfig
 from sim.serve import ControllerPort, SimulatorProcess, SimulatorSpec, serve_can
 
@@ -84,37 +84,45 @@ class LinkPlan:
             r.close()
 
 
-def simulator_spec(case: CaseConfig, layout: Layout, *, jitter: bool = True) -> SimulatorSpec:
-    """The simulated drive of a case: [plant] behind the controller at [bench] rate and clock.
+def simulator_spec(case: CaseConfig, layout: Layout, *, wire_faults: bool = True) -> SimulatorSpec:
+    """The simulated drive of a case: [plant] behind the controller at [bench] rate and clock, with the
+    [simulator] jitter, noise and quantization.
 
-    jitter: with the configured jitter and faults (False: the ideal drive of the offline run)."""
+    wire_faults: with the configured faults (False: none, for the in-process drive of ``bodebench simulate``)."""
     bench: BenchConfig = case.tables["bench"]
     sim: SimulatorConfig | None = case.tables.get("simulator")
-    timing = ControllerTiming(bench.rate_hz, bench.clock, sim.jitter if (sim and jitter) else 0.0,
+    timing = ControllerTiming(bench.rate_hz, bench.clock, sim.jitter if sim else 0.0,
                               sim.seed if sim else 0, bench.pacing_cpu)
+    sensing = FeedbackSensing(sim.noise, sim.quantization, sim.seed) if sim else None
     serial: SerialConfig | None = case.tables.get("serial")
     can: CanConfig | None = case.tables.get("can")
     can_map: dict[str, Any] = {}
     if can is not None:
         can_map = {"interface": can.interface, "channel": can.channel or "bodebench", "bitrate": can.bitrate,
                    "options": dict(can.options)}
-    faults = FaultConfig.from_mapping(sim.faults) if sim is not None and jitter else None
+    faults = FaultConfig.from_mapping(sim.faults) if sim is not None and wire_faults else None
     return SimulatorSpec(dict(case.raw["plant"]), layout, timing, serial.framing if serial else "binary", can_map,
-                         faults if faults is not None and faults.any else None)
+                         faults if faults is not None and faults.any else None, sensing)
 
 
 def plan_link(case: CaseConfig, source: str | Path, *, direct: bool = False) -> LinkPlan:
     """How the worker reaches the drive of ``case`` (starting the simulated drive where the config has one).
 
-    direct: the simulated drive called in-process without a bus and without jitter (``bodebench simulate``).
+    direct: the simulated drive called in-process without a bus (``bodebench simulate``): its jitter, noise
+    and quantization as configured; faults, which need a wire, are refused.
     """
     bench: BenchConfig = case.tables["bench"]
     layout = build_layout(case.tables.get("frames"), str(source))
-    simulated = case.tables.get("simulator") is not None
+    sim: SimulatorConfig | None = case.tables.get("simulator")
+    simulated = sim is not None
     if direct:
+        if sim is not None and FaultConfig.from_mapping(sim.faults).any:
+            raise ConfigError(f"{source}: simulator.faults: fault injection needs a bus; bodebench simulate runs "
+                              "the drive in-process (use bodebench run, or remove [simulator.faults])",
+                              "simulator.faults")
         serial: SerialConfig | None = case.tables.get("serial")
         transport = f"serial-{serial.framing}" if bench.transport == "serial" and serial else "can"
-        return LinkPlan(DirectLink(simulator_spec(case, layout, jitter=False), transport), layout,
+        return LinkPlan(DirectLink(simulator_spec(case, layout, wire_faults=False), transport), layout,
                         where="in-process")
     if bench.transport == "can":
         can: CanConfig = case.tables["can"]

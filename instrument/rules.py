@@ -171,7 +171,7 @@ _MAX_RATIO = 0.5     # a visible drift must shrink at least this fast from block
 _DRIFT_SIGMAS = 3.72  # |d| / sigma_d of a 2-D normal exceeds this with probability 0.1 %
 _ROUND_OFF = 1e-12    # relative size of a change that round-off of the running sums can make
 _HOPELESS = 2.0       # a point whose projected periods exceed this many budgets ends noise-limited at once
-_MIN_NOISE_EVIDENCE = 256  # analysed periods before the noise is judged hopeless
+_MIN_NOISE_EVIDENCE = 128  # analysed periods before the noise is judged hopeless
 _WHITE_RATIO = 2.0    # batch-mean variance over per-period variance still taken for independent periods
 _WHITE_LAG = 0.2      # |lag-1 autocorrelation| still taken for independent periods
 
@@ -206,9 +206,10 @@ def settled_estimate(hist: SeriesHistory, skip: int, n: int) -> Estimate:
     drift excluded), with 3 blocks x (batches - 1) x 2 degrees of freedom. Drift: the changes d2, d3 between the means of
     blocks 2-3 and 3-4. A drift the noise cannot explain must shrink geometrically, |d3| <= |d2| / 2,
     before the transient is bounded (and so must d2 against d1); the transient left in the mean of
-    blocks 3-4 is then at most 1.5 |d3| (the tail of a geometric sequence of ratio <= 1/2). Where no
-    drift is seen over blocks 2-4, their mean is the estimate, the bias term is zero and the interval
-    is purely statistical.
+    blocks 3-4 is then at most 1.5 |d3| (the tail of a geometric sequence of ratio <= 1/2). Only where
+    the periods scatter like independent noise (``white``: a smooth or turning transient inflates the
+    spread and would hide a drift) and no drift is seen over blocks 2-4 is their mean the estimate, the
+    bias term zero and the interval purely statistical.
     """
     length = (n - skip) // _BLOCKS
     if length < 2:
@@ -232,17 +233,22 @@ def settled_estimate(hist: SeriesHistory, skip: int, n: int) -> Estimate:
     period_dof = 2 * (_BLOCKS - 1) * (length - 1)
     var_periods = sum(hist.scatter(start + k * length, start + (k + 1) * length) for k in range(1, _BLOCKS))
     var_periods /= period_dof
-    # white: the batch means scatter no more than independent periods would (a slow transient or coloured
-    # noise makes neighbouring periods alike, and the batch means then scatter far more)
-    white = var1 <= _WHITE_RATIO * var_periods and hist.lag_correlation(start + length, n) <= _WHITE_LAG
+    # white: the batch means scatter no more than independent periods would, and neighbouring periods are not
+    # alike (a slow transient or coloured noise, e.g. a resonance excited by jitter, makes them so)
+    lag = hist.lag_correlation(start + length, n)
+    white = bool(var1 <= _WHITE_RATIO * var_periods and lag <= _WHITE_LAG)
+    # correlation longer than a batch: the variance of a mean of AR(1)-like periods grows by (1 + r)/(1 - r),
+    # r the lag-1 correlation beyond what its own sampling error (about 2/sqrt(periods)) explains
+    r = min(max(0.0, lag - 2.0 / math.sqrt(3 * length)), 0.99) if not math.isnan(lag) else 0.0
+    var_periods *= (1.0 + r) / (1.0 - r)
     if var_periods >= var1:
         var1, dof = var_periods, period_dof
     sigma_diff = math.sqrt(2.0 * var1 / length)  # per component, difference of two block means
-    d1 = abs(block[1] - block[0])
-    d2, d3 = abs(block[2] - block[1]), abs(block[3] - block[2])
+    d1 = float(abs(block[1] - block[0]))
+    d2, d3 = float(abs(block[2] - block[1])), float(abs(block[3] - block[2]))
     # a drift is visible above the noise, and above the round-off of the block sums
     visible = max(_DRIFT_SIGMAS * sigma_diff, _ROUND_OFF * float(np.max(np.abs(block))))
-    if d2 <= visible and d3 <= visible:  # no drift over the last three blocks: average them all
+    if white and d2 <= visible and d3 <= visible:  # noise and no drift over the last three blocks: average them
         used, bias, bounded = 3, 0.0, True
     else:
         used, bias = 2, 1.5 * d3

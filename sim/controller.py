@@ -63,6 +63,41 @@ class ControllerTiming:
             raise ValueError(f"jitter must be in [0, 0.5), got {self.jitter}")
 
 
+@dataclass(frozen=True)
+class FeedbackSensing:
+    """How the simulated drive's sensors corrupt what it reports, on every feedback channel.
+
+    noise: standard deviation of additive white Gaussian noise (the channel's units); quantization: the
+    least significant bit a value is rounded to after the noise (the channel's units, 0 = none); seed: of the
+    noise, its own stream apart from the jitter's.
+    """
+
+    noise: float = 0.0
+    quantization: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("noise", "quantization"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+
+    @property
+    def any(self) -> bool:
+        return self.noise > 0.0 or self.quantization > 0.0
+
+    def rng(self) -> np.random.Generator:
+        return np.random.default_rng([self.seed, 1])
+
+    def apply(self, value: float, rng: np.random.Generator) -> float:
+        """The value as the sensor reports it."""
+        if self.noise > 0.0:
+            value += self.noise * float(rng.standard_normal())
+        if self.quantization > 0.0:
+            value = self.quantization * round(value / self.quantization)
+        return value
+
+
 class SimulatedController:
     """A servo controller around ``plant`` answering in ``layout``'s frames.
 
@@ -73,9 +108,11 @@ class SimulatedController:
     """
 
     def __init__(self, plant: Plant, layout: Layout, timing: ControllerTiming,
-                 faults: ValueFaults | None = None) -> None:
+                 faults: ValueFaults | None = None, sensing: FeedbackSensing | None = None) -> None:
         self.plant = plant
         self.faults = faults
+        self.sensing = sensing if sensing is not None and sensing.any else None
+        self._sensing_rng = sensing.rng() if sensing is not None else None
         self.layout = layout
         self.timing = timing
         self.period = 1.0 / timing.rate_hz
@@ -165,6 +202,8 @@ class SimulatedController:
                     values[name] = timestamp_us
                 else:
                     value = float(y[index]) if index >= 0 else self.applied
+                    if self.sensing is not None:
+                        value = self.sensing.apply(value, self._sensing_rng)
                     values[name] = value if faults is None else faults.value(name, value, self.time)
             try:
                 payload = message.encode(values)

@@ -16,7 +16,7 @@ from typing import Any, Mapping
 
 from drivers.layout import Layout
 from drivers.ports import CanPort, Frame, FramePort, SerialPort
-from sim.controller import ControllerTiming, SimulatedController
+from sim.controller import ControllerTiming, FeedbackSensing, SimulatedController
 from sim.faults import FaultConfig, FaultyPort, ValueFaults
 from sim.plants import plant_from_config
 from sim.pty_link import FdStream, Pty, SlcanAdapterPort
@@ -34,11 +34,12 @@ class SimulatorSpec:
     framing: str = "binary"  # serial transport only
     can: Mapping[str, Any] = field(default_factory=dict)  # interface, channel, bitrate, options (CAN buses)
     faults: FaultConfig | None = None
+    sensing: FeedbackSensing | None = None
 
     def controller(self) -> SimulatedController:
         params = dict(self.plant)
         return SimulatedController(plant_from_config(params.pop("model"), **params), self.layout, self.timing,
-                                   ValueFaults(self.faults) if self.faults is not None else None)
+                                   ValueFaults(self.faults) if self.faults is not None else None, self.sensing)
 
     def wire(self, port: FramePort, raw_write: Any = None) -> FramePort:
         """The port the controller serves on, with the configured frame faults."""

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from instrument.rules import (BELOW_RESOLUTION, CAPPED, CONVERGED, CRITERIA, AdaptiveRule, SeriesHistory,
-                              extrapolate_modes, make_rule, relative_change_percent)
+from instrument.rules import (BELOW_RESOLUTION, CAPPED, CONVERGED, CRITERIA, NOISE_LIMITED, AdaptiveRule,
+                              SeriesHistory, extrapolate_modes, make_rule, relative_change_percent, settled_estimate)
 
 
 def run(rule, z: np.ndarray, reference: float | None = None, cap: int | None = None):
@@ -34,6 +34,12 @@ def test_history_running_sums_match_direct_means() -> None:
     for a, b in [(0, 1), (0, 700), (5, 9), (350, 699)]:
         assert hist.mean(a, b) == pytest.approx(z[a:b].mean(), rel=1e-12)
     assert hist.at(42) == z[41]
+    for a, b in [(0, 700), (5, 9), (350, 699)]:
+        w = z[a:b]
+        assert hist.scatter(a, b) == pytest.approx(np.sum(np.abs(w - w.mean()) ** 2), rel=1e-9)
+        d = w - w.mean()
+        direct = abs(np.sum(d[1:] * np.conj(d[:-1]))) / np.sum(np.abs(d) ** 2)
+        assert hist.lag_correlation(a, b) == pytest.approx(direct, rel=1e-9, abs=1e-12)
 
 
 def test_relative_change_is_the_printed_quantity() -> None:
@@ -175,3 +181,83 @@ def test_every_criterion_is_constructible_and_unknown_ones_are_refused() -> None
         assert make_rule(name, tolerance_percent=0.01, skip_periods=1, window=5).name == name
     with pytest.raises(ValueError, match="unknown criterion"):
         make_rule("median", tolerance_percent=0.01, skip_periods=1, window=5)
+
+
+def error_in_eps(verdict, zinf: complex, eps: float) -> float:
+    return abs(complex(verdict.p, verdict.q) - zinf) / abs(zinf) / (eps / 100)
+
+
+@pytest.mark.parametrize("tau,amplitude", [(110.0, 2.2e-3), (400.0, 1e-2), (40.0, 0.5)])
+def test_a_slow_monotone_transient_is_not_taken_for_a_plateau(tau: float, amplitude: float) -> None:
+    """The friction link's slow drift of Fbar 0.95 at 10 f_n: Z(i) = Z_inf (1 + a exp(-i / tau)), changing by far
+    less than eps per period from the first one. A rule may stop only once the drift is seen to die."""
+    i = np.arange(1, 20001)
+    zinf = -1.8e-7 - 6.9e-7j
+    z = zinf * (1 + amplitude * np.exp(-i / tau))
+    for eps in (0.01, 0.1):
+        verdict = run(AdaptiveRule(eps, 1), z)
+        assert verdict.status == CONVERGED
+        assert error_in_eps(verdict, zinf, eps) <= 1.0
+        assert verdict.period > tau  # the drift was watched for longer than its own time constant
+
+
+def test_a_transient_aliased_by_the_batches_is_not_averaged_away() -> None:
+    """An oscillator at exactly 5 f_n: its free oscillation turns 72 degrees per period, so any window of a
+    multiple of 5 periods averages it to nearly nothing while it decays over hundreds of periods."""
+    i = np.arange(1, 20001)
+    lam = math.exp(-2 * math.pi * 0.003 / 5) * np.exp(2j * math.pi / 5)
+    zinf = 0.03 - 0.001j
+    z = zinf + 0.03 * lam ** i + 0.01 * np.conj(lam) ** i
+    for rule in (AdaptiveRule(0.01, 1), AdaptiveRule(0.01, 1, modes=0)):
+        verdict = run(rule, z)
+        assert verdict.status == CONVERGED
+        assert error_in_eps(verdict, zinf, 0.01) <= 1.0
+
+
+def test_a_drift_that_never_ends_is_capped_not_converged() -> None:
+    i = np.arange(1, 5001)
+    z = (1.0 + 0.5j) * (1 + 1e-5 * i)  # grows by 1e-5 per period for ever
+    verdict = run(AdaptiveRule(0.01, 1, max_periods=5000), z)
+    assert verdict.status == CAPPED
+    assert not verdict.within_eps
+
+
+def test_noise_beyond_the_budget_ends_noise_limited_early_with_the_periods_it_would_need() -> None:
+    rng = np.random.default_rng(11)
+    zinf, sigma = 1.0 + 1.0j, 0.05
+    z = zinf + sigma * (rng.normal(size=20000) + 1j * rng.normal(size=20000))
+    verdict = run(AdaptiveRule(0.01, 1, max_periods=20000), z)
+    assert verdict.status == NOISE_LIMITED
+    assert verdict.period < 2000  # judged hopeless early, not after the whole budget
+    assert not verdict.converged and not verdict.within_eps
+    # the disc shrinks as 1/sqrt(n): reaching eps/100 |Z| takes (U / tol)^2 times the periods spent
+    tol = 1e-4 * abs(zinf)
+    assert verdict.periods_needed == pytest.approx(verdict.period * (verdict.uncertainty / tol) ** 2, rel=0.01)
+    assert verdict.periods_needed > 2 * 20000
+    assert abs(complex(verdict.p, verdict.q) - zinf) <= verdict.uncertainty
+
+
+def test_the_settled_estimate_is_purely_statistical_when_no_drift_is_seen() -> None:
+    rng = np.random.default_rng(5)
+    hist = SeriesHistory()
+    hist.extend(2.0 + 0.01 * (rng.normal(size=4001) + 1j * rng.normal(size=4001)))
+    est = settled_estimate(hist, 1, 4001)
+    assert est.bounded and est.white and est.bias == 0.0
+    # three of four blocks averaged: sigma/sqrt(3000) per component, the 95 % disc radius ~2.45 of those
+    assert est.uncertainty == pytest.approx(2.4477 * 0.01 / math.sqrt(3000), rel=0.1)
+    assert est.uncertainty_1d == pytest.approx(1.96 * 0.01 / math.sqrt(3000), rel=0.1)
+
+
+def test_printed_rules_carry_the_honest_uncertainty_and_flag_a_stop_outside_their_eps() -> None:
+    """Full averaging from n_k = 1 on a decaying transient: it stops with an error far above eps; the verdict's
+    uncertainty, taken from the same history, covers that error and says it is outside eps."""
+    i = np.arange(1, 5001)
+    zinf = 1.0 - 0.5j
+    z = zinf + 0.5 * 0.9 ** i
+    verdict = run(make_rule("full", tolerance_percent=0.01, skip_periods=1, window=5), z)
+    assert verdict.status == CONVERGED  # the printed rule's own word
+    assert error_in_eps(verdict, zinf, 0.01) > 2
+    assert not verdict.within_eps
+    assert abs(complex(verdict.p, verdict.q) - zinf) <= verdict.uncertainty
+    honest = run(AdaptiveRule(0.01, 1), z)
+    assert honest.within_eps and error_in_eps(honest, zinf, 0.01) <= 1
