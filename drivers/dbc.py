@@ -148,7 +148,9 @@ def layout_from_dbc(cls: type[Layout], path: Path, mapping: Mapping[str, Any], s
 
     ctx = _Ctx(source)
     table = ctx.table(mapping, "frames")
-    ctx.known(table, "frames", {"setpoint", "feedback", "enable", "disable", "heartbeat"})
+    ctx.known(table, "frames", {"setpoint", "feedback", "enable", "disable", "heartbeat", "drive_watchdog_s"})
+    watchdog = ctx.number(table["drive_watchdog_s"], "frames.drive_watchdog_s") if "drive_watchdog_s" in table \
+        else 0.0
     try:
         db = cantools.database.load_file(str(path), database_format="dbc")
     except Exception as exc:  # missing file, parse errors
@@ -218,6 +220,7 @@ def layout_from_dbc(cls: type[Layout], path: Path, mapping: Mapping[str, Any], s
             if role == "heartbeat":
                 period = p
     result: Layout = ctx.build(
-        lambda: cls(setpoint, feedback, optional["enable"], optional["disable"], optional["heartbeat"], period)
+        lambda: cls(setpoint, feedback, optional["enable"], optional["disable"], optional["heartbeat"], period,
+                    watchdog)
     )
     return result

@@ -171,6 +171,17 @@ class Driver:
         if self.layout.heartbeat is not None:
             self._send(self.layout.heartbeat, {})
 
+    def start_heartbeat(self) -> bool:
+        """Have the port repeat the heartbeat every ``layout.heartbeat_period_s`` on its own (python-can's periodic
+        send); False when the layout has none or the port cannot (then call ``heartbeat()`` on time)."""
+        hb = self.layout.heartbeat
+        if hb is None:
+            return False
+        try:
+            return self.port.send_periodic(Frame(hb.id, hb.encode({}), hb.extended), self.layout.heartbeat_period_s)
+        finally:
+            self._update_health()
+
     def _send(self, msg: Codec, values: dict[str, float]) -> None:
         data = msg.encode(values)
         try:

@@ -420,7 +420,9 @@ class Layout:
     or more messages that together make one sample; when there are several, every one carries "counter" (so frames of
     one sample can be joined). A feedback message may carry "timestamp_us" (controller time in microseconds, unsigned
     rolling). Every other feedback signal is a channel. ``enable``, ``disable`` and ``heartbeat`` are fixed-data
-    messages; ``heartbeat_period_s`` (s) is how often the instrument should send the heartbeat (0 without one).
+    messages; ``heartbeat_period_s`` (s) is how often the instrument sends the heartbeat (0 without one).
+    ``drive_watchdog_s`` (s): the drive zeroes its setpoint and disables itself when no valid setpoint or heartbeat
+    has arrived for this long (0: the drive has no such watchdog); a heartbeat must come at least twice that often.
 
     Construction checks everything that does not depend on the transport; ``validate(transport)`` adds the payload
     size and id limits of a transport.
@@ -432,6 +434,7 @@ class Layout:
     disable: Codec | None = None
     heartbeat: Codec | None = None
     heartbeat_period_s: float = 0.0
+    drive_watchdog_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.feedback, tuple):
@@ -570,6 +573,12 @@ class Layout:
             raise LayoutError("heartbeat_period_s: must be > 0 s when a heartbeat message is given")
         if self.heartbeat is None and period > 0:
             raise LayoutError("heartbeat_period_s: given without a heartbeat message")
+        watchdog = self.drive_watchdog_s
+        if not _is_number(watchdog) or not math.isfinite(watchdog) or watchdog < 0:
+            raise LayoutError(f"drive_watchdog_s: a finite number >= 0 s, got {_show(watchdog)}")
+        if watchdog > 0 and period > watchdog / 2:
+            raise LayoutError(f"heartbeat period_s: {period:g} s is more than half of drive_watchdog_s "
+                              f"({watchdog:g} s): the drive would trip between heartbeats")
 
     def validate(self, transport: str = "can") -> None:
         """Check the layout for ``transport``: "can" (payload <= 8 bytes, 11/29-bit ids), "serial-binary" (payload
@@ -624,7 +633,9 @@ class Layout:
                 path = Path(source).parent / path
             rest = {k: v for k, v in table.items() if k != "dbc"}
             return cls.from_dbc(path, rest, source)
-        ctx.known(table, "frames", {"setpoint", "feedback", "enable", "disable", "heartbeat"})
+        ctx.known(table, "frames", {"setpoint", "feedback", "enable", "disable", "heartbeat", "drive_watchdog_s"})
+        watchdog = ctx.number(table["drive_watchdog_s"], "frames.drive_watchdog_s") if "drive_watchdog_s" in table \
+            else 0.0
         setpoint = ctx.message(ctx.require(table, "frames", "setpoint"), "frames.setpoint", "setpoint")
         fb_raw = ctx.require(table, "frames", "feedback")
         if isinstance(fb_raw, Mapping):
@@ -646,7 +657,8 @@ class Layout:
             else:
                 optional[role] = None
         return ctx.build(
-            lambda: cls(setpoint, feedback, optional["enable"], optional["disable"], optional["heartbeat"], period)
+            lambda: cls(setpoint, feedback, optional["enable"], optional["disable"], optional["heartbeat"], period,
+                        watchdog)
         )
 
     @classmethod

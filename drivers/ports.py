@@ -128,6 +128,14 @@ class FramePort(ABC):
         with self._vendor("close"):
             self._close()
 
+    def send_periodic(self, frame: Frame, period_s: float) -> bool:
+        """Have the interface repeat ``frame`` every ``period_s`` s on its own until ``close()``; False where the
+        port cannot (the caller then sends it on time itself)."""
+        if self._closed:
+            raise DriverOperationError(f"{self.name}: port is closed")
+        with self._vendor("periodic send"):
+            return self._send_periodic(frame, period_s)
+
     def bus_state(self) -> str:
         """"active", "passive", "bus-off" or "unknown"."""
         if self._closed:
@@ -187,6 +195,9 @@ class FramePort(ABC):
     def _bus_state(self) -> str:
         return "unknown"
 
+    def _send_periodic(self, frame: Frame, period_s: float) -> bool:
+        return False
+
 
 # ----------------------------------------------------------------------------------------------------------------
 # CAN
@@ -209,6 +220,7 @@ class CanPort(FramePort):
         self._bus = bus
         self._send_timeout = send_timeout
         self._owns_bus = owns_bus
+        self._periodic: list[Any] = []
 
     @classmethod
     def open(cls, interface: str, channel: Any, bitrate: int | None = None,
@@ -232,12 +244,20 @@ class CanPort(FramePort):
         """The wrapped python-can bus."""
         return self._bus
 
-    def _send(self, frame: Frame) -> None:
+    @staticmethod
+    def _message(frame: Frame) -> Any:
         import can
 
-        msg = can.Message(arbitration_id=frame.id, data=frame.data, is_extended_id=frame.extended,
-                          is_fd=len(frame.data) > 8, is_error_frame=frame.is_error)
-        self._bus.send(msg, timeout=self._send_timeout)
+        return can.Message(arbitration_id=frame.id, data=frame.data, is_extended_id=frame.extended,
+                           is_fd=len(frame.data) > 8, is_error_frame=frame.is_error)
+
+    def _send(self, frame: Frame) -> None:
+        self._bus.send(self._message(frame), timeout=self._send_timeout)
+
+    def _send_periodic(self, frame: Frame, period_s: float) -> bool:
+        """python-can's periodic send (the kernel's broadcast manager on socketcan, a thread elsewhere)."""
+        self._periodic.append(self._bus.send_periodic(self._message(frame), period_s))
+        return True
 
     def _recv(self, timeout: float, limit: int) -> list[Frame]:
         msg = self._bus.recv(timeout)
@@ -256,6 +276,9 @@ class CanPort(FramePort):
                      bool(msg.is_error_frame))
 
     def _close(self) -> None:
+        for task in self._periodic:
+            task.stop()
+        self._periodic.clear()
         if self._owns_bus:
             self._bus.shutdown()
 

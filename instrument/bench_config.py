@@ -107,6 +107,9 @@ class FramesConfig:
     disable: dict | None = None
     heartbeat: dict | None = None
     heartbeat_period_s: float = field(default=0.0, metadata={"min": 0})
+    drive_watchdog_s: float = field(default=0.0, metadata={
+        "min": 0, "doc": "the drive zeroes and disables itself after this long without a valid setpoint or "
+                         "heartbeat, s (0: it has no watchdog)"})
 
 
 @dataclass(frozen=True)
@@ -182,6 +185,8 @@ def frames_mapping(frames: FramesConfig) -> dict[str, Any]:
             out[name] = value
     if frames.heartbeat_period_s:
         out["heartbeat_period_s"] = frames.heartbeat_period_s
+    if frames.drive_watchdog_s:
+        out["drive_watchdog_s"] = frames.drive_watchdog_s
     return out
 
 

@@ -6,8 +6,7 @@ import sys
 import time
 from typing import TextIO
 
-from instrument.session import (BusStatus, PointFinished, PointProgress, PointStarted, SessionEnded, SessionFault,
-                                SessionStarted)
+from instrument.session import BusStatus, PointFinished, PointProgress, PointStarted, SessionStarted
 
 
 class ProgressPrinter:
@@ -67,8 +66,4 @@ class ProgressPrinter:
         elif isinstance(event, BusStatus):
             h = event.health.bus
             self._bus = f", bus in {h.frames_in} out {h.frames_out} err {h.errors} lost {h.lost_samples}"
-        elif isinstance(event, SessionFault):
-            self._line(f"{self.label}: FAULT {event.kind}: {event.message} ({event.kept} points kept)", True)
-        elif isinstance(event, SessionEnded):
-            self._line(f"{self.label}: drive left at setpoint {event.last_setpoint:g}"
-                       f"{', disabled' if event.disabled else ''} ({event.reason})", True)
+        # a fault and the end of the session are the command's last line (with what the drive was sent), once

@@ -20,6 +20,7 @@ from typing import Callable
 import numpy as np
 
 from drivers.realtime import pacing_cpu_left_alone
+from drivers.stop_signals import StopSignal
 from instrument.autointegration import Autointegrator, SeriesState
 from instrument.bench_config import BenchConfig, SafetyConfig
 from instrument.bus_worker import (Credit, Fault, Health, Limits, Ready, Samples, SineStarted, StartSine, Stop,
@@ -80,10 +81,38 @@ class SessionFault:
 
 @dataclass(frozen=True)
 class SessionEnded:
+    """How the sweep ended and what the drive was last sent: ``last_setpoint`` (NaN: unknown, the worker did not
+    report), whether a zero setpoint and the disable frame went out after every other setpoint, whether the bus
+    worker reported at all (``reported``) and how many frames it sent; ``has_disable``: the layout has a disable
+    frame; ``drive_watchdog_s``: the drive's own watchdog time (0: the layout declares none)."""
+
     reason: str
     completed: bool
     last_setpoint: float
     disabled: bool
+    zero_sent: bool = False
+    frames_out: int = 0
+    reported: bool = True
+    has_disable: bool = True
+    drive_watchdog_s: float = 0.0
+
+    def drive_state(self) -> str:
+        """What the drive was actually sent, in words (the last line of a command)."""
+        watchdog = (f"the drive's watchdog zeroes and disables it {self.drive_watchdog_s:g} s after the last frame "
+                    "it received (frames.drive_watchdog_s)" if self.drive_watchdog_s > 0 else
+                    "the layout declares no drive watchdog (frames.drive_watchdog_s): make the drive safe by hand")
+        if not self.reported:
+            return f"the bus worker ended without reporting: the drive's state is unknown; {watchdog}"
+        if self.frames_out == 0:
+            return "nothing was sent to the drive"
+        if not self.zero_sent:
+            return (f"could not send the zero setpoint: the last setpoint that went out was {self.last_setpoint:g}"
+                    f"{'' if self.disabled else ', no disable frame sent'}; {watchdog}")
+        if self.disabled:
+            return "drive left at setpoint 0, disabled"
+        if not self.has_disable:
+            return "drive left at setpoint 0 (the layout has no disable frame)"
+        return f"drive left at setpoint 0, but the disable frame could not be sent; {watchdog}"
 
 
 Listener = Callable[[object], None]
@@ -139,6 +168,7 @@ class BenchSession:
         self.response = FrequencyResponse(resume.points if resume else (), config=case.raw, case=case.name)
         self.period = 1.0 / bench.rate_hz
         self.last_health: Health | None = None
+        self.ended: SessionEnded | None = None
 
     # --- user requests (any thread)
     def request_abort(self) -> None:
@@ -173,7 +203,7 @@ class BenchSession:
         self._conn = conn
         stopped: Stopped | None = None
         completed = False
-        reason = "sweep complete"
+        reason = "sweep complete"  # replaced by the cause of any other way out
         # a pacing process gets a CPU of its own: this process (analysis, UI) keeps off it while the sweep runs
         cpu_yielded = contextlib.ExitStack()
         if self.bench.clock == "realtime" and self.worker_mode == "process":
@@ -193,9 +223,12 @@ class BenchSession:
         except SessionError as exc:
             reason = str(exc)
             raise
-        except KeyboardInterrupt:
-            reason = "interrupted"
+        except KeyboardInterrupt as exc:
+            reason = f"interrupted ({exc.signame})" if isinstance(exc, StopSignal) else "interrupted"
             self.controls.abort.set()
+            raise
+        except BaseException as exc:
+            reason = f"error: {type(exc).__name__}: {exc}"
             raise
         finally:
             stopped = self._shutdown(reason, abort=not completed)
@@ -203,9 +236,13 @@ class BenchSession:
             join(timeout=10)
             cpu_yielded.close()
             self.plan.close()
-            self.listener(SessionEnded(reason if stopped is None else stopped.reason, completed,
-                                       stopped.last_setpoint if stopped else math.nan,
-                                       stopped.disabled if stopped else False))
+            layout = self.plan.layout
+            self.ended = SessionEnded(reason, completed, stopped.last_setpoint if stopped else math.nan,
+                                      stopped.disabled if stopped else False,
+                                      stopped.zero_sent if stopped else False, stopped.frames_out if stopped else 0,
+                                      stopped is not None, layout.disable is not None,
+                                      layout.drive_watchdog_s)
+            self.listener(self.ended)
         rt = self.last_health.round_trip_s if self.last_health else math.nan
         return SessionResult(self.response, completed, reason, stopped.last_setpoint if stopped else math.nan,
                              stopped.disabled if stopped else False, rt, self.last_health)

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from instrument.response import FrequencyResponse
 
@@ -68,7 +69,7 @@ def test_run_command_sweeps_the_simulated_can_bench(tmp_path: Path) -> None:
     proc = subprocess.run(command() + ["run", str(small), "--out", str(tmp_path / "out")], capture_output=True,
                           text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
-    assert "drive left at setpoint 0, disabled" in proc.stderr
+    assert proc.stdout.strip().splitlines()[-1].endswith("drive left at setpoint 0, disabled")
     response = FrequencyResponse.load(tmp_path / "out")
     assert sorted({p.frequency_hz for p in response.points}) == [4.0, 12.0]
     assert all(p.converged for p in response.points)
@@ -89,8 +90,14 @@ def test_run_refuses_an_offline_config(tmp_path: Path) -> None:
     assert "paper2013.toml" in proc.stderr and "bench" in proc.stderr and "Traceback" not in proc.stderr
 
 
-def test_ctrl_c_mid_sweep_keeps_points_and_leaves_the_drive_at_zero(tmp_path: Path) -> None:
-    """A standalone simulated drive on a pty; ``bodebench run`` against it gets SIGINT (Ctrl-C) mid-sweep."""
+@pytest.mark.parametrize("signum, group", [(signal.SIGINT, True), (signal.SIGTERM, False), (signal.SIGTERM, True),
+                                           (signal.SIGHUP, True)],
+                         ids=["ctrl-c", "sigterm-to-the-process", "sigterm-to-the-group", "sighup"])
+def test_a_stop_signal_mid_sweep_keeps_points_and_leaves_the_drive_at_zero(tmp_path: Path, signum: int,
+                                                                           group: bool) -> None:
+    """A standalone simulated drive on a pty; ``bodebench run`` against it gets a stop signal mid-sweep: Ctrl-C
+    (SIGINT to the foreground group), SIGTERM to the process alone (``timeout``, ``kill``) or to its group
+    (systemd, ``docker stop``), SIGHUP (a closed terminal). The drive reports what it received."""
     sim_cfg = tmp_path / "drive.toml"
     sim_cfg.write_text(SERIAL_BENCH.format(freqs="[3]", port="", simulator="[simulator]"))
     drive = subprocess.Popen(command() + ["sim-controller", str(sim_cfg)], stdout=subprocess.PIPE, text=True,
@@ -110,10 +117,13 @@ def test_ctrl_c_mid_sweep_keeps_points_and_leaves_the_drive_at_zero(tmp_path: Pa
                 break
             time.sleep(0.05)
         assert run.poll() is None, run.stderr.read()
-        os.killpg(run.pid, signal.SIGINT)  # what Ctrl-C in the terminal sends to the foreground group
+        (os.killpg if group else os.kill)(run.pid, signum)
         _, err = run.communicate(timeout=60)
-        assert run.returncode != 0
+        assert run.returncode == 128 + signum, err
         assert "Traceback" not in err
+        last = err.strip().splitlines()[-1]
+        assert f"interrupted ({signal.Signals(signum).name})" in last
+        assert last.endswith("drive left at setpoint 0, disabled"), last
         kept = FrequencyResponse.load(out)
         assert len(kept.points) >= 2 and all(p.converged for p in kept.points)
     finally:
