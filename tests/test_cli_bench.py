@@ -130,3 +130,19 @@ def test_a_stop_signal_mid_sweep_keeps_points_and_leaves_the_drive_at_zero(tmp_p
         os.killpg(drive.pid, signal.SIGINT)
         tail, _ = drive.communicate(timeout=30)
     assert "last setpoint 0, disabled" in tail
+    # what the drive saw: enabled, each point's setpoint back to zero, and last the disable frame
+    events = [line.split(" s  drive ", 1)[1] for line in tail.splitlines() if " s  drive " in line]
+    assert events[0] == "enabled (enable frame)" and events[-1] == "disabled (disable frame)", events
+    assert events[-2].startswith("setpoint zeroed")
+
+
+def test_a_port_that_does_not_exist_is_one_line_that_claims_nothing(tmp_path: Path) -> None:
+    cfg = tmp_path / "run.toml"
+    cfg.write_text(SERIAL_BENCH.format(freqs="[3]", port=str(tmp_path / "no-such-tty"), simulator=""))
+    proc = subprocess.run(command() + ["run", str(cfg), "--out", str(tmp_path / "out")], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 1
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and proc.stderr.count("cannot open serial port") == 1, proc.stderr
+    assert lines[0].endswith("no point measured; nothing was sent to the drive")
+    assert not (tmp_path / "out").exists()
