@@ -146,6 +146,7 @@ class SimulatedController:
                     self.on_event("enabled (enable frame)")
                 self.enabled = True
                 self.enable_frames += 1
+                self._last_valid = time.monotonic()  # a drive just enabled waits its watchdog time for setpoints
             return []
 
     def check_watchdog(self) -> bool:
@@ -165,7 +166,7 @@ class SimulatedController:
                           f"(drive_watchdog_s = {limit:g} s)")
             if self.setpoint != 0.0:
                 self.on_event(f"setpoint zeroed (was {self.setpoint:g})")
-            self.setpoint = 0.0
+            self.setpoint = self.applied = 0.0  # the output stage holds zero from the trip on
             if self.layout.enable is not None and self.enabled:
                 self.enabled = False
                 self.on_event("disabled (watchdog)")
