@@ -21,6 +21,7 @@ from .errors import LayoutError
 
 __all__ = [
     "COUNTER",
+    "CRC",
     "SETPOINT",
     "SETPOINT_ECHO",
     "SIGNAL_TYPES",
@@ -40,6 +41,8 @@ TIMESTAMP = "timestamp_us"
 """Name of the optional controller time signal of the feedback messages (microseconds, rolling)."""
 SETPOINT_ECHO = "setpoint_echo"
 """Name of the feedback channel carrying the setpoint the drive applied (the two-channel reference of choice)."""
+CRC = "crc"
+"""Name of the optional CRC-8 byte of a feedback message (drivers.e2e; drivers/PROTOCOL.md section 6)."""
 
 # type name -> (struct code, size in bytes, is integer, is signed)
 _TYPES: dict[str, tuple[str, int, bool, bool]] = {
@@ -451,9 +454,9 @@ class Layout:
 
     @property
     def channels(self) -> tuple[str, ...]:
-        """Feedback channel names (every feedback signal but counter and timestamp_us), in order of appearance."""
+        """Feedback channel names (every feedback signal but counter, timestamp_us and crc), in order of appearance."""
         return tuple(
-            name for msg in self.feedback for name in msg.signal_names if name not in (COUNTER, TIMESTAMP)
+            name for msg in self.feedback for name in msg.signal_names if name not in (COUNTER, TIMESTAMP, CRC)
         )
 
     @property
@@ -535,10 +538,14 @@ class Layout:
                     f"message {_show(msg.name)} signal \"timestamp_us\": must be an unsigned integer with scale 1 "
                     "and offset 0"
                 )
+        from .e2e import crc_byte
+
+        for msg in self.feedback:
+            crc_byte(msg)  # a crc signal must fill exactly one byte (LayoutError naming the message)
         seen_channels: dict[str, str] = {}
         for msg in self.feedback:
             for name in msg.signal_names:
-                if name in (COUNTER, TIMESTAMP):
+                if name in (COUNTER, TIMESTAMP, CRC):
                     continue
                 if name in seen_channels:
                     raise LayoutError(

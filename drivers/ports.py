@@ -371,17 +371,19 @@ class SerialPort(FramePort):
         """Bytes the deframer dropped."""
         return self._deframer.bytes_discarded
 
+    def wire_bytes(self, frame: Frame) -> bytes:
+        """The bytes ``frame`` is on this line (binary frame or ASCII line); LayoutError when it does not fit."""
+        if self.framing == "binary":
+            return encode_binary(frame.id, frame.data)
+        msg = self._by_id.get(frame.id)
+        if msg is None or msg.data is not None:
+            return ascii_line(frame.id, [frame.data.hex().upper()])
+        return encode_ascii(msg, msg.decode(frame.data))
+
     def _send(self, frame: Frame) -> None:
         if frame.is_error:  # a serial line has no error frames
             return
-        if self.framing == "binary":
-            wire = encode_binary(frame.id, frame.data)
-        else:
-            msg = self._by_id.get(frame.id)
-            if msg is None or msg.data is not None:
-                wire = ascii_line(frame.id, [frame.data.hex().upper()])
-            else:
-                wire = encode_ascii(msg, msg.decode(frame.data))
+        wire = self.wire_bytes(frame)
         if self._fd is None:
             self._ser.write(wire)
             return

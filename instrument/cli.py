@@ -75,8 +75,12 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
         unconverged = [p for p in result.response.points if not p.converged]
         rt = f", round trip {result.round_trip_s * 1e6:.0f} us" if result.round_trip_s == result.round_trip_s else ""
         drive = session.ended.drive_state() if session.ended is not None else ""
+        refused = (f", {len(session.refused)} frequencies refused as not physical (not written; --resume "
+                   "measures them again)" if session.refused else "")
         print(f"{label}: {len(result.response.points)} points, {len(unconverged)} not "
-              f"converged{rt} -> {directory}/response.csv (+ {', '.join(f.name for f in files)}); {drive}")
+              f"converged{refused}{rt} -> {directory}/response.csv (+ {', '.join(f.name for f in files)}); {drive}")
+        if session.refused:
+            status = 1
     return status
 
 

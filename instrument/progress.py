@@ -56,7 +56,10 @@ class ProgressPrinter:
                            f"period {event.periods}, ETA {self._eta()}{self._bus}", False)
         elif isinstance(event, PointFinished):
             self.done += 1
-            if event.skipped:
+            if event.refused:
+                self._line(f"{self.label}: {self.done}/{self.total} {self._freq:g} Hz REFUSED, not written: "
+                           f"{event.refused}", True)
+            elif event.skipped:
                 self._line(f"{self.label}: {self.done}/{self.total} {self._freq:g} Hz skipped", True)
             else:
                 worst = max(p.periods for p in event.points)
@@ -65,5 +68,7 @@ class ProgressPrinter:
                            f"ETA {self._eta()}", True)
         elif isinstance(event, BusStatus):
             h = event.health.bus
-            self._bus = f", bus in {h.frames_in} out {h.frames_out} err {h.errors} lost {h.lost_samples}"
+            rejected = " ".join(f"{cause} {n}" for cause, n in h.rejected.items() if n)
+            self._bus = (f", bus in {h.frames_in} out {h.frames_out} err {h.errors} lost {h.lost_samples}"
+                         + (f" rejected {rejected}" if rejected else ""))
         # a fault and the end of the session are the command's last line (with what the drive was sent), once

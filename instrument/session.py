@@ -60,9 +60,13 @@ class PointProgress:
 
 @dataclass(frozen=True)
 class PointFinished:
+    """A point done: its ``points`` (one per channel and harmonic) on disk; ``skipped`` by the user, or
+    ``refused`` (the reason: not a physical response, nothing written)."""
+
     index: int
     points: tuple[ResponsePoint, ...]
     skipped: bool = False
+    refused: str = ""
 
 
 @dataclass(frozen=True)
@@ -169,6 +173,7 @@ class BenchSession:
         self.period = 1.0 / bench.rate_hz
         self.last_health: Health | None = None
         self.ended: SessionEnded | None = None
+        self.refused: list[tuple[float, str]] = []  # (frequency, reason) of points not written
 
     # --- user requests (any thread)
     def request_abort(self) -> None:
@@ -297,6 +302,16 @@ class BenchSession:
             self.listener(SessionFault("abort", "aborted by the user", len(self.response.points)))
             raise SessionError("abort", "aborted by the user")
 
+    def _absurd(self, points: list[ResponsePoint]) -> str:
+        """Why the points of a frequency are refused ("" when they are not)."""
+        limits = self.case.tables["safety"].feedback_limits
+        for p in points:
+            window = limits.get(p.channel)
+            reason = _absurd_point(p, (float(window[0]), float(window[1])) if window else None)
+            if reason:
+                return reason
+        return ""
+
     def _analysis(self) -> AnalysisConfig:
         if self.controls.tolerance_percent is not None:
             return replace(self.analysis, tolerance_percent=self.controls.tolerance_percent)
@@ -345,18 +360,41 @@ class BenchSession:
                 t = np.concatenate([[held[0]], t])
                 values = np.vstack([held[1][None, :], values])
                 held = (math.inf, held[1])
-            sampler.feed(t, values)
+            with np.errstate(all="ignore"):  # garbage that got this far is refused below, not warned about
+                sampler.feed(t, values)
             if bench.clock == "lockstep" and not sampler.done:
                 self._conn.send(Credit(message.last_tick + ticks_per_period))
             self.listener(PointProgress(index, f, sampler.periods, tuple(sampler.states()), analysis.tolerance_percent,
                                         analysis.criterion, _scope(scope, f)))
-        points = sampler.points()
+        try:
+            with np.errstate(all="ignore"):
+                points = sampler.points()
+        except ValueError as exc:  # an infinite coefficient: no response point can hold it
+            points, refused = [], f"not a measurement: {exc}"
+        else:
+            refused = self._absurd(points)
+        if refused:
+            self.refused.append((f, refused))
+            self.listener(PointFinished(index, (), skipped=True, refused=refused))
+            return
         for p in points:
             if self.out_dir is not None:
                 self.response.write_point(self.out_dir, p)
             else:
                 self.response.add(p)
         self.listener(PointFinished(index, tuple(points)))
+
+
+def _absurd_point(p: ResponsePoint, window: tuple[float, float] | None) -> str:
+    """Why point ``p`` cannot be a physical response ("" when it can): a non-finite coefficient, or a response
+    amplitude larger than half the channel's feedback window (a sine that could never fit inside it)."""
+    where = f"{p.frequency_hz:g} Hz {p.channel} harmonic {p.harmonic}"
+    if not (math.isfinite(p.p) and math.isfinite(p.q)):
+        return f"{where}: the response is not finite (p = {p.p:g}, q = {p.q:g})"
+    if window is not None and p.magnitude > (window[1] - window[0]) / 2:
+        return (f"{where}: response amplitude {p.magnitude:g} ({p.gain_db:+.1f} dB) exceeds half the feedback "
+                f"window safety.feedback_limits.{p.channel} = [{window[0]:g}, {window[1]:g}]")
+    return ""
 
 
 def _scope(chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]], f: float

@@ -25,7 +25,8 @@ from typing import Callable, Mapping
 import numpy as np
 
 from drivers.errors import LayoutError
-from drivers.layout import SETPOINT_ECHO, Layout, Message
+from drivers.e2e import crc_byte, seal
+from drivers.layout import CRC, SETPOINT_ECHO, Layout, Message
 from drivers.ports import Frame, FramePort
 from drivers.realtime import keep_to, lower_timer_slack, pacing_cpu, request_fifo
 from sim.faults import ValueFaults
@@ -87,7 +88,8 @@ class SimulatedController:
             if name != SETPOINT_ECHO and name not in plant.output_names:
                 raise ValueError(f"feedback channel {name!r} is not an output of the plant "
                                  f"({', '.join(plant.output_names)}) nor {SETPOINT_ECHO!r}")
-        self._sources = [(m, [(name, self._source(name)) for name in m.signal_names]) for m in layout.feedback]
+        self._sources = [(m, [(name, self._source(name)) for name in m.signal_names], crc_byte(m))
+                         for m in layout.feedback]
         self._counter_modulus = layout.counter_modulus or 1  # looked up once: every sample needs them
         self._timestamp_modulus = layout.timestamp_modulus or 1 << 32
         self.state = plant.initial_state()
@@ -201,13 +203,15 @@ class SimulatedController:
         timestamp_us = int(round(self.time * 1e6)) % self._timestamp_modulus
         faults = self.faults
         counter = self.tick_count if faults is None else faults.counter(self.tick_count)
-        for message, sources in self._sources:
+        for message, sources, crc_at in self._sources:
             values: dict[str, float] = {}
             for name, index in sources:
                 if name == "counter":
                     values[name] = counter % self._counter_modulus
                 elif name == "timestamp_us":
                     values[name] = timestamp_us
+                elif name == CRC:
+                    values[name] = 0
                 else:
                     value = float(y[index]) if index >= 0 else self.applied
                     values[name] = value if faults is None else faults.value(name, value, self.time)
@@ -215,6 +219,8 @@ class SimulatedController:
                 payload = message.encode(values)
             except LayoutError:  # a value its integer signal cannot carry: the drive sends its saturated raw value
                 payload = message.encode({k: _saturate(message, k, v) for k, v in values.items()})
+            if crc_at is not None:
+                payload = seal(payload, crc_at)
             frames.append(Frame(message.id, payload, message.extended, time.time()))
         return frames
 

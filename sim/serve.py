@@ -44,7 +44,8 @@ class SimulatorSpec:
         """The port the controller serves on, with the configured frame faults."""
         if self.faults is None:
             return port
-        return FaultyPort(port, self.faults, {m.id for m in self.layout.feedback}, raw_write)
+        encode = port.wire_bytes if isinstance(port, SerialPort) else None
+        return FaultyPort(port, self.faults, {m.id for m in self.layout.feedback}, raw_write, encode)
 
 
 class ControllerPort(FramePort):
