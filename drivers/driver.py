@@ -98,7 +98,8 @@ class BusHealth:
     ``bus_state``: "active", "passive", "bus-off" or "unknown"; ``last_error``: description of the latest error;
     ``counter_restarts``: times the feedback counter jumped back by more than 64 samples (assembly restarted there);
     ``resyncs``: serial lines only, runs of bytes discarded between frames (line noise, garbage); ``rejected``:
-    feedback frames refused before assembly, by cause (``REJECT_CAUSES``): never part of a sample."""
+    feedback frames refused before assembly, by cause (``REJECT_CAUSES``): never part of a sample;
+    ``broken_frames``: serial lines only, frames cut short (the line went quiet inside one), dropped at once."""
 
     frames_in: int = 0
     frames_out: int = 0
@@ -110,6 +111,7 @@ class BusHealth:
     last_error: str = ""
     counter_restarts: int = 0
     resyncs: int = 0
+    broken_frames: int = 0
     rejected: dict[str, int] = dataclasses.field(default_factory=lambda: dict.fromkeys(REJECT_CAUSES, 0))
 
     @property
@@ -219,12 +221,14 @@ class Driver:
     # ----------------------------------------------------------------------------------------------------------
     # feedback
     def receive(self, timeout: float) -> list[FeedbackSample]:
-        """Samples completed within ``timeout`` s: waits until at least one sample is complete or the time is up,
-        then returns every sample completed by the frames received so far (oldest first)."""
+        """Samples completed within ``timeout`` s: waits until at least one sample is complete, a frame turns out
+        cut short (serial: the reply it was will never complete) or the time is up, then returns every sample
+        completed by the frames received so far (oldest first)."""
         if not isinstance(timeout, (int, float)) or not timeout >= 0:
             raise ValueError(f"receive timeout must be a number >= 0 s, got {timeout!r}")
         deadline = time.monotonic() + timeout
         samples: list[FeedbackSample] = []
+        broken = getattr(self.port, "broken_frames", 0)
         try:
             while True:
                 frames = self.port.recv(max(0.0, deadline - time.monotonic()))
@@ -232,7 +236,7 @@ class Driver:
                     sample = self._accept(frame)
                     if sample is not None:
                         samples.append(sample)
-                if samples or time.monotonic() >= deadline:
+                if samples or time.monotonic() >= deadline or getattr(self.port, "broken_frames", 0) != broken:
                     return samples
         finally:
             self._update_health()
@@ -367,6 +371,7 @@ class Driver:
         h.frames_out = port.frames_out
         h.errors = port.errors + self._decode_errors + h.rejected_total
         h.resyncs = getattr(port, "resyncs", 0)
+        h.broken_frames = getattr(port, "broken_frames", 0)
         h.bus_state = port.bus_state()
         if port.last_error != self._port_last_error:
             self._port_last_error = port.last_error

@@ -340,6 +340,12 @@ class SerialPort(FramePort):
         for msg in layout.messages:
             self._by_id.setdefault(msg.id, msg)
         self._seen_framing_errors = 0
+        self.broken_frames = 0
+        """Frames cut short: the line went idle inside a frame for ``idle_s``; their bytes are dropped at once."""
+        baudrate = getattr(ser, "baudrate", None)
+        self.idle_s = max(1e-3, 200.0 / baudrate) if isinstance(baudrate, (int, float)) and baudrate > 0 else 1e-3
+        """s of silence inside a frame after which it is taken as cut short (20 characters' time, at least 1 ms)."""
+        self._last_byte = time.monotonic()
 
     @classmethod
     def open(cls, port: str, baudrate: int, framing: str, layout: Layout) -> SerialPort:
@@ -427,6 +433,7 @@ class SerialPort(FramePort):
             data = self._read_some(readable and i == 0)
             if not data:
                 break
+            self._last_byte = time.monotonic()
             now = time.time()
             if isinstance(self._deframer, BinaryDeframer):
                 for frame_id, payload in self._deframer.feed(data):
@@ -469,9 +476,18 @@ class SerialPort(FramePort):
             frames = self._read_available(readable)
             if frames:
                 return frames
+            if self._deframer.pending:  # a frame has begun: if the line stays quiet, it was cut short
+                quiet = time.monotonic() - self._last_byte
+                if quiet >= self.idle_s:
+                    self._deframer.drop_pending()
+                    self.broken_frames += 1
+                    self._note_error(f"a frame cut short ({self.broken_frames} so far): the line went quiet in it")
+                    return []
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return []
+            if self._deframer.pending:
+                remaining = min(remaining, max(0.0, self.idle_s - (time.monotonic() - self._last_byte)) + 1e-4)
             if fd is not None:  # wake as soon as bytes arrive
                 readable = bool(select.select([fd], [], [], remaining)[0])
             else:

@@ -113,6 +113,14 @@ class _Counters:
         self.frames += 1
         self._in_gap = False
 
+    def drop_pending(self) -> int:
+        """Discard the bytes held for an unfinished frame (one that will never be finished); returns how many."""
+        buf: bytearray = getattr(self, "_buf")
+        count = len(buf)
+        self._discard(count)
+        buf.clear()
+        return count
+
 
 class BinaryDeframer(_Counters):
     """Incremental binary deframer: ``feed(bytes) -> [(id, payload), ...]``; never raises.

@@ -507,6 +507,7 @@ class BusWorker:
             typical = list(self.round_trips)[-64:]
             wait = min(self.spec.reply_timeout_s, max(2e-3, 8 * statistics.median(typical) if typical else 2e-3))
         deadline = time.monotonic() + wait
+        broken = self.driver.health.broken_frames
         while True:
             samples = self.driver.receive(max(0.0, min(0.05, deadline - time.monotonic())))
             if samples:
@@ -514,7 +515,8 @@ class BusWorker:
                 self._accept(samples, self.tick)
                 break
             self._watchdog()
-            if time.monotonic() >= deadline:
+            # a reply cut short on the line will not complete: it is lost now, not after the wait
+            if time.monotonic() >= deadline or self.driver.health.broken_frames != broken:
                 self.missed_replies += 1
                 break
         self.tick += 1
