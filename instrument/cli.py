@@ -59,19 +59,31 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
         session = BenchSession(case, plan, directory, printer, resume=previous)
         try:
             result = session.run()
+        except ResultsError as exc:  # the results directory cannot take the sweep: found before any setpoint
+            print(f"bodebench: {label}: not started: {exc}; nothing was sent to the drive", file=sys.stderr)
+            return 2
         except BaseException as exc:
             cause = _cause(exc)
             if not isinstance(exc, (SessionError, KeyboardInterrupt)):
                 traceback.print_exc()
-            kept = len(session.response.points)
-            if kept:
-                write_case(session.response, directory)
+            kept = len(session.response.points)  # each of them saved when it was measured
+            if kept and not (isinstance(exc, SessionError) and exc.kind == "output"):
+                try:
+                    write_case(session.response, directory)
+                except OSError:
+                    pass  # the plots only: the points are on disk already
             where = f"{kept} points kept in {directory}" if kept else "no point measured"
             drive = session.ended.drive_state() if session.ended is not None else "nothing was sent to the drive"
             print(f"bodebench: {label}: stopped: {cause}; {where}; {drive}", file=sys.stderr)
             return 128 + exc.signum if isinstance(exc, StopSignal) else 130 if isinstance(exc, KeyboardInterrupt) \
                 else 1
-        files = write_case(result.response, directory)
+        try:
+            files = write_case(result.response, directory)
+        except OSError as exc:
+            print(f"bodebench: {label}: {len(result.response.points)} points on disk in {directory}, but the plots "
+                  f"could not be written: {exc.strerror or exc}; {session.ended.drive_state() if session.ended else ''}",
+                  file=sys.stderr)
+            return 1
         unconverged = [p for p in result.response.points if not p.converged]
         rt = f", round trip {result.round_trip_s * 1e6:.0f} us" if result.round_trip_s == result.round_trip_s else ""
         drive = session.ended.drive_state() if session.ended is not None else ""

@@ -27,7 +27,7 @@ from instrument.bus_worker import (Credit, Fault, Health, Limits, Ready, Samples
                                    Stopped, WorkerSpec, start_worker)
 from instrument.config import AnalysisConfig, CaseConfig
 from instrument.links import LinkPlan
-from instrument.response import FrequencyResponse, ResponsePoint
+from instrument.response import FrequencyResponse, ResponsePoint, check_output
 
 # ---------------------------------------------------------------------------------------------- events to listeners
 
@@ -203,7 +203,20 @@ class BenchSession:
                           pacing_cpu=self.bench.pacing_cpu)
 
     def run(self) -> SessionResult:
-        """Run the whole sweep; never leaves the drive moving. Raises SessionError after a trip (points kept)."""
+        """Run the whole sweep; never leaves the drive moving. Raises SessionError after a trip (points kept), and
+        ResultsError before the first setpoint when the results directory cannot take the sweep's files."""
+        made = False
+        if self.out_dir is not None:
+            points = len(self.case.excitation.frequencies_hz) * len(self.bench.output_channels) * \
+                len(self.analysis.harmonics)
+            made = check_output(self.out_dir, points + len(self.response.points))
+        try:
+            return self._run()
+        finally:
+            if made and self.out_dir is not None and not any(self.out_dir.iterdir()):
+                self.out_dir.rmdir()  # nothing measured: leave no empty directory behind
+
+    def _run(self) -> SessionResult:
         conn, handle = start_worker(self._spec(), self.worker_mode)
         self._conn = conn
         stopped: Stopped | None = None
@@ -378,10 +391,16 @@ class BenchSession:
             self.listener(PointFinished(index, (), skipped=True, refused=refused))
             return
         for p in points:
-            if self.out_dir is not None:
-                self.response.write_point(self.out_dir, p)
-            else:
+            if self.out_dir is None:
                 self.response.add(p)
+                continue
+            try:
+                self.response.write_point(self.out_dir, p)
+            except OSError as exc:  # the files on disk are still the last whole save: without this point
+                self.response.points.remove(p)
+                self.listener(SessionFault("output", str(exc), len(self.response.points)))
+                raise SessionError("output", f"{self.out_dir}: cannot write the point at {f:g} Hz: "
+                                             f"{exc.strerror or exc}") from None
         self.listener(PointFinished(index, tuple(points)))
 
 

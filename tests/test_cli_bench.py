@@ -146,3 +146,43 @@ def test_a_port_that_does_not_exist_is_one_line_that_claims_nothing(tmp_path: Pa
     assert len(lines) == 1 and proc.stderr.count("cannot open serial port") == 1, proc.stderr
     assert lines[0].endswith("no point measured; nothing was sent to the drive")
     assert not (tmp_path / "out").exists()
+
+
+def test_results_that_cannot_be_written_are_found_before_the_first_setpoint(tmp_path: Path) -> None:
+    cfg = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
+    (tmp_path / "a-file").write_text("")
+    proc = subprocess.run(command() + ["run", str(cfg), "--out", str(tmp_path / "a-file" / "out")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        f"bodebench: sim_can: not started: {tmp_path / 'a-file' / 'out'}: cannot create the results directory: "
+        "Not a directory; nothing was sent to the drive"]
+
+
+def test_a_write_failure_mid_sweep_stops_safely_and_keeps_every_point_on_disk(tmp_path: Path) -> None:
+    """Files may not grow past a limit (RLIMIT_FSIZE, as a full disk would refuse them): response.csv hits it
+    mid-sweep. One line says so; every point saved before is on disk, whole; the drive was zeroed and disabled."""
+    import resource
+
+    from instrument.config import load_config
+
+    cfg = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
+    case = load_config(cfg).cases[0]
+    FrequencyResponse(config=case.raw, case=case.name).save(tmp_path / "probe")
+    limit = (tmp_path / "probe" / "response.json").stat().st_size + 1000  # the sidecar fits, the CSV outgrows it
+
+    def limited() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    out = tmp_path / "out"
+    proc = subprocess.run(command() + ["run", str(cfg), "--out", str(out), "--quiet"], capture_output=True,
+                          text=True, timeout=300, preexec_fn=limited)
+    assert proc.returncode == 1
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    kept = FrequencyResponse.load(out)
+    assert 0 < len(kept.points) < 2 * len(case.excitation.frequencies_hz)
+    assert all(p.converged for p in kept.points)
+    assert lines[0].startswith(f"bodebench: sim_can: stopped: output: {out}: cannot write the point at ")
+    assert lines[0].endswith(f"File too large; {len(kept.points)} points kept in {out}; "
+                             "drive left at setpoint 0, disabled")
