@@ -91,10 +91,10 @@ def _signal_problem(field_name: str, value: object) -> str | None:
         if not _is_int(value) or not 0 <= value < _MAX_PAYLOAD:  # type: ignore[operator]
             return f"an integer byte offset 0..{_MAX_PAYLOAD - 1}, got {_show(value)}"
     elif field_name == "type":
-        if value not in _TYPES:
+        if not isinstance(value, str) or value not in _TYPES:
             return f"one of {', '.join(SIGNAL_TYPES)}, got {_show(value)}"
     elif field_name == "endian":
-        if value not in _ENDIANS:
+        if not isinstance(value, str) or value not in _ENDIANS:
             return f'one of "little", "big", got {_show(value)}'
     elif field_name == "scale":
         if not _is_number(value) or not math.isfinite(value) or value == 0:  # type: ignore[arg-type]
@@ -573,6 +573,14 @@ class Layout:
                 raise LayoutError(
                     f"messages {_show(owners[_key(msg)])} and {_show(msg.name)} share id 0x{msg.id:X}"
                 )
+        commands = [(role, m) for role, m in (("enable", self.enable), ("disable", self.disable),
+                                               ("heartbeat", self.heartbeat)) if m is not None]
+        for i, (role, msg) in enumerate(commands):
+            for other_role, other in commands[i + 1:]:
+                if _key(msg) == _key(other) and msg.data == other.data:
+                    raise LayoutError(f"{role} and {other_role} are the same frame (id 0x{msg.id:X}, data "
+                                      f"{bytes(msg.data or b'').hex() or 'empty'}): the drive could not tell them "
+                                      "apart")
         period = self.heartbeat_period_s
         if not _is_number(period) or not math.isfinite(period) or period < 0:
             raise LayoutError(f"heartbeat_period_s: a finite number >= 0 s, got {_show(period)}")

@@ -22,6 +22,10 @@ TRANSPORTS = ("can", "serial")
 CLOCKS = ("lockstep", "realtime")
 TIMEBASES = ("counter", "timestamp", "receive")
 MIN_SAMPLES_PER_PERIOD = 8  # of the highest harmonic measured
+MIN_FREQUENCY_HZ = 1e-3
+"""Lowest frequency a bench sweeps: a period of 1000 s, so that a point (a ramp of whole periods, then the periods
+the stopping rule needs) takes more than an hour. No drive is swept slower on a bench; a smaller value is a typing
+error (a frequency in kHz, a wrong exponent)."""
 
 
 class CaseCheckError(ValueError):
@@ -147,7 +151,7 @@ class SimulatorConfig:
 
     jitter: float = field(default=0.0, metadata={"min": 0, "max": 0.5, "max_exclusive": True,
                                                  "doc": "sampling-instant jitter, fraction of a period"})
-    seed: int = field(default=0, metadata={"doc": "jitter random seed"})
+    seed: int = field(default=0, metadata={"min": 0, "doc": "jitter random seed (numpy: >= 0)"})
     faults: dict = field(default_factory=dict, metadata={"doc": "fault injection (sim/faults.py FaultConfig)"})
 
     def validate(self, where: Callable[[str], str]) -> None:
@@ -237,6 +241,10 @@ def check_bench_case(case: "CaseConfig", key: Callable[[str, str], str], source:
                              f"{amplitude:g} exceeds safety.max_amplitude ({safety.max_amplitude:g})")
     top = max(case.analysis.harmonics)
     for i, f in enumerate(case.excitation.frequencies_hz):
+        if f < MIN_FREQUENCY_HZ:
+            raise CaseCheckError(f"{key('excitation', 'frequencies_hz')}[{i}]",
+                                 f"{f:g} Hz is below {MIN_FREQUENCY_HZ:g} Hz (a period of 1000 s): a point would "
+                                 "take hours")
         if top * f * MIN_SAMPLES_PER_PERIOD > bench.rate_hz:
             raise CaseCheckError(f"{key('excitation', 'frequencies_hz')}[{i}]",
                                  f"{f:g} Hz: harmonic {top} needs at least {MIN_SAMPLES_PER_PERIOD} samples a "
