@@ -348,9 +348,10 @@ class SerialPort(FramePort):
         self._last_byte = time.monotonic()
 
     @classmethod
-    def open(cls, port: str, baudrate: int, framing: str, layout: Layout) -> SerialPort:
+    def open(cls, port: str, baudrate: int, framing: str, layout: Layout, send_timeout: float = 1.0) -> SerialPort:
         """Open ``port`` (a device path or a pyserial URL such as "loop://") at ``baudrate`` with ``timeout=0``;
-        DriverInitError naming the port when that fails."""
+        DriverInitError naming the port when that fails. ``send_timeout`` (s): how long a write that stalls (the
+        line's buffer full) is retried before it fails."""
         import serial
 
         if framing not in _FRAMINGS:
@@ -360,7 +361,7 @@ class SerialPort(FramePort):
             ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DriverInitError(f"cannot open serial port {port!r} at {baudrate} baud: {exc}") from exc
-        return cls(ser, framing, layout, name=f"serial {port}")
+        return cls(ser, framing, layout, name=f"serial {port}", send_timeout=send_timeout)
 
     @property
     def deframer(self) -> BinaryDeframer | AsciiDeframer:
@@ -403,7 +404,8 @@ class SerialPort(FramePort):
             if view:  # the line's buffer is full: wait until it drains, but not forever
                 remaining = deadline - time.monotonic()
                 if remaining <= 0 or not select.select([], [self._fd], [], remaining)[1]:
-                    raise self._timeout_errors[0](f"write timed out with {len(view)} of {len(wire)} bytes unsent")
+                    raise self._timeout_errors[0](f"write stalled for {self._send_timeout:g} s with {len(view)} "
+                                                  f"of {len(wire)} bytes unsent")
 
     def _read_some(self, readable: bool = False) -> bytes:
         """What the line holds now, at most ``_CHUNK`` bytes (b"" when nothing). ``readable``: select() just said

@@ -359,8 +359,9 @@ class BenchSession:
                 continue
             t, values = message.t, message.values[:, columns]
             scope.append((t, message.setpoint, values[:, 0]))
-            if len(scope) > 64:
-                del scope[:32]
+            if t.size:  # keep what covers the last two periods, however the batches were cut
+                while len(scope) > 1 and scope[1][0].size and scope[1][0][0] <= t[-1] - 2.0 / f:
+                    del scope[0]
             keep = t > t0
             if held is None or not np.all(keep):
                 before = np.flatnonzero(~keep)

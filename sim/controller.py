@@ -24,7 +24,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from drivers.errors import LayoutError
+from drivers.errors import DriverTimeoutError, LayoutError
 from drivers.e2e import crc_byte, seal
 from drivers.layout import CRC, SETPOINT_ECHO, Layout, Message
 from drivers.ports import Frame, FramePort
@@ -104,6 +104,7 @@ class SimulatedController:
         self.enable_frames = 0
         self.disable_frames = 0
         self.watchdog_trips = 0
+        self.unsent = 0  # feedback frames the line did not take in time (lost)
         self.on_event = on_event or (lambda text: None)
         self._last_valid = time.monotonic()  # wall time of the last valid setpoint or heartbeat
         self._rng = np.random.default_rng(timing.seed)
@@ -224,6 +225,14 @@ class SimulatedController:
             frames.append(Frame(message.id, payload, message.extended, time.time()))
         return frames
 
+    def _transmit(self, port: FramePort, frame: Frame) -> None:
+        """Send a feedback frame; one the line will not take in time is lost (counted in ``unsent``), as a drive's
+        full transmit buffer loses it: the drive goes on."""
+        try:
+            port.send(frame)
+        except DriverTimeoutError:
+            self.unsent += 1
+
     def serve(self, port: FramePort, stop: threading.Event, poll_s: float = 0.05) -> None:
         """Answer on ``port`` until ``stop`` is set: lockstep answers each setpoint; realtime ticks on the wall clock."""
         if self.layout.drive_watchdog_s:
@@ -232,7 +241,7 @@ class SimulatedController:
             while not stop.is_set():
                 for frame in port.recv(poll_s):
                     for out in self.handle(frame):
-                        port.send(out)
+                        self._transmit(port, out)
                 self.check_watchdog()
             return
         # a drive ticks on its own hardware clock: where permitted, this thread gets realtime priority too (below
@@ -251,7 +260,7 @@ class SimulatedController:
             if wait > 0:
                 time.sleep(wait)
             for out in self.tick():
-                port.send(out)
+                self._transmit(port, out)
             next_tick += self.period
             if time.perf_counter() - next_tick > 100 * self.period:  # fell far behind (suspended): resume now
                 next_tick = time.perf_counter() + self.period
