@@ -10,22 +10,12 @@ from __future__ import annotations
 
 from .errors import LayoutError
 from .layout import CRC, Codec
+from .serial_framing import crc_table
 
 __all__ = ["crc8_sae_j1850", "crc_byte", "intact", "seal"]
 
 
-def _make_table() -> tuple[int, ...]:
-    table = []
-    for byte in range(256):
-        crc = byte
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1D) if crc & 0x80 else (crc << 1)
-            crc &= 0xFF
-        table.append(crc)
-    return tuple(table)
-
-
-_TABLE = _make_table()
+_TABLE = crc_table(0x1D, 8)
 
 
 def crc8_sae_j1850(data: bytes | bytearray | memoryview) -> int:

@@ -140,26 +140,11 @@ def test_a_heartbeat_slower_than_half_the_drive_watchdog_is_refused() -> None:
     assert "more than half of drive_watchdog_s" in with_frames(edit)
 
 
-DBC = """VERSION ""
-
-NS_ :
-
-BS_:
-
-BU_: CTRL INST
-
-BO_ 513 SETPOINT: 6 INST
- SG_ SetpointPos : 0|32@1- (0.001,0) [-100000|100000] "mm" CTRL
- SG_ SeqCnt : 32|16@1+ (1,0) [0|65535] "" CTRL
-
-BO_ 385 FEEDBACK1: 6 CTRL
- SG_ ActPos : 0|32@{order}- ({scale},0) [-2000000|2000000] "mm" INST
- SG_ SeqCnt : 32|16@1+ (1,0) [0|65535] "" INST
-"""
-
-
 def dbc_error(tmp_path, order: str = "1", scale: str = "0.001") -> str:  # type: ignore[no-untyped-def]
-    (tmp_path / "drive.dbc").write_text(DBC.format(order=order, scale=scale))
+    from test_drivers import DBC_TEXT
+
+    (tmp_path / "drive.dbc").write_text(DBC_TEXT.replace("ActPos : 0|32@1- (0.001,0)",
+                                                         f"ActPos : 0|32@{order}- ({scale},0)"))
     frames = {"dbc": "drive.dbc",
               "setpoint": {"message": "SETPOINT", "signals": {"setpoint": "SetpointPos", "counter": "SeqCnt"}},
               "feedback": [{"message": "FEEDBACK1", "signals": {"position": "ActPos", "counter": "SeqCnt"}}]}

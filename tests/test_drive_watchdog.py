@@ -21,19 +21,11 @@ from instrument.links import plan_link, simulator_spec
 from instrument.session import BenchSession, PointProgress, SessionError
 from sim.serve import serve_can
 
+from test_bench_config import FRAMES
 from test_bench_e2e import config
 from test_cli_bench import SERIAL_BENCH, command
 
-CAN_FRAMES = {
-    "setpoint": {"id": 0x201, "signals": [{"name": "setpoint", "byte": 0, "type": "float32"},
-                                          {"name": "counter", "byte": 4, "type": "uint16"}]},
-    "feedback": [{"id": 0x181, "signals": [{"name": "position", "byte": 0, "type": "float32"},
-                                           {"name": "counter", "byte": 4, "type": "uint16"}]}],
-    "enable": {"id": 0x10, "data": [1]},
-    "disable": {"id": 0x10, "data": [0]},
-    "heartbeat": {"id": 0x700, "data": [5], "period_s": 0.1},
-    "drive_watchdog_s": 0.5,
-}
+CAN_FRAMES = {**FRAMES, "heartbeat": {"id": 0x700, "data": [5], "period_s": 0.1}, "drive_watchdog_s": 0.5}
 WATCHDOG_TOML = """
 [frames.heartbeat]
 id = 0x20
@@ -42,48 +34,9 @@ period_s = 0.1
 [frames]
 drive_watchdog_s = 0.5
 """
-CAN_BENCH = """
-[plant]
-model = "coulomb"
-mass = 2.533e-4
-stiffness = 1.0
-friction = 0.008
-[excitation]
-amplitude = 0.01
-frequencies_hz = [3, 4, 5, 6, 7, 8, 9, 10]
-[analysis]
-harmonics = [1]
-tolerance_percent = 0.01
-[bench]
-transport = "can"
-rate_hz = 1000
-clock = "lockstep"
-[can]
-interface = "slcan"
-channel = "{channel}"
-[frames.setpoint]
-id = 0x201
-signals = [{{ name = "setpoint", byte = 0, type = "float32" }}, {{ name = "counter", byte = 4, type = "uint16" }}]
-[[frames.feedback]]
-id = 0x181
-signals = [{{ name = "position", byte = 0, type = "float32" }}, {{ name = "counter", byte = 4, type = "uint16" }}]
-[frames.enable]
-id = 0x10
-data = [1]
-[frames.disable]
-id = 0x10
-data = [0]
-[frames.heartbeat]
-id = 0x700
-data = [5]
-period_s = 0.1
-[frames]
-drive_watchdog_s = 0.5
-[safety]
-max_amplitude = 0.02
-watchdog_s = 2.0
-{simulator}
-"""
+CAN_BENCH = SERIAL_BENCH.replace('transport = "serial"', 'transport = "can"').replace(
+    '[serial]\nport = "{port}"\nframing = "binary"', '[can]\ninterface = "slcan"\nchannel = "{port}"')
+"""The same bench on CAN, through python-can's slcan interface (a simulated adapter on a pty)."""
 
 
 def _drive_events(text: str) -> list[str]:
@@ -132,30 +85,20 @@ def _kill_host_mid_sweep(tmp_path: Path, drive_text: str, host_for: Callable[[st
     return _drive_events("".join(lines)), lines[-1]
 
 
-def test_kill_9_of_the_host_on_a_serial_line_leaves_the_drive_zeroed_and_disabled(tmp_path: Path) -> None:
+@pytest.mark.parametrize("bench, pattern", [(SERIAL_BENCH, r'port = "([^"]+)"'), (CAN_BENCH, r'channel = "([^"]+)"')],
+                         ids=["serial", "can-slcan"])
+def test_kill_9_of_the_host_leaves_the_drive_zeroed_and_disabled(tmp_path: Path, bench: str, pattern: str) -> None:
+    """On a serial line, and on CAN through python-can's slcan interface to a simulated adapter (the host's
+    heartbeat then goes out by python-can's periodic send); the drive in another process."""
     events, last = _kill_host_mid_sweep(
-        tmp_path, SERIAL_BENCH.format(freqs="[3]", port="", simulator=WATCHDOG_TOML + "[simulator]"),
-        lambda path: SERIAL_BENCH.format(freqs="[3, 4, 5, 6, 7, 8, 9, 10]", port=path, simulator=WATCHDOG_TOML),
-        r'port = "([^"]+)"')
+        tmp_path, bench.format(freqs="[3]", port="", simulator=WATCHDOG_TOML + "[simulator]"),
+        lambda path: bench.format(freqs="[3, 4, 5, 6, 7, 8, 9, 10]", port=path, simulator=WATCHDOG_TOML), pattern)
     trip = next(i for i, e in enumerate(events) if e.startswith("watchdog trip"))
     # enabled and fed while the host lived; nobody sent a disable: the watchdog tripped once and did it
     assert events[0] == "enabled (enable frame)" and not any("disabled" in e for e in events[:trip]), events
     assert sum(e.startswith("watchdog trip") for e in events) == 1, events
     assert events[trip + 1:] == [e for e in events[trip + 1:] if e.startswith("setpoint zeroed")] + \
         ["disabled (watchdog)"]
-    assert last.rstrip().endswith("last setpoint 0, disabled")
-
-
-def test_kill_9_of_the_host_on_can_leaves_the_drive_zeroed_and_disabled(tmp_path: Path) -> None:
-    """CAN frames through python-can's slcan interface to a simulated adapter and drive in another process; the
-    host sends its heartbeat with python-can's periodic send."""
-    events, last = _kill_host_mid_sweep(tmp_path, CAN_BENCH.format(channel="", simulator="[simulator]"),
-                                        lambda path: CAN_BENCH.format(channel=path, simulator=""),
-                                        r'channel = "([^"]+)"')
-    trip = next(i for i, e in enumerate(events) if e.startswith("watchdog trip"))
-    assert events[0] == "enabled (enable frame)" and not any("disabled" in e for e in events[:trip]), events
-    assert sum(e.startswith("watchdog trip") for e in events) == 1, events
-    assert events[-1] == "disabled (watchdog)"
     assert last.rstrip().endswith("last setpoint 0, disabled")
 
 
