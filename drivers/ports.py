@@ -317,9 +317,11 @@ class SerialPort(FramePort):
     _MAX_READS = 16  # reads per poll at most
 
     def __init__(self, ser: Any, framing: str, layout: Layout, *, name: str | None = None,
-                 send_timeout: float = 1.0) -> None:
+                 send_timeout: float = 1.0, frame_gap_s: float | None = None) -> None:
         """Wrap the open serial object ``ser``; ``framing`` "binary" or "ascii"; ``layout`` is validated for it.
-        ``send_timeout`` (s) bounds each send on a line that does not take the bytes."""
+        ``send_timeout`` (s) bounds each send on a line that does not take the bytes; ``frame_gap_s`` (s): silence
+        inside a frame after which it is taken as cut short (None: 20 characters' time at the line's baud rate, at
+        least 2 ms)."""
         if framing not in _FRAMINGS:
             raise LayoutError(f'serial framing: one of "binary", "ascii", got {framing!r}')
         layout.validate(f"serial-{framing}")
@@ -343,15 +345,18 @@ class SerialPort(FramePort):
         self.broken_frames = 0
         """Frames cut short: the line went idle inside a frame for ``idle_s``; their bytes are dropped at once."""
         baudrate = getattr(ser, "baudrate", None)
-        self.idle_s = max(1e-3, 200.0 / baudrate) if isinstance(baudrate, (int, float)) and baudrate > 0 else 1e-3
-        """s of silence inside a frame after which it is taken as cut short (20 characters' time, at least 1 ms)."""
+        if frame_gap_s is None:
+            frame_gap_s = max(2e-3, 200.0 / baudrate) if isinstance(baudrate, (int, float)) and baudrate > 0 else 2e-3
+        self.idle_s = frame_gap_s
+        """s of silence inside a frame after which it is taken as cut short."""
         self._last_byte = time.monotonic()
 
     @classmethod
-    def open(cls, port: str, baudrate: int, framing: str, layout: Layout, send_timeout: float = 1.0) -> SerialPort:
+    def open(cls, port: str, baudrate: int, framing: str, layout: Layout, send_timeout: float = 1.0,
+             frame_gap_s: float | None = None) -> SerialPort:
         """Open ``port`` (a device path or a pyserial URL such as "loop://") at ``baudrate`` with ``timeout=0``;
         DriverInitError naming the port when that fails. ``send_timeout`` (s): how long a write that stalls (the
-        line's buffer full) is retried before it fails."""
+        line's buffer full) is retried before it fails; ``frame_gap_s`` as for the constructor."""
         import serial
 
         if framing not in _FRAMINGS:
@@ -361,7 +366,7 @@ class SerialPort(FramePort):
             ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DriverInitError(f"cannot open serial port {port!r} at {baudrate} baud: {exc}") from exc
-        return cls(ser, framing, layout, name=f"serial {port}", send_timeout=send_timeout)
+        return cls(ser, framing, layout, name=f"serial {port}", send_timeout=send_timeout, frame_gap_s=frame_gap_s)
 
     @property
     def deframer(self) -> BinaryDeframer | AsciiDeframer:
