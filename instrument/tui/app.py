@@ -628,8 +628,7 @@ class BodeBenchApp(App[int]):
         elif (fault is not None and fault.kind == "abort") or message.error.startswith("abort"):
             self.state = "aborted"
             kept = fault.kept if fault is not None else 0
-            drive = "" if ended is None else (f"drive left at setpoint {ended.last_setpoint:g}"
-                                              f"{', disabled' if ended.disabled else ''}; ")
+            drive = "" if ended is None else f"{ended.drive_state()}; "
             where = f" in {message.saved}" if message.saved else ""
             self.notify(f"aborted: {drive}{kept} points kept{where}", severity="warning", timeout=10)
         else:
@@ -639,8 +638,8 @@ class BodeBenchApp(App[int]):
             lines.append(f"{kept} measured points kept" + (f" in {message.saved}" if message.saved else
                                                            " (nothing written)"))
             if ended is not None:
-                lines.append(f"Drive left at setpoint {ended.last_setpoint:g}"
-                             f"{', disabled' if ended.disabled else ''} ({ended.reason}).")
+                state = ended.drive_state()
+                lines.append(f"{state[0].upper()}{state[1:]} ({ended.reason}).")
             self.push_screen(MessageDialog("Sweep stopped", "\n".join(lines), error=True))
         self._refresh_rows()
         self._refresh_status()
