@@ -82,6 +82,14 @@ def _is_number(value: object) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+def _is_finite(value: object) -> bool:
+    """A finite number (an integer too large for a float is not)."""
+    try:
+        return _is_number(value) and math.isfinite(value)  # type: ignore[arg-type]
+    except OverflowError:
+        return False
+
+
 def _signal_problem(field_name: str, value: object) -> str | None:
     """Describe what is wrong with one signal field value, or return None when it is acceptable."""
     if field_name == "name":
@@ -97,10 +105,10 @@ def _signal_problem(field_name: str, value: object) -> str | None:
         if not isinstance(value, str) or value not in _ENDIANS:
             return f'one of "little", "big", got {_show(value)}'
     elif field_name == "scale":
-        if not _is_number(value) or not math.isfinite(value) or value == 0:  # type: ignore[arg-type]
+        if not _is_finite(value) or value == 0:
             return f"a finite non-zero number, got {_show(value)}"
     elif field_name == "offset":
-        if not _is_number(value) or not math.isfinite(value):  # type: ignore[arg-type]
+        if not _is_finite(value):
             return f"a finite number, got {_show(value)}"
     return None
 
@@ -582,14 +590,14 @@ class Layout:
                                       f"{bytes(msg.data or b'').hex() or 'empty'}): the drive could not tell them "
                                       "apart")
         period = self.heartbeat_period_s
-        if not _is_number(period) or not math.isfinite(period) or period < 0:
+        if not _is_finite(period) or period < 0:
             raise LayoutError(f"heartbeat_period_s: a finite number >= 0 s, got {_show(period)}")
         if self.heartbeat is not None and period <= 0:
             raise LayoutError("heartbeat_period_s: must be > 0 s when a heartbeat message is given")
         if self.heartbeat is None and period > 0:
             raise LayoutError("heartbeat_period_s: given without a heartbeat message")
         watchdog = self.drive_watchdog_s
-        if not _is_number(watchdog) or not math.isfinite(watchdog) or watchdog < 0:
+        if not _is_finite(watchdog) or watchdog < 0:
             raise LayoutError(f"drive_watchdog_s: a finite number >= 0 s, got {_show(watchdog)}")
         if watchdog > 0 and period > watchdog / 2:
             raise LayoutError(f"heartbeat period_s: {period:g} s is more than half of drive_watchdog_s "
@@ -716,7 +724,7 @@ class _Ctx:
         return table[key]
 
     def number(self, value: object, path: str) -> float:
-        if not _is_number(value) or not math.isfinite(value):  # type: ignore[arg-type]
+        if not _is_finite(value):
             self.fail(path, f"a finite number, got {_show(value)}")
         return float(value)  # type: ignore[arg-type]
 
