@@ -105,20 +105,11 @@ def test_corrupt_results_directory_gives_one_line(tmp_path: Path, damage: str) -
     assert ("response.json" if damage == "sidecar" else "response.csv") in lines[0]
 
 
-OFFLINE = """
-title = "offline friction link"
-[plant]
-model = "coulomb"
-mass = 2.533e-4
-stiffness = 1.0
-friction = 0.008
-[excitation]
-amplitude = 0.01
-frequencies_hz = [3, 5, 8, 12]
-[analysis]
-harmonics = [1]
-tolerance_percent = 0.01
-"""
+def offline_text() -> str:
+    """An offline experiment: the plant, excitation and analysis of the serial bench, without the bench."""
+    from test_cli_bench import SERIAL_BENCH
+
+    return SERIAL_BENCH.split("[bench]")[0].format(freqs="[3, 5, 8, 12]")
 
 
 @pytest.mark.parametrize("kind", ["offline", "bench"])
@@ -127,7 +118,7 @@ def test_simulate_refuses_to_overwrite_and_resumes(tmp_path: Path, kind: str) ->
     overwritten; an interrupted sweep (here: the last points gone from its files) is continued with --resume."""
     if kind == "offline":
         cfg = tmp_path / "offline.toml"
-        cfg.write_text(OFFLINE)
+        cfg.write_text(offline_text())
     else:
         cfg = small_config(tmp_path)
     out = tmp_path / "out"
