@@ -8,6 +8,7 @@ from the DBC file (0 when it gives none, moved into the signal's [minimum, maxim
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,9 @@ from .errors import LayoutError
 from .layout import Layout, Message, _Ctx, _is_number, _show
 
 __all__ = ["DbcMessage", "layout_from_dbc"]
+
+_SIGNAL_LINE = re.compile(r"\s*SG_\s+(?P<name>\w+)\s*[^:]*:\s*\d+\|\d+@(?P<order>.)(?P<sign>.)")
+"""A DBC signal line up to its byte order and sign (``SG_ Name : start|length@1-``)."""
 
 
 class DbcMessage:
@@ -41,6 +45,10 @@ class DbcMessage:
             if theirs in targets:
                 raise LayoutError(f"{where}: signal {_show(theirs)} is mapped twice")
             targets.add(theirs)
+        for sig in db_message.signals:
+            if not sig.is_float and (not math.isfinite(float(sig.scale)) or sig.scale == 0):
+                raise LayoutError(f"{where}: signal {_show(sig.name)} has scale {sig.scale!r}: every raw value "
+                                  "would read the same (a finite non-zero scale is needed)")
         self._map = mapping
         self._sig = {ours: by_name[theirs] for ours, theirs in mapping.items()}
         self._defaults = {name: _default_value(sig) for name, sig in by_name.items() if name not in targets}
@@ -148,12 +156,21 @@ def layout_from_dbc(cls: type[Layout], path: Path, mapping: Mapping[str, Any], s
 
     ctx = _Ctx(source)
     table = ctx.table(mapping, "frames")
-    ctx.known(table, "frames", {"setpoint", "feedback", "enable", "disable", "heartbeat"})
+    ctx.known(table, "frames", {"setpoint", "feedback", "enable", "disable", "heartbeat", "drive_watchdog_s"})
+    watchdog = ctx.number(table["drive_watchdog_s"], "frames.drive_watchdog_s") if "drive_watchdog_s" in table \
+        else 0.0
     try:
         db = cantools.database.load_file(str(path), database_format="dbc")
+        text = path.read_text(encoding="latin-1")
     except Exception as exc:  # missing file, parse errors
         prefix = f"{source}: " if source else ""
-        raise LayoutError(f"{prefix}frames.dbc: cannot load {str(path)!r}: {exc}") from exc
+        raise LayoutError(f"{prefix}frames.dbc: cannot load {str(path)!r}: {' '.join(str(exc).split())}") from exc
+    for number, line in enumerate(text.splitlines(), 1):  # what the DBC parser lets through
+        found = _SIGNAL_LINE.match(line)
+        if found and (found["order"] not in "01" or found["sign"] not in "+-"):
+            ctx.fail("frames.dbc", f"{path.name} line {number}: signal {_show(found['name'])}: "
+                                   f"@{found['order']}{found['sign']} is not a byte order (@0 big-endian, @1 "
+                                   "little-endian) and sign (+ unsigned, - signed)")
 
     def find(sub: Mapping[str, Any], where: str) -> Any:
         name = ctx.require(sub, where, "message")
@@ -218,6 +235,7 @@ def layout_from_dbc(cls: type[Layout], path: Path, mapping: Mapping[str, Any], s
             if role == "heartbeat":
                 period = p
     result: Layout = ctx.build(
-        lambda: cls(setpoint, feedback, optional["enable"], optional["disable"], optional["heartbeat"], period)
+        lambda: cls(setpoint, feedback, optional["enable"], optional["disable"], optional["heartbeat"], period,
+                    watchdog)
     )
     return result

@@ -11,15 +11,24 @@ import time
 from dataclasses import dataclass
 
 from .errors import LayoutError
+from .e2e import crc_byte, intact
 from .layout import COUNTER, SETPOINT, TIMESTAMP, Codec, Layout
 from .ports import Frame, FramePort
 
-__all__ = ["BusHealth", "Driver", "FeedbackSample", "Unwrapper"]
+__all__ = ["REJECT_CAUSES", "BusHealth", "Driver", "FeedbackSample", "Unwrapper"]
 
 _MAX_PENDING = 64
 """Most partial samples held at once; beyond that the oldest is dropped as incomplete."""
 _RESTART_BEHIND = 64
 """A feedback counter this many samples or more behind the expected one is taken as a restart of the counter."""
+_FAR = 64
+"""A feedback counter this many samples or more ahead of the latest accepted one, or a restart, is believed only when
+``_CONFIRM`` frames in a row carry it (the same or each the next counter): one frame from elsewhere cannot move the
+count."""
+_CONFIRM = 3
+REJECT_CAUSES = ("length", "crc", "counter")
+"""Why feedback frames are rejected before they become data: a payload of the wrong length, a CRC-8 that does not
+match, a counter that breaks continuity (far from the expected one and not confirmed)."""
 
 
 class Unwrapper:
@@ -50,17 +59,20 @@ class Unwrapper:
 
     def unwrap(self, raw: int) -> int:
         """Unwrapped value of ``raw`` (0 <= raw < modulus)."""
+        self._last = self.peek(raw)
+        return self._last
+
+    def peek(self, raw: int) -> int:
+        """The value ``unwrap(raw)`` would return, without taking it as the new previous value."""
         if not isinstance(raw, int) or isinstance(raw, bool) or not 0 <= raw < self.modulus:
             raise ValueError(f"raw counter value must be an integer 0..{self.modulus - 1}, got {raw!r}")
         if self._last is None:
-            self._last = raw
             return raw
         m = self.modulus
         step = (raw - self._last) % m
         if step >= (m + 1) // 2:
             step -= m
-        self._last += step
-        return self._last
+        return self._last + step
 
 
 @dataclass(frozen=True)
@@ -81,11 +93,13 @@ class FeedbackSample:
 @dataclass
 class BusHealth:
     """Link statistics (plain data). ``errors`` = port errors (error frames, CRC failures, malformed input) plus
-    feedback frames that failed to decode; ``lost_samples``: counter values never seen; ``duplicates``: repeated or
+    feedback frames that failed to decode or were rejected; ``lost_samples``: counter values never seen; ``duplicates``: repeated or
     stale counter values (dropped); ``incomplete_samples``: counters with some but not all feedback frames (dropped);
     ``bus_state``: "active", "passive", "bus-off" or "unknown"; ``last_error``: description of the latest error;
     ``counter_restarts``: times the feedback counter jumped back by more than 64 samples (assembly restarted there);
-    ``resyncs``: serial lines only, runs of bytes discarded between frames (line noise, garbage)."""
+    ``resyncs``: serial lines only, runs of bytes discarded between frames (line noise, garbage); ``rejected``:
+    feedback frames refused before assembly, by cause (``REJECT_CAUSES``): never part of a sample;
+    ``broken_frames``: serial lines only, frames cut short (the line went quiet inside one), dropped at once."""
 
     frames_in: int = 0
     frames_out: int = 0
@@ -97,10 +111,17 @@ class BusHealth:
     last_error: str = ""
     counter_restarts: int = 0
     resyncs: int = 0
+    broken_frames: int = 0
+    rejected: dict[str, int] = dataclasses.field(default_factory=lambda: dict.fromkeys(REJECT_CAUSES, 0))
+
+    @property
+    def rejected_total(self) -> int:
+        """Feedback frames rejected, all causes."""
+        return sum(self.rejected.values())
 
     def snapshot(self) -> BusHealth:
         """An independent copy."""
-        return dataclasses.replace(self)
+        return dataclasses.replace(self, rejected=dict(self.rejected))
 
 
 class Driver:
@@ -115,6 +136,11 @@ class Driver:
     from the last one, so ``FeedbackSample.counter`` stays monotonic). At most 64 partial samples are held; beyond
     that the oldest is dropped as incomplete. Frames with ids not in the feedback set are ignored (counted only in
     ``frames_in``); feedback frames that fail to decode count as errors and never raise.
+
+    Before assembly each feedback frame must prove itself (rejections counted by cause in ``BusHealth.rejected``):
+    its payload has exactly the message's length (a drive that pads its CAN frames declares the padding), its
+    ``crc`` byte matches where the message has one, and a counter far from the latest accepted one (64 samples
+    ahead or more, or a restart behind) is believed only when three frames in a row carry it.
     """
 
     def __init__(self, port: FramePort, layout: Layout) -> None:
@@ -138,6 +164,9 @@ class Driver:
         self._ts_index = next(
             (i for i, msg in enumerate(layout.feedback) if TIMESTAMP in msg.signal_names), None
         )
+        self._crc_at = {index: at for index, msg in enumerate(layout.feedback) if (at := crc_byte(msg)) is not None}
+        self._far_raw: int | None = None  # the raw counter of the latest far frame, and how many in a row
+        self._far_run = 0
         self._pending: dict[int, dict[int, tuple[dict[str, float], float]]] = {}
         self._next: int | None = None  # lowest counter not yet emitted, lost or dropped
         self._offset = 0  # added to unwrapped counters after counter restarts
@@ -171,6 +200,17 @@ class Driver:
         if self.layout.heartbeat is not None:
             self._send(self.layout.heartbeat, {})
 
+    def start_heartbeat(self) -> bool:
+        """Have the port repeat the heartbeat every ``layout.heartbeat_period_s`` on its own (python-can's periodic
+        send); False when the layout has none or the port cannot (then call ``heartbeat()`` on time)."""
+        hb = self.layout.heartbeat
+        if hb is None:
+            return False
+        try:
+            return self.port.send_periodic(Frame(hb.id, hb.encode({}), hb.extended), self.layout.heartbeat_period_s)
+        finally:
+            self._update_health()
+
     def _send(self, msg: Codec, values: dict[str, float]) -> None:
         data = msg.encode(values)
         try:
@@ -181,12 +221,14 @@ class Driver:
     # ----------------------------------------------------------------------------------------------------------
     # feedback
     def receive(self, timeout: float) -> list[FeedbackSample]:
-        """Samples completed within ``timeout`` s: waits until at least one sample is complete or the time is up,
-        then returns every sample completed by the frames received so far (oldest first)."""
+        """Samples completed within ``timeout`` s: waits until at least one sample is complete, a frame turns out
+        cut short (serial: the reply it was will never complete) or the time is up, then returns every sample
+        completed by the frames received so far (oldest first)."""
         if not isinstance(timeout, (int, float)) or not timeout >= 0:
             raise ValueError(f"receive timeout must be a number >= 0 s, got {timeout!r}")
         deadline = time.monotonic() + timeout
         samples: list[FeedbackSample] = []
+        broken = getattr(self.port, "broken_frames", 0)
         try:
             while True:
                 frames = self.port.recv(max(0.0, deadline - time.monotonic()))
@@ -194,7 +236,7 @@ class Driver:
                     sample = self._accept(frame)
                     if sample is not None:
                         samples.append(sample)
-                if samples or time.monotonic() >= deadline:
+                if samples or time.monotonic() >= deadline or getattr(self.port, "broken_frames", 0) != broken:
                     return samples
         finally:
             self._update_health()
@@ -212,15 +254,30 @@ class Driver:
         if index is None:
             return None
         msg = self.layout.feedback[index]
+        data = frame.data
+        if len(data) != msg.length:
+            return self._reject("length", frame, f"payload of {len(data)} bytes, the message has {msg.length}")
+        at = self._crc_at.get(index)
+        if at is not None and not intact(data, at):
+            return self._reject("crc", frame, "CRC-8 does not match")
         try:
-            values = msg.decode(frame.data)
-            counter = self._counter.unwrap(self._raw_counter(values)) if self._counter is not None else None
+            values = msg.decode(data)
+            raw = self._raw_counter(values) if self._counter is not None else None
+            counter = self._counter.peek(raw) if self._counter is not None and raw is not None else None
         except (LayoutError, ValueError) as exc:
             self._decode_errors += 1
             self.health.last_error = f"feedback frame 0x{frame.id:X}: {exc}"
             return None
         if counter is None:
             return self._emit(None, {index: (values, frame.timestamp)})
+        assert self._counter is not None and raw is not None
+        last = self._counter.last
+        if last is not None:
+            ahead = counter - last  # continuity: from the latest frame accepted
+            if (ahead >= _FAR or ahead < -_RESTART_BEHIND) and not self._confirmed(raw):
+                return self._reject("counter", frame, f"counter {raw} is {ahead:+d} from the expected one")
+        self._far_raw, self._far_run = None, 0
+        counter = self._counter.unwrap(raw)
         if self._next is None:
             self._next = counter
         counter += self._offset
@@ -250,6 +307,20 @@ class Driver:
         self.health.lost_samples += counter - self._next - len(older)
         self._next = counter + 1
         return self._emit(counter, parts)
+
+    def _reject(self, cause: str, frame: Frame, why: str) -> None:
+        self.health.rejected[cause] += 1
+        self.health.last_error = f"feedback frame 0x{frame.id:X} rejected: {why}"
+
+    def _confirmed(self, raw: int) -> bool:
+        """A far counter is believed on its third frame in a row carrying it or each the next value."""
+        assert self._counter is not None
+        if self._far_raw is not None and (raw - self._far_raw) % self._counter.modulus in (0, 1):
+            self._far_run += 1
+        else:
+            self._far_run = 1
+        self._far_raw = raw
+        return self._far_run >= _CONFIRM
 
     def _raw_counter(self, values: dict[str, float]) -> int:
         raw = values[COUNTER]
@@ -298,8 +369,9 @@ class Driver:
         port = self.port
         h.frames_in = port.frames_in
         h.frames_out = port.frames_out
-        h.errors = port.errors + self._decode_errors
+        h.errors = port.errors + self._decode_errors + h.rejected_total
         h.resyncs = getattr(port, "resyncs", 0)
+        h.broken_frames = getattr(port, "broken_frames", 0)
         h.bus_state = port.bus_state()
         if port.last_error != self._port_last_error:
             self._port_last_error = port.last_error

@@ -21,6 +21,7 @@ from .errors import LayoutError
 
 __all__ = [
     "COUNTER",
+    "CRC",
     "SETPOINT",
     "SETPOINT_ECHO",
     "SIGNAL_TYPES",
@@ -40,6 +41,8 @@ TIMESTAMP = "timestamp_us"
 """Name of the optional controller time signal of the feedback messages (microseconds, rolling)."""
 SETPOINT_ECHO = "setpoint_echo"
 """Name of the feedback channel carrying the setpoint the drive applied (the two-channel reference of choice)."""
+CRC = "crc"
+"""Name of the optional CRC-8 byte of a feedback message (drivers.e2e; drivers/PROTOCOL.md section 6)."""
 
 # type name -> (struct code, size in bytes, is integer, is signed)
 _TYPES: dict[str, tuple[str, int, bool, bool]] = {
@@ -79,6 +82,14 @@ def _is_number(value: object) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+def _is_finite(value: object) -> bool:
+    """A finite number (an integer too large for a float is not)."""
+    try:
+        return _is_number(value) and math.isfinite(value)  # type: ignore[arg-type]
+    except OverflowError:
+        return False
+
+
 def _signal_problem(field_name: str, value: object) -> str | None:
     """Describe what is wrong with one signal field value, or return None when it is acceptable."""
     if field_name == "name":
@@ -88,16 +99,16 @@ def _signal_problem(field_name: str, value: object) -> str | None:
         if not _is_int(value) or not 0 <= value < _MAX_PAYLOAD:  # type: ignore[operator]
             return f"an integer byte offset 0..{_MAX_PAYLOAD - 1}, got {_show(value)}"
     elif field_name == "type":
-        if value not in _TYPES:
+        if not isinstance(value, str) or value not in _TYPES:
             return f"one of {', '.join(SIGNAL_TYPES)}, got {_show(value)}"
     elif field_name == "endian":
-        if value not in _ENDIANS:
+        if not isinstance(value, str) or value not in _ENDIANS:
             return f'one of "little", "big", got {_show(value)}'
     elif field_name == "scale":
-        if not _is_number(value) or not math.isfinite(value) or value == 0:  # type: ignore[arg-type]
+        if not _is_finite(value) or value == 0:
             return f"a finite non-zero number, got {_show(value)}"
     elif field_name == "offset":
-        if not _is_number(value) or not math.isfinite(value):  # type: ignore[arg-type]
+        if not _is_finite(value):
             return f"a finite number, got {_show(value)}"
     return None
 
@@ -420,7 +431,9 @@ class Layout:
     or more messages that together make one sample; when there are several, every one carries "counter" (so frames of
     one sample can be joined). A feedback message may carry "timestamp_us" (controller time in microseconds, unsigned
     rolling). Every other feedback signal is a channel. ``enable``, ``disable`` and ``heartbeat`` are fixed-data
-    messages; ``heartbeat_period_s`` (s) is how often the instrument should send the heartbeat (0 without one).
+    messages; ``heartbeat_period_s`` (s) is how often the instrument sends the heartbeat (0 without one).
+    ``drive_watchdog_s`` (s): the drive zeroes its setpoint and disables itself when no valid setpoint or heartbeat
+    has arrived for this long (0: the drive has no such watchdog); a heartbeat must come at least twice that often.
 
     Construction checks everything that does not depend on the transport; ``validate(transport)`` adds the payload
     size and id limits of a transport.
@@ -432,6 +445,7 @@ class Layout:
     disable: Codec | None = None
     heartbeat: Codec | None = None
     heartbeat_period_s: float = 0.0
+    drive_watchdog_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.feedback, tuple):
@@ -448,9 +462,9 @@ class Layout:
 
     @property
     def channels(self) -> tuple[str, ...]:
-        """Feedback channel names (every feedback signal but counter and timestamp_us), in order of appearance."""
+        """Feedback channel names (every feedback signal but counter, timestamp_us and crc), in order of appearance."""
         return tuple(
-            name for msg in self.feedback for name in msg.signal_names if name not in (COUNTER, TIMESTAMP)
+            name for msg in self.feedback for name in msg.signal_names if name not in (COUNTER, TIMESTAMP, CRC)
         )
 
     @property
@@ -532,10 +546,14 @@ class Layout:
                     f"message {_show(msg.name)} signal \"timestamp_us\": must be an unsigned integer with scale 1 "
                     "and offset 0"
                 )
+        from .e2e import crc_byte
+
+        for msg in self.feedback:
+            crc_byte(msg)  # a crc signal must fill exactly one byte (LayoutError naming the message)
         seen_channels: dict[str, str] = {}
         for msg in self.feedback:
             for name in msg.signal_names:
-                if name in (COUNTER, TIMESTAMP):
+                if name in (COUNTER, TIMESTAMP, CRC):
                     continue
                 if name in seen_channels:
                     raise LayoutError(
@@ -563,13 +581,27 @@ class Layout:
                 raise LayoutError(
                     f"messages {_show(owners[_key(msg)])} and {_show(msg.name)} share id 0x{msg.id:X}"
                 )
+        commands = [(role, m) for role, m in (("enable", self.enable), ("disable", self.disable),
+                                               ("heartbeat", self.heartbeat)) if m is not None]
+        for i, (role, msg) in enumerate(commands):
+            for other_role, other in commands[i + 1:]:
+                if _key(msg) == _key(other) and msg.data == other.data:
+                    raise LayoutError(f"{role} and {other_role} are the same frame (id 0x{msg.id:X}, data "
+                                      f"{bytes(msg.data or b'').hex() or 'empty'}): the drive could not tell them "
+                                      "apart")
         period = self.heartbeat_period_s
-        if not _is_number(period) or not math.isfinite(period) or period < 0:
+        if not _is_finite(period) or period < 0:
             raise LayoutError(f"heartbeat_period_s: a finite number >= 0 s, got {_show(period)}")
         if self.heartbeat is not None and period <= 0:
             raise LayoutError("heartbeat_period_s: must be > 0 s when a heartbeat message is given")
         if self.heartbeat is None and period > 0:
             raise LayoutError("heartbeat_period_s: given without a heartbeat message")
+        watchdog = self.drive_watchdog_s
+        if not _is_finite(watchdog) or watchdog < 0:
+            raise LayoutError(f"drive_watchdog_s: a finite number >= 0 s, got {_show(watchdog)}")
+        if watchdog > 0 and period > watchdog / 2:
+            raise LayoutError(f"heartbeat period_s: {period:g} s is more than half of drive_watchdog_s "
+                              f"({watchdog:g} s): the drive would trip between heartbeats")
 
     def validate(self, transport: str = "can") -> None:
         """Check the layout for ``transport``: "can" (payload <= 8 bytes, 11/29-bit ids), "serial-binary" (payload
@@ -624,7 +656,9 @@ class Layout:
                 path = Path(source).parent / path
             rest = {k: v for k, v in table.items() if k != "dbc"}
             return cls.from_dbc(path, rest, source)
-        ctx.known(table, "frames", {"setpoint", "feedback", "enable", "disable", "heartbeat"})
+        ctx.known(table, "frames", {"setpoint", "feedback", "enable", "disable", "heartbeat", "drive_watchdog_s"})
+        watchdog = ctx.number(table["drive_watchdog_s"], "frames.drive_watchdog_s") if "drive_watchdog_s" in table \
+            else 0.0
         setpoint = ctx.message(ctx.require(table, "frames", "setpoint"), "frames.setpoint", "setpoint")
         fb_raw = ctx.require(table, "frames", "feedback")
         if isinstance(fb_raw, Mapping):
@@ -646,7 +680,8 @@ class Layout:
             else:
                 optional[role] = None
         return ctx.build(
-            lambda: cls(setpoint, feedback, optional["enable"], optional["disable"], optional["heartbeat"], period)
+            lambda: cls(setpoint, feedback, optional["enable"], optional["disable"], optional["heartbeat"], period,
+                        watchdog)
         )
 
     @classmethod
@@ -689,7 +724,7 @@ class _Ctx:
         return table[key]
 
     def number(self, value: object, path: str) -> float:
-        if not _is_number(value) or not math.isfinite(value):  # type: ignore[arg-type]
+        if not _is_finite(value):
             self.fail(path, f"a finite number, got {_show(value)}")
         return float(value)  # type: ignore[arg-type]
 

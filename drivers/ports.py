@@ -128,6 +128,14 @@ class FramePort(ABC):
         with self._vendor("close"):
             self._close()
 
+    def send_periodic(self, frame: Frame, period_s: float) -> bool:
+        """Have the interface repeat ``frame`` every ``period_s`` s on its own until ``close()``; False where the
+        port cannot (the caller then sends it on time itself)."""
+        if self._closed:
+            raise DriverOperationError(f"{self.name}: port is closed")
+        with self._vendor("periodic send"):
+            return self._send_periodic(frame, period_s)
+
     def bus_state(self) -> str:
         """"active", "passive", "bus-off" or "unknown"."""
         if self._closed:
@@ -187,6 +195,9 @@ class FramePort(ABC):
     def _bus_state(self) -> str:
         return "unknown"
 
+    def _send_periodic(self, frame: Frame, period_s: float) -> bool:
+        return False
+
 
 # ----------------------------------------------------------------------------------------------------------------
 # CAN
@@ -209,6 +220,7 @@ class CanPort(FramePort):
         self._bus = bus
         self._send_timeout = send_timeout
         self._owns_bus = owns_bus
+        self._periodic: list[Any] = []
 
     @classmethod
     def open(cls, interface: str, channel: Any, bitrate: int | None = None,
@@ -232,12 +244,20 @@ class CanPort(FramePort):
         """The wrapped python-can bus."""
         return self._bus
 
-    def _send(self, frame: Frame) -> None:
+    @staticmethod
+    def _message(frame: Frame) -> Any:
         import can
 
-        msg = can.Message(arbitration_id=frame.id, data=frame.data, is_extended_id=frame.extended,
-                          is_fd=len(frame.data) > 8, is_error_frame=frame.is_error)
-        self._bus.send(msg, timeout=self._send_timeout)
+        return can.Message(arbitration_id=frame.id, data=frame.data, is_extended_id=frame.extended,
+                           is_fd=len(frame.data) > 8, is_error_frame=frame.is_error)
+
+    def _send(self, frame: Frame) -> None:
+        self._bus.send(self._message(frame), timeout=self._send_timeout)
+
+    def _send_periodic(self, frame: Frame, period_s: float) -> bool:
+        """python-can's periodic send (the kernel's broadcast manager on socketcan, a thread elsewhere)."""
+        self._periodic.append(self._bus.send_periodic(self._message(frame), period_s))
+        return True
 
     def _recv(self, timeout: float, limit: int) -> list[Frame]:
         msg = self._bus.recv(timeout)
@@ -256,6 +276,9 @@ class CanPort(FramePort):
                      bool(msg.is_error_frame))
 
     def _close(self) -> None:
+        for task in self._periodic:
+            task.stop()
+        self._periodic.clear()
         if self._owns_bus:
             self._bus.shutdown()
 
@@ -294,9 +317,11 @@ class SerialPort(FramePort):
     _MAX_READS = 16  # reads per poll at most
 
     def __init__(self, ser: Any, framing: str, layout: Layout, *, name: str | None = None,
-                 send_timeout: float = 1.0) -> None:
+                 send_timeout: float = 1.0, frame_gap_s: float | None = None) -> None:
         """Wrap the open serial object ``ser``; ``framing`` "binary" or "ascii"; ``layout`` is validated for it.
-        ``send_timeout`` (s) bounds each send on a line that does not take the bytes."""
+        ``send_timeout`` (s) bounds each send on a line that does not take the bytes; ``frame_gap_s`` (s): silence
+        inside a frame after which it is taken as cut short (None: 20 characters' time at the line's baud rate, at
+        least 2 ms)."""
         if framing not in _FRAMINGS:
             raise LayoutError(f'serial framing: one of "binary", "ascii", got {framing!r}')
         layout.validate(f"serial-{framing}")
@@ -317,11 +342,21 @@ class SerialPort(FramePort):
         for msg in layout.messages:
             self._by_id.setdefault(msg.id, msg)
         self._seen_framing_errors = 0
+        self.broken_frames = 0
+        """Frames cut short: the line went idle inside a frame for ``idle_s``; their bytes are dropped at once."""
+        baudrate = getattr(ser, "baudrate", None)
+        if frame_gap_s is None:
+            frame_gap_s = max(2e-3, 200.0 / baudrate) if isinstance(baudrate, (int, float)) and baudrate > 0 else 2e-3
+        self.idle_s = frame_gap_s
+        """s of silence inside a frame after which it is taken as cut short."""
+        self._last_byte = time.monotonic()
 
     @classmethod
-    def open(cls, port: str, baudrate: int, framing: str, layout: Layout) -> SerialPort:
+    def open(cls, port: str, baudrate: int, framing: str, layout: Layout, send_timeout: float = 1.0,
+             frame_gap_s: float | None = None) -> SerialPort:
         """Open ``port`` (a device path or a pyserial URL such as "loop://") at ``baudrate`` with ``timeout=0``;
-        DriverInitError naming the port when that fails."""
+        DriverInitError naming the port when that fails. ``send_timeout`` (s): how long a write that stalls (the
+        line's buffer full) is retried before it fails; ``frame_gap_s`` as for the constructor."""
         import serial
 
         if framing not in _FRAMINGS:
@@ -331,7 +366,7 @@ class SerialPort(FramePort):
             ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DriverInitError(f"cannot open serial port {port!r} at {baudrate} baud: {exc}") from exc
-        return cls(ser, framing, layout, name=f"serial {port}")
+        return cls(ser, framing, layout, name=f"serial {port}", send_timeout=send_timeout, frame_gap_s=frame_gap_s)
 
     @property
     def deframer(self) -> BinaryDeframer | AsciiDeframer:
@@ -348,17 +383,19 @@ class SerialPort(FramePort):
         """Bytes the deframer dropped."""
         return self._deframer.bytes_discarded
 
+    def wire_bytes(self, frame: Frame) -> bytes:
+        """The bytes ``frame`` is on this line (binary frame or ASCII line); LayoutError when it does not fit."""
+        if self.framing == "binary":
+            return encode_binary(frame.id, frame.data)
+        msg = self._by_id.get(frame.id)
+        if msg is None or msg.data is not None:
+            return ascii_line(frame.id, [frame.data.hex().upper()])
+        return encode_ascii(msg, msg.decode(frame.data))
+
     def _send(self, frame: Frame) -> None:
         if frame.is_error:  # a serial line has no error frames
             return
-        if self.framing == "binary":
-            wire = encode_binary(frame.id, frame.data)
-        else:
-            msg = self._by_id.get(frame.id)
-            if msg is None or msg.data is not None:
-                wire = ascii_line(frame.id, [frame.data.hex().upper()])
-            else:
-                wire = encode_ascii(msg, msg.decode(frame.data))
+        wire = self.wire_bytes(frame)
         if self._fd is None:
             self._ser.write(wire)
             return
@@ -372,7 +409,8 @@ class SerialPort(FramePort):
             if view:  # the line's buffer is full: wait until it drains, but not forever
                 remaining = deadline - time.monotonic()
                 if remaining <= 0 or not select.select([], [self._fd], [], remaining)[1]:
-                    raise self._timeout_errors[0](f"write timed out with {len(view)} of {len(wire)} bytes unsent")
+                    raise self._timeout_errors[0](f"write stalled for {self._send_timeout:g} s with {len(view)} "
+                                                  f"of {len(wire)} bytes unsent")
 
     def _read_some(self, readable: bool = False) -> bytes:
         """What the line holds now, at most ``_CHUNK`` bytes (b"" when nothing). ``readable``: select() just said
@@ -402,6 +440,7 @@ class SerialPort(FramePort):
             data = self._read_some(readable and i == 0)
             if not data:
                 break
+            self._last_byte = time.monotonic()
             now = time.time()
             if isinstance(self._deframer, BinaryDeframer):
                 for frame_id, payload in self._deframer.feed(data):
@@ -444,9 +483,18 @@ class SerialPort(FramePort):
             frames = self._read_available(readable)
             if frames:
                 return frames
+            if self._deframer.pending:  # a frame has begun: if the line stays quiet, it was cut short
+                quiet = time.monotonic() - self._last_byte
+                if quiet >= self.idle_s:
+                    self._deframer.drop_pending()
+                    self.broken_frames += 1
+                    self._note_error(f"a frame cut short ({self.broken_frames} so far): the line went quiet in it")
+                    return []
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return []
+            if self._deframer.pending:
+                remaining = min(remaining, max(0.0, self.idle_s - (time.monotonic() - self._last_byte)) + 1e-4)
             if fd is not None:  # wake as soon as bytes arrive
                 readable = bool(select.select([fd], [], [], remaining)[0])
             else:

@@ -53,18 +53,21 @@ ASCII_MAX_LINE = 256
 """Longest accepted ASCII line in characters, ``$`` through ``\\n`` included."""
 
 
-def _make_table() -> tuple[int, ...]:
+def crc_table(poly: int, bits: int) -> tuple[int, ...]:
+    """Byte-wise lookup table of a ``bits``-wide CRC with polynomial ``poly``, not reflected (most significant bit
+    first)."""
+    top, mask = 1 << (bits - 1), (1 << bits) - 1
     table = []
     for byte in range(256):
-        crc = byte << 8
+        crc = byte << (bits - 8)
         for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else (crc << 1)
-            crc &= 0xFFFF
+            crc = ((crc << 1) ^ poly) if crc & top else (crc << 1)
+            crc &= mask
         table.append(crc)
     return tuple(table)
 
 
-_CRC_TABLE = _make_table()
+_CRC_TABLE = crc_table(0x1021, 16)
 
 
 def crc16_ccitt_false(data: bytes | bytearray | memoryview, crc: int = 0xFFFF) -> int:
@@ -112,6 +115,14 @@ class _Counters:
     def _accept(self) -> None:
         self.frames += 1
         self._in_gap = False
+
+    def drop_pending(self) -> int:
+        """Discard the bytes held for an unfinished frame (one that will never be finished); returns how many."""
+        buf: bytearray = getattr(self, "_buf")
+        count = len(buf)
+        self._discard(count)
+        buf.clear()
+        return count
 
 
 class BinaryDeframer(_Counters):

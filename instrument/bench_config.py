@@ -22,6 +22,10 @@ TRANSPORTS = ("can", "serial")
 CLOCKS = ("lockstep", "realtime")
 TIMEBASES = ("counter", "timestamp", "receive")
 MIN_SAMPLES_PER_PERIOD = 8  # of the highest harmonic measured
+MIN_FREQUENCY_HZ = 1e-3
+"""Lowest frequency a bench sweeps: a period of 1000 s, so that a point (a ramp of whole periods, then the periods
+the stopping rule needs) takes more than an hour. No drive is swept slower on a bench; a smaller value is a typing
+error (a frequency in kHz, a wrong exponent)."""
 
 
 class CaseCheckError(ValueError):
@@ -107,6 +111,9 @@ class FramesConfig:
     disable: dict | None = None
     heartbeat: dict | None = None
     heartbeat_period_s: float = field(default=0.0, metadata={"min": 0})
+    drive_watchdog_s: float = field(default=0.0, metadata={
+        "min": 0, "doc": "the drive zeroes and disables itself after this long without a valid setpoint or "
+                         "heartbeat, s (0: it has no watchdog)"})
 
 
 @dataclass(frozen=True)
@@ -186,6 +193,8 @@ def frames_mapping(frames: FramesConfig) -> dict[str, Any]:
             out[name] = value
     if frames.heartbeat_period_s:
         out["heartbeat_period_s"] = frames.heartbeat_period_s
+    if frames.drive_watchdog_s:
+        out["drive_watchdog_s"] = frames.drive_watchdog_s
     return out
 
 
@@ -236,6 +245,10 @@ def check_bench_case(case: "CaseConfig", key: Callable[[str, str], str], source:
                              f"{amplitude:g} exceeds safety.max_amplitude ({safety.max_amplitude:g})")
     top = max(case.analysis.harmonics)
     for i, f in enumerate(case.excitation.frequencies_hz):
+        if f < MIN_FREQUENCY_HZ:
+            raise CaseCheckError(f"{key('excitation', 'frequencies_hz')}[{i}]",
+                                 f"{f:g} Hz is below {MIN_FREQUENCY_HZ:g} Hz (a period of 1000 s): a point would "
+                                 "take hours")
         if top * f * MIN_SAMPLES_PER_PERIOD > bench.rate_hz:
             raise CaseCheckError(f"{key('excitation', 'frequencies_hz')}[{i}]",
                                  f"{f:g} Hz: harmonic {top} needs at least {MIN_SAMPLES_PER_PERIOD} samples a "

@@ -30,6 +30,7 @@ from drivers.errors import DriverError
 from drivers.layout import SETPOINT_ECHO
 from drivers.ports import FramePort
 from drivers.realtime import keep_to, lower_timer_slack, pacing_cpu, request_fifo
+from drivers.stop_signals import StopSignal, stop_on_signals
 
 # ------------------------------------------------------------------------------------------- messages to the worker
 
@@ -127,11 +128,14 @@ class Fault:
 
 @dataclass(frozen=True)
 class Stopped:
-    """The worker's last message: the setpoint it left the drive at and whether it sent the disable frame."""
+    """The worker's last message: the last setpoint that went out, whether a zero setpoint went out after every
+    other (``zero_sent``), whether the disable frame went out, and how many frames reached the bus at all."""
 
     reason: str
     last_setpoint: float
     disabled: bool
+    zero_sent: bool = False
+    frames_out: int = 0
 
 
 # --------------------------------------------------------------------------------------------------- configuration
@@ -306,6 +310,8 @@ class BusWorker:
         self.missed_replies = 0  # lockstep setpoints whose reply did not come within reply_timeout_s
         self.counter_anomalies = 0  # lockstep samples whose counter disagreed with the setpoint they answer
         self._anomalies_in_row = 0
+        self._heartbeat_s = 0.0  # s between heartbeats this loop sends (0: none, or the port repeats it itself)
+        self._next_heartbeat = 0.0
 
     # --- plumbing
     def _post(self, message: object) -> None:
@@ -464,6 +470,24 @@ class BusWorker:
         if sent is not None and 0.0 <= s.receive_time - sent < 1.0:
             self.round_trips.append(s.receive_time - sent)
 
+    def _start_heartbeat(self) -> None:
+        """Keep the drive's watchdog fed: the layout's heartbeat repeated by the port itself where it can (python-can's
+        periodic send), else sent from this loop (``_keep_alive``)."""
+        assert self.driver is not None
+        if self.layout.heartbeat is not None and not self.driver.start_heartbeat():
+            self._heartbeat_s = self.layout.heartbeat_period_s
+            self._next_heartbeat = time.monotonic()
+            self._keep_alive()
+
+    def _keep_alive(self) -> None:
+        """Send the heartbeat when it is due (ports without a periodic send of their own)."""
+        if self._heartbeat_s and time.monotonic() >= self._next_heartbeat:
+            assert self.driver is not None
+            self.driver.heartbeat()
+            self._next_heartbeat += self._heartbeat_s
+            if self._next_heartbeat < time.monotonic():  # fell behind (a stall): the next one a period from now
+                self._next_heartbeat = time.monotonic() + self._heartbeat_s
+
     def _watchdog(self) -> None:
         if time.monotonic() - self.last_feedback > self.spec.limits.watchdog_s:
             raise _Trip("watchdog", f"no valid feedback for {self.spec.limits.watchdog_s:g} s")
@@ -483,6 +507,7 @@ class BusWorker:
             typical = list(self.round_trips)[-64:]
             wait = min(self.spec.reply_timeout_s, max(2e-3, 8 * statistics.median(typical) if typical else 2e-3))
         deadline = time.monotonic() + wait
+        broken = self.driver.health.broken_frames
         while True:
             samples = self.driver.receive(max(0.0, min(0.05, deadline - time.monotonic())))
             if samples:
@@ -490,7 +515,8 @@ class BusWorker:
                 self._accept(samples, self.tick)
                 break
             self._watchdog()
-            if time.monotonic() >= deadline:
+            # a reply cut short on the line will not complete: it is lost now, not after the wait
+            if time.monotonic() >= deadline or self.driver.health.broken_frames != broken:
                 self.missed_replies += 1
                 break
         self.tick += 1
@@ -535,6 +561,7 @@ class BusWorker:
             if SETPOINT_ECHO in self.layout_channels:
                 self._echo_index = self.layout_channels.index(SETPOINT_ECHO)
             self.driver.enable()
+            self._start_heartbeat()
             self._post(Ready(self.layout.channels, self.h))
             self.wall0 = time.time()
             self.last_feedback = time.monotonic()
@@ -542,6 +569,7 @@ class BusWorker:
             scheduled = time.perf_counter() + self.h
             while True:
                 self._poll_commands()
+                self._keep_alive()
                 if self.stopping is not None and (self.program is None or self.program.finished(self.tick)):
                     reason = self.stopping.reason
                     break
@@ -550,7 +578,7 @@ class BusWorker:
                     if self.tick > self.credit and self.pending is None and not (self.stopping and self.program):
                         self._ship()
                         self._health()
-                        self._poll_commands(0.5)
+                        self._poll_commands(min(0.5, self._heartbeat_s) if self._heartbeat_s else 0.5)
                         # a lockstep drive answers setpoints only: its silence while none is asked for (a paused
                         # or slow session) is not a fault, so the watchdog counts from the next setpoint
                         self.last_feedback = time.monotonic()
@@ -583,19 +611,20 @@ class BusWorker:
         except DriverError as exc:
             reason = f"bus: {exc}"
             self._report(Fault("bus", str(exc)))
-        except KeyboardInterrupt:
-            reason = "interrupted"
-            self._report(Fault("error", "interrupted (Ctrl-C)"))
+        except KeyboardInterrupt as exc:
+            reason = f"interrupted ({exc.signame})" if isinstance(exc, StopSignal) else "interrupted"
+            self._report(Fault("error", reason))
         except BaseException as exc:  # noqa: BLE001 - any failure must still leave the drive safe
             reason = f"error: {type(exc).__name__}: {exc}"
             self._report(Fault("error", f"{type(exc).__name__}: {exc}"))
         finally:
-            disabled = self._make_safe()
+            zero_sent, disabled = self._make_safe()
             try:
                 self._ship()
             except _Trip:
                 pass
-            self._report(Stopped(reason, self.last_sent, disabled))
+            frames_out = self.driver.port.frames_out if self.driver is not None else 0
+            self._report(Stopped(reason, self.last_sent, disabled, zero_sent, frames_out))
             self._close()
 
     def _report(self, message: object) -> None:
@@ -604,11 +633,12 @@ class BusWorker:
         except (OSError, EOFError, BrokenPipeError, ValueError):
             pass
 
-    def _make_safe(self) -> bool:
-        """Zero setpoint (slewed if a rate limit asks for it) and disable; True when the disable frame went out."""
+    def _make_safe(self) -> tuple[bool, bool]:
+        """Zero setpoint (slewed if a rate limit asks for it) and disable; (whether the zero setpoint went out,
+        whether the disable frame went out)."""
         if self.driver is None:
-            return False
-        disabled = False
+            return False, False
+        zero_sent = disabled = False
         try:
             lim = self.spec.limits
             steps = 0
@@ -624,11 +654,12 @@ class BusWorker:
             for _ in range(3):
                 self._send(0.0)
                 self.tick += 1
+                zero_sent = True
             self.driver.disable()
             disabled = self.layout.disable is not None
         except Exception:  # noqa: BLE001 - the bus may be what failed; nothing more can be done on it
             pass
-        return disabled
+        return zero_sent, disabled
 
     def _close(self) -> None:
         if self.driver is not None:
@@ -644,8 +675,10 @@ class BusWorker:
 
 
 def worker_main(spec: WorkerSpec, conn: Connection) -> None:
-    """Entry point of the worker process or thread."""
-    BusWorker(spec, conn).run()
+    """Entry point of the worker process or thread (in a process of its own, SIGTERM and SIGHUP end it through
+    the same safe shutdown as Ctrl-C)."""
+    with stop_on_signals():
+        BusWorker(spec, conn).run()
     try:
         conn.close()
     except OSError:

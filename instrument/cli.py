@@ -6,10 +6,12 @@ import argparse
 import os
 import sys
 import time
+import traceback
 from pathlib import Path
 from typing import Sequence
 
 from drivers.errors import DriverError
+from drivers.stop_signals import StopSignal, stop_on_signals
 from instrument.config import ConfigError, ExperimentConfig, load_config
 from instrument.response import FrequencyResponse, ResultsError
 from sim.serve import SimulatorStartError
@@ -23,15 +25,13 @@ def _is_bench(config: ExperimentConfig) -> bool:
     return config.cases[0].tables.get("bench") is not None
 
 
-def _previous_run(directory: Path, raw: dict, resume: bool, overwrite: bool) -> FrequencyResponse | None:
+def _previous_run(directory: Path, raw: dict, resume: bool) -> FrequencyResponse | None:
     """The interrupted sweep to resume in ``directory``, or None; refuses to overwrite measured points."""
     from instrument.response import CSV_NAME
 
     if not (directory / CSV_NAME).exists():
         return None
     if not resume:
-        if overwrite:
-            return None
         raise ResultsError(f"{directory / CSV_NAME}: results already here; --resume continues that sweep, "
                            "or choose another --out")
     previous = FrequencyResponse.load(directory)
@@ -42,8 +42,7 @@ def _previous_run(directory: Path, raw: dict, resume: bool, overwrite: bool) -> 
     return previous
 
 
-def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False,
-                  overwrite: bool = False) -> int:
+def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False) -> int:
     """Run every case of a bench config as a session (``direct``: the simulated drive without a bus)."""
     from instrument.experiment import write_case
     from instrument.links import plan_link
@@ -53,25 +52,61 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
     status = 0
     for case in config.cases:
         directory = _case_dir(config, out, case.name)
-        previous = _previous_run(directory, case.raw, resume, overwrite)
+        previous = _previous_run(directory, case.raw, resume)
         plan = plan_link(case, config.path, direct=direct)
-        printer = ProgressPrinter(case.name or config.path.stem, len(case.excitation.frequencies_hz), quiet=quiet)
+        label = case.name or config.path.stem
+        printer = ProgressPrinter(label, len(case.excitation.frequencies_hz), quiet=quiet)
         session = BenchSession(case, plan, directory, printer, resume=previous)
         try:
             result = session.run()
-        except SessionError as exc:
-            print(f"bodebench: {case.name}: stopped: {exc}; {len(session.response.points)} points kept in "
-                  f"{directory}; drive left at setpoint 0", file=sys.stderr)
-            status = 1
-            if session.response.points:
-                write_case(session.response, directory)
-            break
-        files = write_case(result.response, directory)
+        except ResultsError as exc:  # the results directory cannot take the sweep: found before any setpoint
+            print(f"bodebench: {label}: not started: {exc}; nothing was sent to the drive", file=sys.stderr)
+            return 2
+        except BaseException as exc:
+            cause = _cause(exc)
+            if not isinstance(exc, (SessionError, KeyboardInterrupt)):
+                traceback.print_exc()
+            kept = len(session.response.points)  # each of them saved when it was measured
+            if kept and not (isinstance(exc, SessionError) and exc.kind == "output"):
+                try:
+                    write_case(session.response, directory)
+                except OSError:
+                    pass  # the plots only: the points are on disk already
+            where = f"{kept} points kept in {directory}" if kept else "no point measured"
+            drive = session.ended.drive_state() if session.ended is not None else "nothing was sent to the drive"
+            print(f"bodebench: {label}: stopped: {cause}; {where}; {drive}", file=sys.stderr)
+            return 128 + exc.signum if isinstance(exc, StopSignal) else 130 if isinstance(exc, KeyboardInterrupt) \
+                else 1
+        try:
+            files = write_case(result.response, directory)
+        except OSError as exc:
+            print(f"bodebench: {label}: {len(result.response.points)} points on disk in {directory}, but the plots "
+                  f"could not be written: {exc.strerror or exc}; {session.ended.drive_state() if session.ended else ''}",
+                  file=sys.stderr)
+            return 1
         unconverged = [p for p in result.response.points if not p.converged]
         rt = f", round trip {result.round_trip_s * 1e6:.0f} us" if result.round_trip_s == result.round_trip_s else ""
-        print(f"{case.name or config.path.stem}: {len(result.response.points)} points, {len(unconverged)} not "
-              f"converged{rt} -> {directory}/response.csv (+ {', '.join(f.name for f in files)})")
+        drive = session.ended.drive_state() if session.ended is not None else ""
+        refused = (f", {len(session.refused)} frequencies refused as not physical (not written; --resume "
+                   "measures them again)" if session.refused else "")
+        print(f"{label}: {len(result.response.points)} points, {len(unconverged)} not "
+              f"converged{refused}{rt} -> {directory}/response.csv (+ {', '.join(f.name for f in files)}); {drive}")
+        if session.refused:
+            status = 1
     return status
+
+
+def _cause(exc: BaseException) -> str:
+    """One line naming why a sweep stopped."""
+    from instrument.session import SessionError
+
+    if isinstance(exc, StopSignal):
+        return f"interrupted ({exc.signame})"
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted"
+    if isinstance(exc, SessionError):
+        return str(exc)
+    return f"error: {type(exc).__name__}: {exc}"
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -79,10 +114,7 @@ def _run(args: argparse.Namespace) -> int:
     if not _is_bench(config):
         raise ConfigError(f"{args.config}: bench: missing (bodebench run needs a bench config; "
                           "use bodebench simulate for an offline experiment)", "bench")
-    started = time.perf_counter()
-    status = _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet, resume=args.resume)
-    print(f"done in {time.perf_counter() - started:.1f} s")
-    return status
+    return _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet, resume=args.resume)
 
 
 def _tui(args: argparse.Namespace) -> int:
@@ -118,7 +150,13 @@ def _sim_controller(args: argparse.Namespace) -> int:
         serving = serve_can(spec)
         where = f"python-can {spec.can['interface']} channel {spec.can['channel']}"
     serving_started = time.monotonic()
-    print(f"simulated {case.raw['plant']['model']} drive, {bench.clock} clock at {bench.rate_hz:g} Hz, "
+
+    def report(text: str) -> None:  # each change of the drive's state, as the drive saw it
+        print(f"{time.monotonic() - serving_started:10.3f} s  drive {text}", flush=True)
+
+    serving.controller.on_event = report
+    watchdog = (f"; watchdog {layout.drive_watchdog_s:g} s" if layout.drive_watchdog_s else "; no watchdog")
+    print(f"simulated {case.raw['plant']['model']} drive, {bench.clock} clock at {bench.rate_hz:g} Hz{watchdog}, "
           f"listening: {where}", flush=True)
     try:
         while not serving.stop.wait(0.5):
@@ -136,21 +174,25 @@ def _sim_controller(args: argparse.Namespace) -> int:
 
 def _simulate(args: argparse.Namespace) -> int:
     from instrument.experiment import default_executor, sweep, write_case
+    from instrument.session import completed_frequencies
 
     config: ExperimentConfig = load_config(args.config)
     out = Path(args.out)
     started = time.perf_counter()
     if _is_bench(config):
-        status = _bench_sweeps(config, out, direct=True, quiet=args.quiet, overwrite=True)
-        print(f"done in {time.perf_counter() - started:.1f} s")
-        return status
+        return _bench_sweeps(config, out, direct=True, quiet=args.quiet, resume=args.resume)
+    previous = {case.name: _previous_run(_case_dir(config, out, case.name), case.raw, args.resume)
+                for case in config.cases}  # every case checked before the first is measured
     executor = None if args.jobs == 1 else default_executor(args.jobs)
     try:
         for case in config.cases:
             directory = _case_dir(config, out, case.name)
-            partial = FrequencyResponse(config=case.raw, case=case.name)
+            before = previous[case.name]
+            partial = FrequencyResponse(before.points if before else (), config=case.raw, case=case.name)
+            measured = (completed_frequencies(before, tuple({p.channel for p in before.points}),
+                                              case.analysis.harmonics) if before else set())
             total = len(case.excitation.frequencies_hz)
-            done = 0
+            done = len(measured)
 
             def saved(points: list, directory: Path = directory, partial: FrequencyResponse = partial) -> None:
                 nonlocal done
@@ -162,7 +204,7 @@ def _simulate(args: argparse.Namespace) -> int:
                     worst = max(p.periods for p in points)
                     print(f"{case.name}: {done}/{total}  f = {f:g} Hz  {worst} periods", file=sys.stderr)
 
-            response = sweep(case, executor, on_point=saved)
+            response = sweep(case, executor, on_point=saved, measured=partial.points, skip=measured)
             files = write_case(response, directory)
             unconverged = [p for p in response.points if not p.converged]
             print(f"{case.name or config.path.stem}: {len(response.points)} points, "
@@ -241,6 +283,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--jobs", type=int, default=None,
                      help="worker processes (default: all cores; 1 runs in this process)")
     sim.add_argument("--quiet", action="store_true", help="no progress lines")
+    sim.add_argument("--resume", action="store_true",
+                     help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
     sim.set_defaults(handler=_simulate)
     run = sub.add_parser("run", help="sweep a drive on the bench (CAN or serial), headless")
     run.add_argument("config", help="TOML bench file")
@@ -283,16 +327,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.handler(args))
+        if args.handler is _tui:  # the terminal UI handles its own keys and signals
+            return int(args.handler(args))
+        with stop_on_signals():
+            return int(args.handler(args))
     except (ConfigError, ResultsError) as exc:
         print(f"bodebench: {exc}", file=sys.stderr)
         return 2
     except (DriverError, SimulatorStartError) as exc:
         print(f"bodebench: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("bodebench: interrupted; points already measured are on disk", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        print(f"bodebench: {_cause(exc)}; points already measured are on disk", file=sys.stderr)
+        return 128 + exc.signum if isinstance(exc, StopSignal) else 130
     except BrokenPipeError:  # output piped into a pager or head that closed early
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1

@@ -11,7 +11,7 @@ import os
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from dataclasses import asdict
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Collection, Iterator, Sequence
 
 import numpy as np
 
@@ -66,13 +66,15 @@ def default_executor(max_workers: int | None = None) -> ProcessPoolExecutor:
 
 
 def sweep(case: CaseConfig, executor: Executor | None = None,
-          on_point: Callable[[list[ResponsePoint]], None] | None = None) -> FrequencyResponse:
+          on_point: Callable[[list[ResponsePoint]], None] | None = None,
+          measured: Sequence[ResponsePoint] = (), skip: Collection[float] = ()) -> FrequencyResponse:
     """Measure every frequency of a case; ``on_point`` gets each frequency's points as soon as they are done.
 
-    executor: where frequencies run (None: in this process, in order).
+    executor: where frequencies run (None: in this process, in order); ``measured``: points of an interrupted
+    sweep, kept; ``skip``: the frequencies (Hz) they complete, not measured again.
     """
-    response = FrequencyResponse(config=case.raw, case=case.name)
-    for points in _run_all(case, executor):
+    response = FrequencyResponse(measured, config=case.raw, case=case.name)
+    for points in _run_all(case, executor, skip):
         for p in points:
             response.add(p)
         if on_point is not None:
@@ -81,8 +83,9 @@ def sweep(case: CaseConfig, executor: Executor | None = None,
     return response
 
 
-def _run_all(case: CaseConfig, executor: Executor | None) -> Iterator[list[ResponsePoint]]:
-    freqs = case.excitation.frequencies_hz
+def _run_all(case: CaseConfig, executor: Executor | None, skip: Collection[float] = ()
+             ) -> Iterator[list[ResponsePoint]]:
+    freqs = [f for f in case.excitation.frequencies_hz if f not in skip]
     if executor is None:
         for f in freqs:
             yield measure_frequency(case, f)

@@ -48,15 +48,24 @@ class CanLink:
 
 @dataclass(frozen=True)
 class SerialLink:
-    """A serial line opened with pyserial."""
+    """A serial line opened with pyserial; a write that stalls is retried for ``send_timeout_s``."""
 
     port: str
     baudrate: int
     framing: str
     layout: Layout
+    send_timeout_s: float = 1.0
 
     def __call__(self) -> tuple[FramePort, Layout, list[Any]]:
-        return SerialPort.open(self.port, self.baudrate, self.framing, self.layout), self.layout, []
+        return (SerialPort.open(self.port, self.baudrate, self.framing, self.layout, self.send_timeout_s),
+                self.layout, [])
+
+
+def stall_budget(case: CaseConfig, layout: Layout) -> float:
+    """How long (s) a stalled write may be retried: until the host's watchdog (safety.watchdog_s) would stop the
+    sweep anyway, and no longer than the drive's own watchdog lets it go without a frame."""
+    budget = float(case.tables["safety"].watchdog_s)
+    return min(budget, layout.drive_watchdog_s) if layout.drive_watchdog_s else budget
 
 
 @dataclass(frozen=True)
@@ -143,9 +152,10 @@ def plan_link(case: CaseConfig, source: str | Path, *, direct: bool = False) -> 
         link = CanLink(can.interface, channel, can.bitrate, options, layout, spec)
         return LinkPlan(link, layout, where=f"{can.interface} channel {channel}")
     serial = case.tables["serial"]
+    budget = stall_budget(case, layout)
     if simulated and not serial.port:
         proc = SimulatorProcess(simulator_spec(case, layout), "serial")
-        return LinkPlan(SerialLink(proc.path, serial.baudrate, serial.framing, layout), layout, [proc],
+        return LinkPlan(SerialLink(proc.path, serial.baudrate, serial.framing, layout, budget), layout, [proc],
                         where=f"serial {proc.path}")
-    return LinkPlan(SerialLink(serial.port, serial.baudrate, serial.framing, layout), layout,
+    return LinkPlan(SerialLink(serial.port, serial.baudrate, serial.framing, layout, budget), layout,
                     where=f"serial {serial.port}")

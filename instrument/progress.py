@@ -6,8 +6,7 @@ import sys
 import time
 from typing import TextIO
 
-from instrument.session import (BusStatus, PointFinished, PointProgress, PointStarted, SessionEnded, SessionFault,
-                                SessionStarted)
+from instrument.session import BusStatus, PointFinished, PointProgress, PointStarted, SessionStarted
 
 
 class ProgressPrinter:
@@ -57,7 +56,10 @@ class ProgressPrinter:
                            f"period {event.periods}, ETA {self._eta()}{self._bus}", False)
         elif isinstance(event, PointFinished):
             self.done += 1
-            if event.skipped:
+            if event.refused:
+                self._line(f"{self.label}: {self.done}/{self.total} {self._freq:g} Hz REFUSED, not written: "
+                           f"{event.refused}", True)
+            elif event.skipped:
                 self._line(f"{self.label}: {self.done}/{self.total} {self._freq:g} Hz skipped", True)
             else:
                 worst = max(p.periods for p in event.points)
@@ -66,9 +68,7 @@ class ProgressPrinter:
                            f"ETA {self._eta()}", True)
         elif isinstance(event, BusStatus):
             h = event.health.bus
-            self._bus = f", bus in {h.frames_in} out {h.frames_out} err {h.errors} lost {h.lost_samples}"
-        elif isinstance(event, SessionFault):
-            self._line(f"{self.label}: FAULT {event.kind}: {event.message} ({event.kept} points kept)", True)
-        elif isinstance(event, SessionEnded):
-            self._line(f"{self.label}: drive left at setpoint {event.last_setpoint:g}"
-                       f"{', disabled' if event.disabled else ''} ({event.reason})", True)
+            rejected = " ".join(f"{cause} {n}" for cause, n in h.rejected.items() if n)
+            self._bus = (f", bus in {h.frames_in} out {h.frames_out} err {h.errors} lost {h.lost_samples}"
+                         + (f" rejected {rejected}" if rejected else ""))
+        # a fault and the end of the session are the command's last line (with what the drive was sent), once

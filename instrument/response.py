@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import tempfile
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
@@ -258,6 +259,38 @@ def _current_umask() -> int:
 
 
 _UMASK = _current_umask()
+
+
+PLOTS_BYTES = 1 << 20
+"""Room the plots of a finished case take at most (four files of 50-100 KB each, with margin), bytes."""
+POINT_BYTES = 256
+"""Room one point takes in response.csv at most, bytes."""
+
+
+def check_output(directory: Path, points: int) -> bool:
+    """Before a sweep: ``directory`` exists or can be made, a file can be written in it, and its file system has
+    room for the results of ``points`` points (each save writes a new file before it replaces the old: twice the
+    CSV and sidecar) and the plots. ResultsError naming the directory otherwise; True when it made the
+    directory."""
+    made = not directory.exists()
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ResultsError(f"{directory}: cannot create the results directory: {exc.strerror or exc}") from None
+    probe = directory / ".bodebench-write-check"
+    try:
+        atomic_write_text(probe, "x" * POINT_BYTES)
+        probe.unlink()
+    except OSError as exc:
+        raise ResultsError(f"{directory}: cannot write results there: {exc.strerror or exc}") from None
+    need = 2 * (8192 + points * POINT_BYTES) + PLOTS_BYTES
+    free = shutil.disk_usage(directory).free
+    if free < need:
+        if made:
+            directory.rmdir()
+        raise ResultsError(f"{directory}: {free / 1024:.0f} KiB free, the sweep's files need about "
+                           f"{need / 1024:.0f} KiB")
+    return made
 
 
 def atomic_write_text(path: Path, text: str) -> None:

@@ -20,13 +20,14 @@ from typing import Callable
 import numpy as np
 
 from drivers.realtime import pacing_cpu_left_alone
+from drivers.stop_signals import StopSignal
 from instrument.autointegration import Autointegrator, SeriesState
 from instrument.bench_config import BenchConfig, SafetyConfig
 from instrument.bus_worker import (Credit, Fault, Health, Limits, Ready, Samples, SineStarted, StartSine, Stop,
                                    Stopped, WorkerSpec, start_worker)
 from instrument.config import AnalysisConfig, CaseConfig
 from instrument.links import LinkPlan
-from instrument.response import FrequencyResponse, ResponsePoint
+from instrument.response import FrequencyResponse, ResponsePoint, check_output
 
 # ---------------------------------------------------------------------------------------------- events to listeners
 
@@ -59,9 +60,13 @@ class PointProgress:
 
 @dataclass(frozen=True)
 class PointFinished:
+    """A point done: its ``points`` (one per channel and harmonic) on disk; ``skipped`` by the user, or
+    ``refused`` (the reason: not a physical response, nothing written)."""
+
     index: int
     points: tuple[ResponsePoint, ...]
     skipped: bool = False
+    refused: str = ""
 
 
 @dataclass(frozen=True)
@@ -80,10 +85,38 @@ class SessionFault:
 
 @dataclass(frozen=True)
 class SessionEnded:
+    """How the sweep ended and what the drive was last sent: ``last_setpoint`` (NaN: unknown, the worker did not
+    report), whether a zero setpoint and the disable frame went out after every other setpoint, whether the bus
+    worker reported at all (``reported``) and how many frames it sent; ``has_disable``: the layout has a disable
+    frame; ``drive_watchdog_s``: the drive's own watchdog time (0: the layout declares none)."""
+
     reason: str
     completed: bool
     last_setpoint: float
     disabled: bool
+    zero_sent: bool = False
+    frames_out: int = 0
+    reported: bool = True
+    has_disable: bool = True
+    drive_watchdog_s: float = 0.0
+
+    def drive_state(self) -> str:
+        """What the drive was actually sent, in words (the last line of a command)."""
+        watchdog = (f"the drive's watchdog zeroes and disables it {self.drive_watchdog_s:g} s after the last frame "
+                    "it received (frames.drive_watchdog_s)" if self.drive_watchdog_s > 0 else
+                    "the layout declares no drive watchdog (frames.drive_watchdog_s): make the drive safe by hand")
+        if not self.reported:
+            return f"the bus worker ended without reporting: the drive's state is unknown; {watchdog}"
+        if self.frames_out == 0:
+            return "nothing was sent to the drive"
+        if not self.zero_sent:
+            return (f"could not send the zero setpoint: the last setpoint that went out was {self.last_setpoint:g}"
+                    f"{'' if self.disabled else ', no disable frame sent'}; {watchdog}")
+        if self.disabled:
+            return "drive left at setpoint 0, disabled"
+        if not self.has_disable:
+            return "drive left at setpoint 0 (the layout has no disable frame)"
+        return f"drive left at setpoint 0, but the disable frame could not be sent; {watchdog}"
 
 
 Listener = Callable[[object], None]
@@ -139,6 +172,8 @@ class BenchSession:
         self.response = FrequencyResponse(resume.points if resume else (), config=case.raw, case=case.name)
         self.period = 1.0 / bench.rate_hz
         self.last_health: Health | None = None
+        self.ended: SessionEnded | None = None
+        self.refused: list[tuple[float, str]] = []  # (frequency, reason) of points not written
 
     # --- user requests (any thread)
     def request_abort(self) -> None:
@@ -168,12 +203,25 @@ class BenchSession:
                           pacing_cpu=self.bench.pacing_cpu)
 
     def run(self) -> SessionResult:
-        """Run the whole sweep; never leaves the drive moving. Raises SessionError after a trip (points kept)."""
+        """Run the whole sweep; never leaves the drive moving. Raises SessionError after a trip (points kept), and
+        ResultsError before the first setpoint when the results directory cannot take the sweep's files."""
+        made = False
+        if self.out_dir is not None:
+            points = len(self.case.excitation.frequencies_hz) * len(self.bench.output_channels) * \
+                len(self.analysis.harmonics)
+            made = check_output(self.out_dir, points + len(self.response.points))
+        try:
+            return self._run()
+        finally:
+            if made and self.out_dir is not None and not any(self.out_dir.iterdir()):
+                self.out_dir.rmdir()  # nothing measured: leave no empty directory behind
+
+    def _run(self) -> SessionResult:
         conn, handle = start_worker(self._spec(), self.worker_mode)
         self._conn = conn
         stopped: Stopped | None = None
         completed = False
-        reason = "sweep complete"
+        reason = "sweep complete"  # replaced by the cause of any other way out
         # a pacing process gets a CPU of its own: this process (analysis, UI) keeps off it while the sweep runs
         cpu_yielded = contextlib.ExitStack()
         if self.bench.clock == "realtime" and self.worker_mode == "process":
@@ -193,9 +241,12 @@ class BenchSession:
         except SessionError as exc:
             reason = str(exc)
             raise
-        except KeyboardInterrupt:
-            reason = "interrupted"
+        except KeyboardInterrupt as exc:
+            reason = f"interrupted ({exc.signame})" if isinstance(exc, StopSignal) else "interrupted"
             self.controls.abort.set()
+            raise
+        except BaseException as exc:
+            reason = f"error: {type(exc).__name__}: {exc}"
             raise
         finally:
             stopped = self._shutdown(reason, abort=not completed)
@@ -203,9 +254,13 @@ class BenchSession:
             join(timeout=10)
             cpu_yielded.close()
             self.plan.close()
-            self.listener(SessionEnded(reason if stopped is None else stopped.reason, completed,
-                                       stopped.last_setpoint if stopped else math.nan,
-                                       stopped.disabled if stopped else False))
+            layout = self.plan.layout
+            self.ended = SessionEnded(reason, completed, stopped.last_setpoint if stopped else math.nan,
+                                      stopped.disabled if stopped else False,
+                                      stopped.zero_sent if stopped else False, stopped.frames_out if stopped else 0,
+                                      stopped is not None, layout.disable is not None,
+                                      layout.drive_watchdog_s)
+            self.listener(self.ended)
         rt = self.last_health.round_trip_s if self.last_health else math.nan
         return SessionResult(self.response, completed, reason, stopped.last_setpoint if stopped else math.nan,
                              stopped.disabled if stopped else False, rt, self.last_health)
@@ -260,6 +315,16 @@ class BenchSession:
             self.listener(SessionFault("abort", "aborted by the user", len(self.response.points)))
             raise SessionError("abort", "aborted by the user")
 
+    def _absurd(self, points: list[ResponsePoint]) -> str:
+        """Why the points of a frequency are refused ("" when they are not)."""
+        limits = self.case.tables["safety"].feedback_limits
+        for p in points:
+            window = limits.get(p.channel)
+            reason = _absurd_point(p, (float(window[0]), float(window[1])) if window else None)
+            if reason:
+                return reason
+        return ""
+
     def _analysis(self) -> AnalysisConfig:
         if self.controls.tolerance_percent is not None:
             return replace(self.analysis, tolerance_percent=self.controls.tolerance_percent)
@@ -294,8 +359,9 @@ class BenchSession:
                 continue
             t, values = message.t, message.values[:, columns]
             scope.append((t, message.setpoint, values[:, 0]))
-            if len(scope) > 64:
-                del scope[:32]
+            if t.size:  # keep what covers the last two periods, however the batches were cut
+                while len(scope) > 1 and scope[1][0].size and scope[1][0][0] <= t[-1] - 2.0 / f:
+                    del scope[0]
             keep = t > t0
             if held is None or not np.all(keep):
                 before = np.flatnonzero(~keep)
@@ -308,18 +374,47 @@ class BenchSession:
                 t = np.concatenate([[held[0]], t])
                 values = np.vstack([held[1][None, :], values])
                 held = (math.inf, held[1])
-            sampler.feed(t, values)
+            with np.errstate(all="ignore"):  # garbage that got this far is refused below, not warned about
+                sampler.feed(t, values)
             if bench.clock == "lockstep" and not sampler.done:
                 self._conn.send(Credit(message.last_tick + ticks_per_period))
             self.listener(PointProgress(index, f, sampler.periods, tuple(sampler.states()), analysis.tolerance_percent,
                                         analysis.criterion, _scope(scope, f)))
-        points = sampler.points()
+        try:
+            with np.errstate(all="ignore"):
+                points = sampler.points()
+        except ValueError as exc:  # an infinite coefficient: no response point can hold it
+            points, refused = [], f"not a measurement: {exc}"
+        else:
+            refused = self._absurd(points)
+        if refused:
+            self.refused.append((f, refused))
+            self.listener(PointFinished(index, (), skipped=True, refused=refused))
+            return
         for p in points:
-            if self.out_dir is not None:
-                self.response.write_point(self.out_dir, p)
-            else:
+            if self.out_dir is None:
                 self.response.add(p)
+                continue
+            try:
+                self.response.write_point(self.out_dir, p)
+            except OSError as exc:  # the files on disk are still the last whole save: without this point
+                self.response.points.remove(p)
+                self.listener(SessionFault("output", str(exc), len(self.response.points)))
+                raise SessionError("output", f"{self.out_dir}: cannot write the point at {f:g} Hz: "
+                                             f"{exc.strerror or exc}") from None
         self.listener(PointFinished(index, tuple(points)))
+
+
+def _absurd_point(p: ResponsePoint, window: tuple[float, float] | None) -> str:
+    """Why point ``p`` cannot be a physical response ("" when it can): a non-finite coefficient, or a response
+    amplitude larger than half the channel's feedback window (a sine that could never fit inside it)."""
+    where = f"{p.frequency_hz:g} Hz {p.channel} harmonic {p.harmonic}"
+    if not (math.isfinite(p.p) and math.isfinite(p.q)):
+        return f"{where}: the response is not finite (p = {p.p:g}, q = {p.q:g})"
+    if window is not None and p.magnitude > (window[1] - window[0]) / 2:
+        return (f"{where}: response amplitude {p.magnitude:g} ({p.gain_db:+.1f} dB) exceeds half the feedback "
+                f"window safety.feedback_limits.{p.channel} = [{window[0]:g}, {window[1]:g}]")
+    return ""
 
 
 def _scope(chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]], f: float

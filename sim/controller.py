@@ -20,12 +20,13 @@ import os
 import threading
 import time
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 
-from drivers.errors import LayoutError
-from drivers.layout import SETPOINT_ECHO, Layout, Message
+from drivers.errors import DriverTimeoutError, LayoutError
+from drivers.e2e import crc_byte, seal
+from drivers.layout import CRC, SETPOINT_ECHO, Layout, Message
 from drivers.ports import Frame, FramePort
 from drivers.realtime import keep_to, lower_timer_slack, pacing_cpu, request_fifo
 from sim.faults import ValueFaults
@@ -104,11 +105,16 @@ class SimulatedController:
     Feedback channels are the plant's outputs of the same name, and
     ``setpoint_echo``, the setpoint applied over the period just ended.
     Disabled (after a disable frame, and from the start when the layout has an
-    enable frame), the plant gets a zero setpoint.
+    enable frame), the plant gets a zero setpoint. With ``layout.drive_watchdog_s``
+    the drive's watchdog (drivers/PROTOCOL.md) zeroes the setpoint and disables
+    the drive when no valid setpoint or heartbeat has come for that long (wall
+    clock, checked by ``serve``). Each change of state (enabled, disabled,
+    watchdog trip, setpoint zeroed) is passed to ``on_event`` as one line of text.
     """
 
     def __init__(self, plant: Plant, layout: Layout, timing: ControllerTiming,
-                 faults: ValueFaults | None = None, sensing: FeedbackSensing | None = None) -> None:
+                 faults: ValueFaults | None = None, on_event: Callable[[str], None] | None = None,
+                 sensing: FeedbackSensing | None = None) -> None:
         self.plant = plant
         self.faults = faults
         self.sensing = sensing if sensing is not None and sensing.any else None
@@ -120,7 +126,8 @@ class SimulatedController:
             if name != SETPOINT_ECHO and name not in plant.output_names:
                 raise ValueError(f"feedback channel {name!r} is not an output of the plant "
                                  f"({', '.join(plant.output_names)}) nor {SETPOINT_ECHO!r}")
-        self._sources = [(m, [(name, self._source(name)) for name in m.signal_names]) for m in layout.feedback]
+        self._sources = [(m, [(name, self._source(name)) for name in m.signal_names], crc_byte(m))
+                         for m in layout.feedback]
         self._counter_modulus = layout.counter_modulus or 1  # looked up once: every sample needs them
         self._timestamp_modulus = layout.timestamp_modulus or 1 << 32
         self.state = plant.initial_state()
@@ -134,6 +141,10 @@ class SimulatedController:
         self.setpoints_received = 0
         self.enable_frames = 0
         self.disable_frames = 0
+        self.watchdog_trips = 0
+        self.unsent = 0  # feedback frames the line did not take in time (lost)
+        self.on_event = on_event or (lambda text: None)
+        self._last_valid = time.monotonic()  # wall time of the last valid setpoint or heartbeat
         self._rng = np.random.default_rng(timing.seed)
         self._u = np.zeros(1)
         self._lock = threading.Lock()
@@ -151,18 +162,56 @@ class SimulatedController:
         """Take one received frame; in lockstep a setpoint is answered with the next sample's frames."""
         with self._lock:
             if frame.id == self.layout.setpoint.id and frame.extended == self.layout.setpoint.extended:
-                value = self.layout.setpoint.decode(bytes(frame.data))["setpoint"]
-                self.setpoint = value if math.isfinite(value) else 0.0
+                try:
+                    value = self.layout.setpoint.decode(bytes(frame.data))["setpoint"]
+                except LayoutError:  # not a valid setpoint: ignored, and it does not feed the watchdog
+                    return []
+                if not math.isfinite(value):
+                    value = 0.0
+                if value == 0.0 and self.setpoint != 0.0:
+                    self.on_event(f"setpoint zeroed (was {self.setpoint:g})")
+                self.setpoint = value
                 self.setpoints_received += 1
+                self._last_valid = time.monotonic()
                 if self.timing.clock == "lockstep":
                     return self._step()
+            elif self._matches(self.layout.heartbeat, frame):
+                self._last_valid = time.monotonic()
             elif self._matches(self.layout.disable, frame):
+                if self.enabled:
+                    self.on_event("disabled (disable frame)")
                 self.enabled = False
                 self.disable_frames += 1
             elif self._matches(self.layout.enable, frame):
+                if not self.enabled:
+                    self.on_event("enabled (enable frame)")
                 self.enabled = True
                 self.enable_frames += 1
+                self._last_valid = time.monotonic()  # a drive just enabled waits its watchdog time for setpoints
             return []
+
+    def check_watchdog(self) -> bool:
+        """The drive's watchdog: after ``layout.drive_watchdog_s`` without a valid setpoint or heartbeat, zero the
+        setpoint and disable (a layout without an enable frame cannot be re-enabled: it is zeroed only). True when
+        it tripped now."""
+        limit = self.layout.drive_watchdog_s
+        if not limit:
+            return False
+        with self._lock:
+            armed = self.setpoint != 0.0 or (self.enabled and self.layout.enable is not None)
+            silent = time.monotonic() - self._last_valid
+            if not armed or silent <= limit:
+                return False
+            self.watchdog_trips += 1
+            self.on_event(f"watchdog trip: no valid setpoint or heartbeat for {silent:.3f} s "
+                          f"(drive_watchdog_s = {limit:g} s)")
+            if self.setpoint != 0.0:
+                self.on_event(f"setpoint zeroed (was {self.setpoint:g})")
+            self.setpoint = self.applied = 0.0  # the output stage holds zero from the trip on
+            if self.layout.enable is not None and self.enabled:
+                self.enabled = False
+                self.on_event("disabled (watchdog)")
+            return True
 
     def tick(self) -> list[Frame]:
         """One control period with the latest setpoint (the realtime clock calls this at the control rate)."""
@@ -193,13 +242,15 @@ class SimulatedController:
         timestamp_us = int(round(self.time * 1e6)) % self._timestamp_modulus
         faults = self.faults
         counter = self.tick_count if faults is None else faults.counter(self.tick_count)
-        for message, sources in self._sources:
+        for message, sources, crc_at in self._sources:
             values: dict[str, float] = {}
             for name, index in sources:
                 if name == "counter":
                     values[name] = counter % self._counter_modulus
                 elif name == "timestamp_us":
                     values[name] = timestamp_us
+                elif name == CRC:
+                    values[name] = 0
                 else:
                     value = float(y[index]) if index >= 0 else self.applied
                     if self.sensing is not None:
@@ -209,16 +260,29 @@ class SimulatedController:
                 payload = message.encode(values)
             except LayoutError:  # a value its integer signal cannot carry: the drive sends its saturated raw value
                 payload = message.encode({k: _saturate(message, k, v) for k, v in values.items()})
+            if crc_at is not None:
+                payload = seal(payload, crc_at)
             frames.append(Frame(message.id, payload, message.extended, time.time()))
         return frames
 
+    def _transmit(self, port: FramePort, frame: Frame) -> None:
+        """Send a feedback frame; one the line will not take in time is lost (counted in ``unsent``), as a drive's
+        full transmit buffer loses it: the drive goes on."""
+        try:
+            port.send(frame)
+        except DriverTimeoutError:
+            self.unsent += 1
+
     def serve(self, port: FramePort, stop: threading.Event, poll_s: float = 0.05) -> None:
         """Answer on ``port`` until ``stop`` is set: lockstep answers each setpoint; realtime ticks on the wall clock."""
+        if self.layout.drive_watchdog_s:
+            poll_s = min(poll_s, self.layout.drive_watchdog_s / 20)
         if self.timing.clock == "lockstep":
             while not stop.is_set():
                 for frame in port.recv(poll_s):
                     for out in self.handle(frame):
-                        port.send(out)
+                        self._transmit(port, out)
+                self.check_watchdog()
             return
         # a drive ticks on its own hardware clock: where permitted, this thread gets realtime priority too (below
         # the instrument's pacing loop) so that a busy bench PC does not slow the simulated drive
@@ -231,11 +295,12 @@ class SimulatedController:
         while not stop.is_set():
             for frame in port.recv(0.0):
                 self.handle(frame)
+            self.check_watchdog()
             wait = next_tick - time.perf_counter()
             if wait > 0:
                 time.sleep(wait)
             for out in self.tick():
-                port.send(out)
+                self._transmit(port, out)
             next_tick += self.period
             if time.perf_counter() - next_tick > 100 * self.period:  # fell far behind (suspended): resume now
                 next_tick = time.perf_counter() + self.period

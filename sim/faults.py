@@ -31,6 +31,9 @@ class FaultConfig:
     delay_s, delay_jitter_s: feedback frames leave this much later (plus uniform jitter), wall clock.
     error_frames: an error frame follows a feedback frame (CAN).
     garbage: a burst of 1-32 random bytes precedes a frame (serial line).
+    forged: a frame with a feedback id, the right length and random payload follows a feedback frame (another node
+    on the bus; on a serial line it carries a valid CRC-16).
+    truncated: a feedback frame is cut short on the wire, its tail never sent (serial line).
     counter_stuck_after: from this tick on the feedback counter no longer advances.
     counter_jump_at, counter_jump_by: at this tick the counter leaps ahead by ``counter_jump_by``.
     nan: a float channel value reads NaN (half of them +-inf).
@@ -47,6 +50,8 @@ class FaultConfig:
     delay_jitter_s: float = 0.0
     error_frames: float = 0.0
     garbage: float = 0.0
+    forged: float = 0.0
+    truncated: float = 0.0
     counter_stuck_after: int = -1
     counter_jump_at: int = -1
     counter_jump_by: int = 0
@@ -71,10 +76,13 @@ class FaultConfig:
                 raise ValueError(f"{key}: expected {'an integer' if want is int else 'a number'}, got {value!r}")
             if want is float and not math.isfinite(value):
                 raise ValueError(f"{key}: must be finite, got {value!r}")
-            if key in ("drop", "duplicate", "reorder", "error_frames", "garbage", "nan") and not 0 <= value <= 1:
+            if key in ("drop", "duplicate", "reorder", "error_frames", "garbage", "forged", "truncated",
+                       "nan") and not 0 <= value <= 1:
                 raise ValueError(f"{key}: a probability in [0, 1], got {value!r}")
             if key in ("delay_s", "delay_jitter_s") and value < 0:
                 raise ValueError(f"{key}: must be >= 0, got {value!r}")
+            if key == "seed" and value < 0:
+                raise ValueError(f"{key}: must be >= 0 (a numpy random seed), got {value!r}")
             values[key] = want(value)
         return cls(**values)
 
@@ -124,18 +132,21 @@ class FaultyPort(FramePort):
     """
 
     def __init__(self, inner: FramePort, config: FaultConfig, feedback_ids: set[int],
-                 raw_write: Any = None) -> None:
+                 raw_write: Any = None, encode: Any = None) -> None:
+        """raw_write: writes bytes straight onto a serial line; encode: a frame's bytes on that line (both None on a
+        bus)."""
         super().__init__(f"{inner.name} (faults)", inner.transport)
         self.inner = inner
         self.config = config
         self.feedback_ids = feedback_ids
         self.raw_write = raw_write  # serial: writes bytes straight onto the line
+        self.encode = encode
         self.rng = np.random.default_rng(config.seed)
         self._held: Frame | None = None
         self._due: list[tuple[float, int, Frame]] = []
         self._seq = 0
         self.injected = {"dropped": 0, "duplicated": 0, "reordered": 0, "delayed": 0, "error_frames": 0,
-                         "garbage_bursts": 0}
+                         "garbage_bursts": 0, "forged": 0, "truncated": 0}
 
     def _emit(self, frame: Frame) -> None:
         c = self.config
@@ -152,7 +163,16 @@ class FaultyPort(FramePort):
         if self.raw_write is not None and c.garbage and self.rng.random() < c.garbage:
             self.raw_write(bytes(self.rng.integers(0, 256, int(self.rng.integers(1, 33)), dtype=np.uint8)))
             self.injected["garbage_bursts"] += 1
-        self.inner.send(frame)
+        if self.raw_write is not None and self.encode is not None and c.truncated and self.rng.random() < c.truncated:
+            wire = self.encode(frame)
+            self.raw_write(wire[: int(self.rng.integers(1, len(wire)))])
+            self.injected["truncated"] += 1
+        else:
+            self.inner.send(frame)
+        if c.forged and self.rng.random() < c.forged:
+            forged = bytes(self.rng.integers(0, 256, len(frame.data), dtype=np.uint8))
+            self.inner.send(Frame(frame.id, forged, frame.extended, 0.0))
+            self.injected["forged"] += 1
         if c.error_frames and self.rng.random() < c.error_frames:
             self.inner.send(Frame(ERROR_FRAME_ID, b"", False, 0.0, is_error=True))
             self.injected["error_frames"] += 1

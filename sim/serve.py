@@ -39,13 +39,15 @@ class SimulatorSpec:
     def controller(self) -> SimulatedController:
         params = dict(self.plant)
         return SimulatedController(plant_from_config(params.pop("model"), **params), self.layout, self.timing,
-                                   ValueFaults(self.faults) if self.faults is not None else None, self.sensing)
+                                   ValueFaults(self.faults) if self.faults is not None else None,
+                                   sensing=self.sensing)
 
     def wire(self, port: FramePort, raw_write: Any = None) -> FramePort:
         """The port the controller serves on, with the configured frame faults."""
         if self.faults is None:
             return port
-        return FaultyPort(port, self.faults, {m.id for m in self.layout.feedback}, raw_write)
+        encode = port.wire_bytes if isinstance(port, SerialPort) else None
+        return FaultyPort(port, self.faults, {m.id for m in self.layout.feedback}, raw_write, encode)
 
 
 class ControllerPort(FramePort):

@@ -93,3 +93,76 @@ def test_pacing_cpu_must_exist_on_this_machine() -> None:
     data = copy.deepcopy(GOOD)
     data["bench"].update(clock="realtime", pacing_cpu=cpus - 1)
     assert parse_config(data, "bench.toml").cases[0].tables["bench"].pacing_cpu == cpus - 1
+
+
+FRAMES: dict[str, Any] = {
+    "setpoint": {"id": 0x201, "signals": [{"name": "setpoint", "byte": 0, "type": "float32"},
+                                          {"name": "counter", "byte": 4, "type": "uint16"}]},
+    "feedback": [{"id": 0x181, "signals": [{"name": "position", "byte": 0, "type": "float32"},
+                                           {"name": "counter", "byte": 4, "type": "uint16"}]}],
+    "enable": {"id": 0x10, "data": [1]},
+    "disable": {"id": 0x10, "data": [0]},
+}
+
+
+def with_frames(edit) -> str:  # type: ignore[no-untyped-def]
+    def apply(d: dict[str, Any]) -> None:
+        d["frames"] = copy.deepcopy(FRAMES)
+        edit(d["frames"])
+    return error(apply)
+
+
+def test_enable_and_disable_must_differ() -> None:
+    text = with_frames(lambda f: f["disable"].update(data=[1]))
+    assert "frames" in text and "enable and disable are the same frame (id 0x10, data 01)" in text
+
+
+@pytest.mark.parametrize("bad", [["float32"], {"name": "float32"}, 3])
+def test_a_signal_type_that_is_not_a_name_is_one_line(bad: object) -> None:
+    text = with_frames(lambda f: f["feedback"][0]["signals"][0].update(type=bad))
+    assert "frames.feedback[0].signals[0].type: one of int8" in text
+
+
+def test_a_bench_frequency_below_a_millihertz_is_refused() -> None:
+    text = error(lambda d: d["excitation"].update(frequencies_hz=[2e-6, 2.0]))
+    assert "excitation.frequencies_hz[0]: 2e-06 Hz is below 0.001 Hz" in text
+
+
+def test_negative_seeds_are_refused() -> None:
+    assert "simulator.faults: seed: must be >= 0" in error(lambda d: d["simulator"].update(faults={"seed": -1}))
+    assert "simulator.seed" in error(lambda d: d["simulator"].update(seed=-1))
+
+
+def test_a_heartbeat_slower_than_half_the_drive_watchdog_is_refused() -> None:
+    def edit(f: dict[str, Any]) -> None:
+        f["heartbeat"] = {"id": 0x700, "data": [5], "period_s": 0.3}
+        f["drive_watchdog_s"] = 0.5
+    assert "more than half of drive_watchdog_s" in with_frames(edit)
+
+
+def dbc_error(tmp_path, order: str = "1", scale: str = "0.001") -> str:  # type: ignore[no-untyped-def]
+    from test_drivers import DBC_TEXT
+
+    (tmp_path / "drive.dbc").write_text(DBC_TEXT.replace("ActPos : 0|32@1- (0.001,0)",
+                                                         f"ActPos : 0|32@{order}- ({scale},0)"))
+    frames = {"dbc": "drive.dbc",
+              "setpoint": {"message": "SETPOINT", "signals": {"setpoint": "SetpointPos", "counter": "SeqCnt"}},
+              "feedback": [{"message": "FEEDBACK1", "signals": {"position": "ActPos", "counter": "SeqCnt"}}]}
+    data = copy.deepcopy(GOOD)
+    data["frames"] = frames
+    data["analysis"]["harmonics"] = [1]
+    with pytest.raises(ConfigError) as info:
+        parse_config(data, str(tmp_path / "bench.toml"))
+    text = str(info.value)
+    assert "\n" not in text
+    return text
+
+
+def test_a_dbc_signal_with_scale_zero_is_refused(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    text = dbc_error(tmp_path, scale="0")
+    assert "frames.feedback[0]" in text and "signal \"ActPos\" has scale 0" in text
+
+
+def test_a_malformed_dbc_byte_order_is_refused(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    text = dbc_error(tmp_path, order="9")
+    assert "frames.dbc: drive.dbc line 14: signal \"ActPos\": @9- is not a byte order" in text

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from instrument.response import FrequencyResponse
 
@@ -68,7 +69,7 @@ def test_run_command_sweeps_the_simulated_can_bench(tmp_path: Path) -> None:
     proc = subprocess.run(command() + ["run", str(small), "--out", str(tmp_path / "out")], capture_output=True,
                           text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
-    assert "drive left at setpoint 0, disabled" in proc.stderr
+    assert proc.stdout.strip().splitlines()[-1].endswith("drive left at setpoint 0, disabled")
     response = FrequencyResponse.load(tmp_path / "out")
     assert sorted({p.frequency_hz for p in response.points}) == [4.0, 12.0]
     assert all(p.converged for p in response.points)
@@ -89,8 +90,14 @@ def test_run_refuses_an_offline_config(tmp_path: Path) -> None:
     assert "paper2013.toml" in proc.stderr and "bench" in proc.stderr and "Traceback" not in proc.stderr
 
 
-def test_ctrl_c_mid_sweep_keeps_points_and_leaves_the_drive_at_zero(tmp_path: Path) -> None:
-    """A standalone simulated drive on a pty; ``bodebench run`` against it gets SIGINT (Ctrl-C) mid-sweep."""
+@pytest.mark.parametrize("signum, group", [(signal.SIGINT, True), (signal.SIGTERM, False), (signal.SIGTERM, True),
+                                           (signal.SIGHUP, True)],
+                         ids=["ctrl-c", "sigterm-to-the-process", "sigterm-to-the-group", "sighup"])
+def test_a_stop_signal_mid_sweep_keeps_points_and_leaves_the_drive_at_zero(tmp_path: Path, signum: int,
+                                                                           group: bool) -> None:
+    """A standalone simulated drive on a pty; ``bodebench run`` against it gets a stop signal mid-sweep: Ctrl-C
+    (SIGINT to the foreground group), SIGTERM to the process alone (``timeout``, ``kill``) or to its group
+    (systemd, ``docker stop``), SIGHUP (a closed terminal). The drive reports what it received."""
     sim_cfg = tmp_path / "drive.toml"
     sim_cfg.write_text(SERIAL_BENCH.format(freqs="[3]", port="", simulator="[simulator]"))
     drive = subprocess.Popen(command() + ["sim-controller", str(sim_cfg)], stdout=subprocess.PIPE, text=True,
@@ -110,13 +117,72 @@ def test_ctrl_c_mid_sweep_keeps_points_and_leaves_the_drive_at_zero(tmp_path: Pa
                 break
             time.sleep(0.05)
         assert run.poll() is None, run.stderr.read()
-        os.killpg(run.pid, signal.SIGINT)  # what Ctrl-C in the terminal sends to the foreground group
+        (os.killpg if group else os.kill)(run.pid, signum)
         _, err = run.communicate(timeout=60)
-        assert run.returncode != 0
+        assert run.returncode == 128 + signum, err
         assert "Traceback" not in err
+        last = err.strip().splitlines()[-1]
+        assert f"interrupted ({signal.Signals(signum).name})" in last
+        assert last.endswith("drive left at setpoint 0, disabled"), last
         kept = FrequencyResponse.load(out)
         assert len(kept.points) >= 2 and all(p.converged for p in kept.points)
     finally:
         os.killpg(drive.pid, signal.SIGINT)
         tail, _ = drive.communicate(timeout=30)
     assert "last setpoint 0, disabled" in tail
+    # what the drive saw: enabled, each point's setpoint back to zero, and last the disable frame
+    events = [line.split(" s  drive ", 1)[1] for line in tail.splitlines() if " s  drive " in line]
+    assert events[0] == "enabled (enable frame)" and events[-1] == "disabled (disable frame)", events
+    assert events[-2].startswith("setpoint zeroed")
+
+
+def test_a_port_that_does_not_exist_is_one_line_that_claims_nothing(tmp_path: Path) -> None:
+    cfg = tmp_path / "run.toml"
+    cfg.write_text(SERIAL_BENCH.format(freqs="[3]", port=str(tmp_path / "no-such-tty"), simulator=""))
+    proc = subprocess.run(command() + ["run", str(cfg), "--out", str(tmp_path / "out")], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 1
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and proc.stderr.count("cannot open serial port") == 1, proc.stderr
+    assert lines[0].endswith("no point measured; nothing was sent to the drive")
+    assert not (tmp_path / "out").exists()
+
+
+def test_results_that_cannot_be_written_are_found_before_the_first_setpoint(tmp_path: Path) -> None:
+    cfg = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
+    (tmp_path / "a-file").write_text("")
+    proc = subprocess.run(command() + ["run", str(cfg), "--out", str(tmp_path / "a-file" / "out")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        f"bodebench: sim_can: not started: {tmp_path / 'a-file' / 'out'}: cannot create the results directory: "
+        "Not a directory; nothing was sent to the drive"]
+
+
+def test_a_write_failure_mid_sweep_stops_safely_and_keeps_every_point_on_disk(tmp_path: Path) -> None:
+    """Files may not grow past a limit (RLIMIT_FSIZE, as a full disk would refuse them): response.csv hits it
+    mid-sweep. One line says so; every point saved before is on disk, whole; the drive was zeroed and disabled."""
+    import resource
+
+    from instrument.config import load_config
+
+    cfg = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
+    case = load_config(cfg).cases[0]
+    FrequencyResponse(config=case.raw, case=case.name).save(tmp_path / "probe")
+    limit = (tmp_path / "probe" / "response.json").stat().st_size + 1000  # the sidecar fits, the CSV outgrows it
+
+    def limited() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    out = tmp_path / "out"
+    proc = subprocess.run(command() + ["run", str(cfg), "--out", str(out), "--quiet"], capture_output=True,
+                          text=True, timeout=300, preexec_fn=limited)
+    assert proc.returncode == 1
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    kept = FrequencyResponse.load(out)
+    assert 0 < len(kept.points) < 2 * len(case.excitation.frequencies_hz)
+    assert all(p.converged for p in kept.points)
+    assert lines[0].startswith(f"bodebench: sim_can: stopped: output: {out}: cannot write the point at ")
+    assert lines[0].endswith(f"File too large; {len(kept.points)} points kept in {out}; "
+                             "drive left at setpoint 0, disabled")

@@ -703,3 +703,123 @@ def test_mutated_config_fails_cleanly_naming_the_key(data: dict[str, Any], pick:
     else:
         for case in result.cases:
             assert json.loads(json.dumps(case.raw)) == case.raw
+
+
+# ------------------------------------------------------------------------------ property test: frame layouts, DBC
+
+BENCH: dict[str, Any] = {
+    "plant": {"model": "coulomb", "mass": 2.533e-4, "stiffness": 1.0, "friction": 0.008},
+    "excitation": {"amplitude": 0.01, "frequencies_hz": [2.0, 20.0]},
+    "analysis": {"harmonics": [1]},
+    "bench": {"transport": "can", "rate_hz": 1000, "timebase": "counter"},
+    "can": {"interface": "virtual", "channel": "x"},
+    "safety": {"max_amplitude": 0.02},
+}
+INT_TYPES = ("int8", "uint8", "int16", "uint16", "int32", "uint32")
+
+
+@st.composite
+def valid_frames(draw: st.DrawFn) -> dict[str, Any]:
+    """A [frames] table that loads: a setpoint, one to three feedback messages joined by a counter (with a CRC
+    byte at times), enable/disable told apart by their data, at times a heartbeat and a drive watchdog."""
+    counter = draw(st.sampled_from(["uint8", "uint16"]))
+    csize = 1 if counter == "uint8" else 2
+    setpoint = {"id": 0x201, "signals": [{"name": "setpoint", "byte": 0, "type": "float32",
+                                          "endian": draw(st.sampled_from(["little", "big"]))},
+                                         {"name": "counter", "byte": 4, "type": counter}]}
+    feedback = []
+    for i, name in enumerate(["position", "setpoint_echo", "current"][:draw(st.integers(1, 3))]):
+        kind = draw(st.sampled_from(["float32", "int16", "int32"]))
+        sig: dict[str, Any] = {"name": name, "byte": 0, "type": kind}
+        if kind != "float32":
+            sig["scale"] = draw(st.floats(1e-6, 1e3).map(lambda x: float(f"{x:.6g}")))
+            sig["offset"] = draw(st.floats(-10, 10).map(lambda x: float(f"{x:.6g}")))
+        byte = 2 if kind == "int16" else 4
+        signals = [sig, {"name": "counter", "byte": byte, "type": counter}]
+        if draw(st.booleans()):
+            signals.append({"name": "crc", "byte": byte + csize, "type": "uint8"})
+        feedback.append({"id": 0x181 + i, "signals": signals})
+    frames: dict[str, Any] = {"setpoint": setpoint, "feedback": feedback,
+                              "enable": {"id": 0x10, "data": [1]}, "disable": {"id": 0x10, "data": [0]}}
+    if draw(st.booleans()):
+        frames["heartbeat"] = {"id": 0x700, "data": [5], "period_s": 0.1}
+        frames["drive_watchdog_s"] = draw(st.sampled_from([0.0, 0.5, 1.0]))
+    return frames
+
+
+def frame_leaves(frames: dict[str, Any]) -> list[tuple[tuple[Any, ...], str]]:
+    """Paths to every scalar a user types in [frames], with its key name."""
+    out: list[tuple[tuple[Any, ...], str]] = []
+
+    def walk(node: Any, path: tuple[Any, ...], key: str) -> None:
+        if isinstance(node, dict):
+            for k, v in node.items():
+                walk(v, (*path, k), k)
+        elif isinstance(node, list) and node and isinstance(node[0], dict):
+            for i, v in enumerate(node):
+                walk(v, (*path, i), key)
+        else:
+            out.append((path, key))
+
+    walk(frames, (), "frames")
+    return out
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(frames=valid_frames(), pick=st.integers(min_value=0), bad=bad_values)
+def test_mutated_frame_layout_fails_cleanly_naming_the_key(frames: dict[str, Any], pick: int, bad: Any) -> None:
+    data = copy.deepcopy(BENCH)
+    data["frames"] = copy.deepcopy(frames)
+    parse_config(copy.deepcopy(data), "prop.toml")  # the unmutated layout loads
+    path, key = frame_leaves(data["frames"])[pick % len(frame_leaves(data["frames"]))]
+    target: Any = data["frames"]
+    for part in path[:-1]:
+        target = target[part]
+    target[path[-1]] = bad
+    try:
+        parse_config(data, "prop.toml")
+    except ConfigError as err:
+        message = str(err)
+        # rooted in [frames], or in the key that needs what the mutation took away (a measured channel)
+        assert "\n" not in message and message.startswith(("prop.toml: frames", "prop.toml: bench.")), message
+        assert key in message or f"{path[-1]}" in message or "share id" in message or "overlap" in message \
+            or "same frame" in message or "exceeds" in message or "counter" in message, message
+
+
+DBC_HEAD = 'VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: CTRL INST\n\n'
+
+
+@st.composite
+def dbc_files(draw: st.DrawFn) -> tuple[str, bool]:
+    """A DBC file with a setpoint and a feedback message, its position signal drawn at random (byte order and
+    sign characters, scale among them), and whether the loader must refuse it."""
+    order = draw(st.sampled_from(["0", "1", "1", "9", "2"]))
+    sign = draw(st.sampled_from(["+", "-"]))
+    scale = draw(st.sampled_from(["0", "0.001", "1", "-0.5", "2e-3"]))
+    length = draw(st.sampled_from([16, 32]))
+    start = 0 if order != "0" else 7  # big-endian signals start at the most significant bit of their first byte
+    text = (DBC_HEAD + 'BO_ 513 SETPOINT: 6 INST\n SG_ SetpointPos : 0|32@1- (0.001,0) [-1000|1000] "mm" CTRL\n'
+            ' SG_ SeqCnt : 32|16@1+ (1,0) [0|65535] "" CTRL\n\n'
+            f'BO_ 385 FEEDBACK1: 6 CTRL\n SG_ ActPos : {start}|{length}@{order}{sign} ({scale},0) [0|0] "mm" INST\n'
+            ' SG_ SeqCnt : 32|16@1+ (1,0) [0|65535] "" INST\n')
+    return text, order not in "01" or scale == "0"
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+                                                                 HealthCheck.function_scoped_fixture])
+@given(dbc=dbc_files())
+def test_dbc_signals_load_or_fail_cleanly_naming_the_key(dbc: tuple[str, bool], tmp_path: Path) -> None:
+    text, refused = dbc
+    (tmp_path / "drive.dbc").write_text(text)
+    data = copy.deepcopy(BENCH)
+    data["frames"] = {"dbc": "drive.dbc",
+                      "setpoint": {"message": "SETPOINT", "signals": {"setpoint": "SetpointPos", "counter": "SeqCnt"}},
+                      "feedback": [{"message": "FEEDBACK1", "signals": {"position": "ActPos", "counter": "SeqCnt"}}]}
+    try:
+        parse_config(data, str(tmp_path / "prop.toml"))
+    except ConfigError as err:
+        message = str(err)
+        assert "\n" not in message and message.startswith(f"{tmp_path / 'prop.toml'}: frames"), message
+        assert refused or "ActPos" in message, message  # a good signal may still not fit (e.g. overlap), by name
+    else:
+        assert not refused, text

@@ -103,3 +103,40 @@ def test_corrupt_results_directory_gives_one_line(tmp_path: Path, damage: str) -
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in proc.stderr
     assert ("response.json" if damage == "sidecar" else "response.csv") in lines[0]
+
+
+def offline_text() -> str:
+    """An offline experiment: the plant, excitation and analysis of the serial bench, without the bench."""
+    from test_cli_bench import SERIAL_BENCH
+
+    return SERIAL_BENCH.split("[bench]")[0].format(freqs="[3, 5, 8, 12]")
+
+
+@pytest.mark.parametrize("kind", ["offline", "bench"])
+def test_simulate_refuses_to_overwrite_and_resumes(tmp_path: Path, kind: str) -> None:
+    """``bodebench simulate`` of an offline experiment and of a bench config's drive: finished results are not
+    overwritten; an interrupted sweep (here: the last points gone from its files) is continued with --resume."""
+    if kind == "offline":
+        cfg = tmp_path / "offline.toml"
+        cfg.write_text(offline_text())
+    else:
+        cfg = small_config(tmp_path)
+    out = tmp_path / "out"
+    first = subprocess.run(command() + ["simulate", str(cfg), "--out", str(out), "--quiet", "--jobs", "1"],
+                           capture_output=True, text=True, timeout=300)
+    assert first.returncode == 0, first.stderr
+    finished = measured_rows(out)
+    again = subprocess.run(command() + ["simulate", str(cfg), "--out", str(out), "--quiet", "--jobs", "1"],
+                           capture_output=True, text=True, timeout=120)
+    assert again.returncode == 2 and "--resume" in again.stderr and "Traceback" not in again.stderr
+    assert measured_rows(out) == finished
+    whole = FrequencyResponse.load(out)
+    kept = sorted(whole.points, key=lambda p: p.frequency_hz)[:2]  # what an interrupted sweep had saved
+    FrequencyResponse(kept, config=whole.config, case=whole.case).save(out)
+    resumed = subprocess.run(command() + ["simulate", str(cfg), "--out", str(out), "--quiet", "--jobs", "1",
+                                          "--resume"], capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    response = FrequencyResponse.load(out)
+    assert sorted(p.frequency_hz for p in response.points) == sorted(p.frequency_hz for p in whole.points)
+    assert [p for p in response.points if p.frequency_hz in {k.frequency_hz for k in kept}] == kept
+    assert all(p.converged for p in response.points)

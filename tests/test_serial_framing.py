@@ -331,3 +331,51 @@ def test_ascii_lower_case_hex_accepted() -> None:
     body = "1a,ff"
     line = f"${body}*{xor(body):02x}\n".encode()
     assert AsciiDeframer().feed(line) == [(0x1A, ["ff"])]
+
+
+def test_a_write_that_stalls_is_retried_until_the_line_takes_it() -> None:
+    """The far end stops reading until the pty's buffer is full, then reads again: the send waits and completes
+    (within its budget) instead of failing; with no reader at all it fails naming the stall."""
+    import os
+    import threading
+
+    from drivers.errors import DriverTimeoutError
+    from drivers.layout import Layout
+    from drivers.ports import Frame, SerialPort
+    from sim.pty_link import Pty
+    from test_bench_e2e import SERIAL_FRAMES
+
+    layout = Layout.from_mapping(SERIAL_FRAMES)
+    frame = Frame(0x21, bytes.fromhex("0000c03f0201"))
+    for budget, reader in ((30.0, True), (0.2, False)):
+        pty = Pty()
+        port = SerialPort.open(pty.path, 1_000_000, "binary", layout, send_timeout=budget)
+        fd = port._fd
+        assert fd is not None
+        try:
+            for chunk in (512, 1):  # fill the line until it takes not one byte more
+                while True:
+                    try:
+                        os.write(fd, b"\0" * chunk)
+                    except BlockingIOError:
+                        break
+            drained = bytearray()
+            if reader:
+                def drain() -> None:
+                    while frame_bytes not in drained:
+                        try:
+                            drained.extend(os.read(pty.master, 65536))
+                        except BlockingIOError:
+                            threading.Event().wait(0.01)
+                frame_bytes = encode_binary(0x21, frame.data)
+                timer = threading.Timer(0.3, drain)
+                timer.start()
+                port.send(frame)
+                timer.join()
+                assert frame_bytes in drained  # it went out whole, after the stall
+            else:
+                with pytest.raises(DriverTimeoutError, match="stalled for 0.2 s"):
+                    port.send(frame)
+        finally:
+            port.close()
+            pty.close()

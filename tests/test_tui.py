@@ -622,3 +622,28 @@ def test_the_command_in_tmux(tmp_path: Path) -> None:
     response = FrequencyResponse.load(out)
     assert len(response.points) == 6 and all(p.converged for p in response.points)
     assert (out / "bode.png").exists()
+
+
+@pytest.mark.asyncio
+async def test_sigterm_aborts_the_sweep_safely_and_quits(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A real SIGTERM to this process (what systemd or a closed SSH session sends, SIGHUP alike) while a sweep
+    runs: the UI aborts it, the bus shows a zero setpoint and the disable frame, the app exits with 128 + 15."""
+    import signal
+
+    gate = Gate(monkeypatch, (3.0, 1))
+    channel = channel_name()
+    recorder = BusRecorder(channel)
+    config = write_bench_config(tmp_path, channel)
+    app = BodeBenchApp(config, tmp_path / "out")
+    try:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("s")
+            await gate.wait(pilot, "3 Hz integrating")
+            os.kill(os.getpid(), signal.SIGTERM)
+            gate.open()
+            await wait_for(pilot, lambda: not app.is_running, "the app to exit")
+    finally:
+        value, disabled = recorder.close()
+    assert app.stopped_by == "SIGTERM" and app.return_value == 128 + signal.SIGTERM
+    assert app.control.done.is_set()
+    assert value == 0.0 and disabled

@@ -8,7 +8,9 @@ thread first: the session leaves the drive at setpoint zero, disabled.
 
 from __future__ import annotations
 
+import asyncio
 import math
+import signal
 import threading
 import time
 import traceback
@@ -177,6 +179,7 @@ class BodeBenchApp(App[int]):
         self._live_dirty = False
         self._max_index = -1
         self._quitting = False
+        self.stopped_by = ""  # the signal that ended the app, if one did
         self._scope_index: int | None = None
         self.worker_errors: list[str] = []
         self._status_text = Text()
@@ -239,6 +242,16 @@ class BodeBenchApp(App[int]):
         return {"live": self.w_live, "sweep": self.w_sweep, "bode": self.w_bode, "bus": self.w_bus}
 
     def on_mount(self) -> None:
+        # SIGTERM (timeout, systemd) and SIGHUP (a closed terminal) quit as a confirmed quit does: the running
+        # sweep is aborted (setpoint to zero, drive disabled) and joined before the app ends
+        self._signals: list[int] = []
+        loop = asyncio.get_running_loop()
+        for signum in (signal.SIGTERM, signal.SIGHUP):
+            try:
+                loop.add_signal_handler(signum, self._stop_signal, signum)
+            except (NotImplementedError, RuntimeError, ValueError):  # not the main thread: the signal stays as it is
+                continue
+            self._signals.append(signum)
         for view in VIEWS:
             self._panels()[view].border_title = VIEW_TITLES[view]
         self._load_previous()
@@ -601,7 +614,7 @@ class BodeBenchApp(App[int]):
         except Exception:  # noqa: BLE001 - see _display_error
             self._display_error("the end of the sweep")
         if self._quitting:
-            self.exit(0 if message.completed else 1)
+            self.exit(128 + signal.Signals[self.stopped_by] if self.stopped_by else 0 if message.completed else 1)
 
     def _worker_report(self, message: WorkerReport) -> None:
         self._drain()
@@ -615,8 +628,7 @@ class BodeBenchApp(App[int]):
         elif (fault is not None and fault.kind == "abort") or message.error.startswith("abort"):
             self.state = "aborted"
             kept = fault.kept if fault is not None else 0
-            drive = "" if ended is None else (f"drive left at setpoint {ended.last_setpoint:g}"
-                                              f"{', disabled' if ended.disabled else ''}; ")
+            drive = "" if ended is None else f"{ended.drive_state()}; "
             where = f" in {message.saved}" if message.saved else ""
             self.notify(f"aborted: {drive}{kept} points kept{where}", severity="warning", timeout=10)
         else:
@@ -626,8 +638,8 @@ class BodeBenchApp(App[int]):
             lines.append(f"{kept} measured points kept" + (f" in {message.saved}" if message.saved else
                                                            " (nothing written)"))
             if ended is not None:
-                lines.append(f"Drive left at setpoint {ended.last_setpoint:g}"
-                             f"{', disabled' if ended.disabled else ''} ({ended.reason}).")
+                state = ended.drive_state()
+                lines.append(f"{state[0].upper()}{state[1:]} ({ended.reason}).")
             self.push_screen(MessageDialog("Sweep stopped", "\n".join(lines), error=True))
         self._refresh_rows()
         self._refresh_status()
@@ -774,9 +786,21 @@ class BodeBenchApp(App[int]):
         self.w_abort.set_class(not self.running, "-idle")
 
     # -------------------------------------------------------------------------------------------- exit
+    def _stop_signal(self, signum: int) -> None:
+        self.stopped_by = signal.Signals(signum).name
+        self._quitting = True
+        if self.running:
+            self.action_abort()
+            self.set_timer(JOIN_TIMEOUT_S, lambda: self.exit(128 + signum))
+        else:
+            self.exit(128 + signum)
+
     def on_unmount(self) -> None:
         """Whatever ends the app: abort a running sweep and join its thread (the drive is left at zero)."""
         self.stop_session(JOIN_TIMEOUT_S)
+        loop = asyncio.get_running_loop()
+        for signum in getattr(self, "_signals", []):
+            loop.remove_signal_handler(signum)
 
     def stop_session(self, timeout_s: float) -> bool:
         """Abort a running sweep and wait up to ``timeout_s`` for its thread; True when it has ended."""

@@ -305,7 +305,10 @@ class BusPanel(Static):
             line("frames", f"in {_rate(rates[0])}  out {_rate(rates[1])}  (total in {bus.frames_in}, "
                            f"out {bus.frames_out})")
             line("errors", f"{bus.errors}  lost samples {bus.lost_samples}  duplicates {bus.duplicates}  "
-                           f"incomplete {bus.incomplete_samples}  time conflicts {health.time_conflicts}",
+                           f"incomplete {bus.incomplete_samples}  time conflicts {health.time_conflicts}"
+                           + (f"  rejected {bus.rejected_total} ("
+                              + ", ".join(f"{cause} {n}" for cause, n in bus.rejected.items() if n) + ")"
+                              if bus.rejected_total else ""),
                  "bold red" if bus.errors or bus.lost_samples else "")
             line("bus state", bus.bus_state + (f"  last error: {bus.last_error}" if bus.last_error else ""))
             line("round trip", _si_time(health.round_trip_s))

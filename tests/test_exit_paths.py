@@ -1,0 +1,95 @@
+"""Every way a sweep ends leaves the drive at zero and disabled where the bus still carries frames, and says what
+was actually sent: read off a real python-can virtual bus and a real pty whose far end dies."""
+
+from __future__ import annotations
+
+import os
+import signal
+from pathlib import Path
+
+import pytest
+
+from instrument.bus_worker import Credit
+from instrument.config import parse_config
+from instrument.links import plan_link
+from instrument.response import FrequencyResponse
+from instrument.session import BenchSession, PointProgress, SessionError
+
+from helpers import BusRecorder
+from test_bench_e2e import SERIAL_FRAMES, config
+
+
+def _session(data: dict, out: Path | None, trigger) -> BenchSession:  # type: ignore[no-untyped-def]
+    """A session whose listener calls ``trigger(session)`` once, two periods into the second point."""
+    holder: dict[str, BenchSession] = {}
+    fired: list[bool] = []
+
+    def listener(event: object) -> None:
+        if isinstance(event, PointProgress) and event.index == 1 and event.periods >= 2 and not fired:
+            fired.append(True)
+            trigger(holder["s"])
+
+    case = parse_config(data, "exit.toml").cases[0]
+    session = holder["s"] = BenchSession(case, plan_link(case, "exit.toml"), out, listener)
+    return session
+
+
+def test_an_exception_in_the_session_zeroes_and_disables_and_is_not_called_complete(tmp_path: Path) -> None:
+    recorder = BusRecorder("exit-listener")
+
+    def fail(session: BenchSession) -> None:
+        raise RuntimeError("display crashed")
+
+    session = _session(config(can={"channel": "exit-listener"}), tmp_path, fail)
+    with pytest.raises(RuntimeError, match="display crashed"):
+        session.run()
+    value, disabled = recorder.close()
+    assert value == 0.0 and disabled
+    ended = session.ended
+    assert ended is not None and not ended.completed
+    assert ended.reason == "error: RuntimeError: display crashed"
+    assert ended.drive_state() == "drive left at setpoint 0, disabled"
+    assert [p.frequency_hz for p in FrequencyResponse.load(tmp_path).points] == [3.0, 3.0]
+
+
+def test_an_exception_in_the_bus_worker_zeroes_and_disables() -> None:
+    """A malformed command reaches the worker (a TypeError inside its loop): it zeroes and disables, then ends."""
+    recorder = BusRecorder("exit-worker")
+    session = _session(config(can={"channel": "exit-worker"}), None,
+                       lambda s: s._conn.send(Credit(None)))  # type: ignore[arg-type]
+    with pytest.raises(SessionError, match="TypeError"):
+        session.run()
+    value, disabled = recorder.close()
+    assert value == 0.0 and disabled
+    assert session.ended is not None and session.ended.drive_state() == "drive left at setpoint 0, disabled"
+
+
+def test_a_serial_drive_that_dies_is_reported_as_not_zeroed_with_its_watchdog() -> None:
+    """The drive's process is killed mid-sweep: its end of the pty is gone, so no zero setpoint can reach it. The
+    session says so, with the last setpoint that did go out and what the drive's own watchdog does."""
+    frames = {**SERIAL_FRAMES, "heartbeat": {"id": 0x20, "data": [5], "period_s": 0.1}, "drive_watchdog_s": 0.5}
+    data = config(bench={"transport": "serial"}, can=None, serial={"framing": "binary"}, frames=frames)
+
+    def kill_drive(session: BenchSession) -> None:
+        os.kill(session.plan.resources[0].process.pid, signal.SIGKILL)
+
+    session = _session(data, None, kill_drive)
+    with pytest.raises(SessionError, match="bus"):
+        session.run()
+    ended = session.ended
+    assert ended is not None and not ended.zero_sent and not ended.disabled and ended.frames_out > 0
+    text = ended.drive_state()
+    assert text.startswith("could not send the zero setpoint: the last setpoint that went out was ")
+    assert "no disable frame sent" in text
+    assert "the drive's watchdog zeroes and disables it 0.5 s after the last frame" in text
+
+
+def test_a_port_that_does_not_exist_sends_nothing_and_says_so(tmp_path: Path) -> None:
+    data = config(bench={"transport": "serial"}, can=None, simulator=None, frames=SERIAL_FRAMES,
+                  serial={"framing": "binary", "port": str(tmp_path / "no-such-tty")})
+    case = parse_config(data, "exit.toml").cases[0]
+    session = BenchSession(case, plan_link(case, "exit.toml"), tmp_path / "out")
+    with pytest.raises(SessionError, match="cannot open serial port"):
+        session.run()
+    assert session.ended is not None and session.ended.drive_state() == "nothing was sent to the drive"
+    assert not (tmp_path / "out").exists()
