@@ -63,8 +63,8 @@ LAG_RATIOS = (0.01, 0.03, 0.1, 0.3, 1, 3, 10, 30, 100)
 FBARS = (0.05, 0.1, 0.2, 0.4, 0.6, 0.8, 0.9, 0.95, 0.98)
 FRICTION_RATIOS = (0.1, 0.2, 0.3, 0.5, 0.7, 0.9, 1.0, 1.03, 1.1, 1.5, 2, 3, 5, 10)
 NOISE_LEVELS = (0.001, 0.01, 0.05)
-NOISE_CASES = ("linear zeta=0.05 f/fn=0.5", "linear zeta=0.05 f/fn=1.0", "linear zeta=0.05 f/fn=2",
-               "linear zeta=0.2 f/fn=1.0", "lag f/fc=1", "friction Fbar=0.8 f/fn=0.5", "friction Fbar=0.8 f/fn=2")
+NOISE_CASES = ("linear zeta=0.05 f/fn=0.5", "linear zeta=0.05 f/fn=1", "linear zeta=0.05 f/fn=2",
+               "linear zeta=0.2 f/fn=1", "lag f/fc=1", "friction Fbar=0.8 f/fn=0.5", "friction Fbar=0.8 f/fn=2")
 
 
 @dataclass(frozen=True)

@@ -17,10 +17,11 @@ from instrument.response import FrequencyResponse
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["CAPPED_STATUS", "plot_bode", "plot_periods"]
+__all__ = ["CAPPED_STATUS", "NOISE_LIMITED_STATUS", "plot_bode", "plot_periods"]
 
 #: Status of a point whose measurement stopped at the period cap.
 CAPPED_STATUS = "capped"
+NOISE_LIMITED_STATUS = "noise_limited"
 
 _MARKER = "o"
 _MARKER_SIZE = 4.0
@@ -147,7 +148,7 @@ def plot_periods(
     """Periods integrated per point against log frequency (Hz), log y axis; one curve per (case label, harmonic).
 
     Where several channels share a frequency the largest period count is shown. Points with status ``capped``
-    are marked with a cross. Writes ``<path_stem>.png`` and ``<path_stem>.svg`` and returns both paths.
+    or ``noise_limited`` are marked with a cross. Writes ``<path_stem>.png`` and ``<path_stem>.svg`` and returns both paths.
     """
     from matplotlib.lines import Line2D
     from matplotlib.ticker import FuncFormatter
@@ -164,7 +165,7 @@ def plot_periods(
             periods = np.zeros(freq.size, dtype=float)
             np.maximum.at(periods, index, sel.periods.astype(float))
             capped = np.zeros(freq.size, dtype=bool)
-            np.logical_or.at(capped, index, np.array([pt.status == CAPPED_STATUS for pt in sel]))
+            np.logical_or.at(capped, index, np.array([pt.status in (CAPPED_STATUS, NOISE_LIMITED_STATUS) for pt in sel]))
             (line,) = ax.plot(
                 freq, periods, "-", marker=_MARKER, ms=_MARKER_SIZE, lw=1.0, label=_label(case_label, f"k={harmonic}")
             )
@@ -183,7 +184,7 @@ def plot_periods(
     handles, labels = ax.get_legend_handles_labels()
     if any_capped:
         handles.append(Line2D([], [], marker="x", color="0.3", linestyle="none", ms=9.0, mew=2.0))
-        labels.append("capped")
+        labels.append("capped or noise-limited")
     ax.legend(handles, labels, fontsize="small")
     if title:
         ax.set_title(title)

@@ -13,13 +13,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from instrument.autointegration import SeriesState
-from instrument.plots import CAPPED_STATUS
+from instrument.plots import CAPPED_STATUS, NOISE_LIMITED_STATUS
 from instrument.response import ResponsePoint
 
 #: states of a row in the sweep table
-PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, FAILED, SKIPPED = (
-    "pending", "settling", "integrating", "converged", "capped", "failed", "skipped")
-ROW_STATES = (PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, FAILED, SKIPPED)
+PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, NOISE_LIMITED, FAILED, SKIPPED = (
+    "pending", "settling", "integrating", "converged", "capped", "noise-limited", "failed", "skipped")
+ROW_STATES = (PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, NOISE_LIMITED, FAILED, SKIPPED)
 ACTIVE_STATES = (SETTLING, INTEGRATING)
 
 
@@ -79,11 +79,16 @@ def row_key(position: int, harmonic: int, channel: str) -> str:
     return f"{position}:{harmonic}:{channel}"
 
 
-def point_state(point: ResponsePoint) -> str:
-    """converged / capped / failed for a finished point."""
-    if point.converged:
+def finished_state(converged: bool, status: str) -> str:
+    """converged / capped / noise-limited / failed for a finished point or series."""
+    if converged:
         return CONVERGED
-    return CAPPED if point.status == CAPPED_STATUS else FAILED
+    return {CAPPED_STATUS: CAPPED, NOISE_LIMITED_STATUS: NOISE_LIMITED}.get(status, FAILED)
+
+
+def point_state(point: ResponsePoint) -> str:
+    """converged / capped / noise-limited / failed for a finished point."""
+    return finished_state(point.converged, point.status)
 
 
 @dataclass
@@ -199,8 +204,7 @@ class SweepModel:
                 trace.add(s)
             key = row_key(self.current, s.harmonic, s.channel)
             if s.verdict is not None:
-                state = CONVERGED if s.verdict.converged else (
-                    CAPPED if s.verdict.status == CAPPED_STATUS else FAILED)
+                state = finished_state(s.verdict.converged, s.verdict.status)
             else:
                 state = INTEGRATING if periods > 0 else SETTLING
             row = self.rows.get(key)

@@ -21,14 +21,14 @@ from textual.widgets._footer import FooterKey
 from instrument.bus_worker import Health
 from instrument.response import FrequencyResponse
 from instrument.tui.braille import Axis, HLine, PlotError, Trace, auto_axis, render_plot
-from instrument.tui.model import (CAPPED, CONVERGED, FAILED, INTEGRATING, PENDING, SETTLING, SKIPPED, Row,
-                                  SeriesTrace, periods_to_go)
+from instrument.tui.model import (CAPPED, CONVERGED, FAILED, INTEGRATING, NOISE_LIMITED, PENDING, SETTLING, SKIPPED,
+                                  Row, SeriesTrace, periods_to_go)
 
 #: trace colours, in order of use
 PALETTE = ("cyan", "yellow", "magenta", "green", "bright_blue", "bright_red", "white", "bright_green")
 
 STATE_STYLES = {PENDING: "bright_black", SETTLING: "yellow", INTEGRATING: "bold cyan", CONVERGED: "green",
-                CAPPED: "magenta", FAILED: "bold red", SKIPPED: "bright_black"}
+                CAPPED: "magenta", NOISE_LIMITED: "yellow", FAILED: "bold red", SKIPPED: "bright_black"}
 
 #: sweep table columns: (key, label, width in cells)
 COLUMNS = (("f", "f Hz", 7), ("k", "k", 2), ("ch", "channel", 9), ("state", "state", 11), ("gain", "gain dB", 8),
