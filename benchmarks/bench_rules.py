@@ -147,7 +147,7 @@ def replay_point(plant: Plant, frequency_hz: float, amplitude: float, analysis: 
             for k in range(checked[c] + 1, hist.n + 1):
                 verdict = rule.check(hist, k, float(reference[k - 1]))
                 if verdict is None and k >= analysis.max_periods:
-                    verdict = rule.capped(hist, k)
+                    verdict = rule.capped(hist, k, float(reference[k - 1]))
                 if verdict is not None:
                     outcomes[c] = Outcome(verdict.period, complex(verdict.p, verdict.q), verdict.uncertainty,
                                           verdict.status, verdict.method)
