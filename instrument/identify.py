@@ -15,9 +15,10 @@ known. Two routes recover the dry friction ``F_ct`` and the mass ``m`` (``f_n = 
 :func:`identify` runs both on a :class:`~instrument.response.FrequencyResponse`, :func:`format_report` renders
 the report as text and :func:`plot_identification` draws the measured points against both models.
 
-Conventions: a measured point's ``uncertainty`` is the half-width of the 95 % confidence region of (p, q), taken
-(as the stopping rules form it) as ``1.96 * sqrt(2) * sigma`` with ``sigma`` the standard deviation of each of p
-and q; the relative standard deviation of the gain and of the phase (radians) is then ``sigma / |p + jq|``.
+Conventions: a measured point's ``uncertainty_1d`` is the 95 % half-width of (p, q) along one direction, taken
+as ``1.96 * sigma`` with ``sigma`` the standard deviation of each of p and q (files without it: ``uncertainty``,
+the 95 % disc radius, taken as ``sqrt(-2 ln 0.05) * sigma``); the relative standard deviation of the gain and of
+the phase (radians) is then ``sigma / |p + jq|``.
 """
 
 from __future__ import annotations
@@ -78,7 +79,7 @@ RELATIVE_FLOOR = 1e-3
 NO_CROSSING = "no -90 crossing: this procedure applies only for Fbar > pi/4 - use the fit"
 
 _Z95 = 1.959963984540054  # two-sided 95 % normal quantile
-_UNCERTAINTY_TO_SIGMA = 1.0 / (_Z95 * math.sqrt(2.0))
+_DISC95 = math.sqrt(-2.0 * math.log(0.05))  # radius of the 95 % disc of a circular 2-D normal, in sigmas
 _PENALTY = 1e3  # residual of a point where the model has no settled motion (Fbar < pi/4 at f = f_n)
 _SCORE_POINTS = 6  # points (besides those around the -90 degree crossing) used to rank start values
 _PHASE_NOISE_SIGMAS = 3.0
@@ -174,7 +175,8 @@ def measured_curve(response: FrequencyResponse, harmonic: int = 1, channel: str 
         raise IdentificationError(f"no converged points of harmonic {harmonic} of {channel!r} to identify from")
     f = np.array([p.frequency_hz for p in used])
     c = np.array([complex(p.p, p.q) for p in used])
-    sigma = np.array([p.uncertainty * _UNCERTAINTY_TO_SIGMA for p in used])
+    sigma = np.array([p.uncertainty / _DISC95 if math.isnan(p.uncertainty_1d) else p.uncertainty_1d / _Z95
+                      for p in used])
     phase = np.degrees(np.unwrap(np.angle(c)))
     return MeasuredCurve(f, c, sigma, phase, float(points[0].amplitude), harmonic, channel, tuple(excluded),
                          tuple(unsettled))

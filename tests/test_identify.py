@@ -49,7 +49,8 @@ from instrument.response import FrequencyResponse, ResponsePoint
 
 AMPLITUDE = 0.01  # A_F
 STIFFNESS = 1.0  # K_p
-UNCERTAINTY_PER_SIGMA = 1.959963984540054 * math.sqrt(2.0)  # the 95 % radius of (p, q) per component sigma
+DISC_PER_SIGMA = math.sqrt(-2.0 * math.log(0.05))  # the 95 % disc radius of (p, q) per component sigma
+LINE_PER_SIGMA = 1.959963984540054  # the 95 % half-width along one direction per component sigma
 
 
 def mass_of(f_n: float, stiffness: float = STIFFNESS) -> float:
@@ -318,15 +319,16 @@ def test_fit_frees_stiffness_and_damping(pool: Executor) -> None:
 
 
 def noisy(response: FrequencyResponse, relative_sigma: float, seed: int) -> FrequencyResponse:
-    """Each converged point's p and q perturbed by N(0, sigma), sigma = relative_sigma |p + jq|, uncertainty set
-    to match (capped points left alone)."""
+    """Each converged point's p and q perturbed by N(0, sigma), sigma = relative_sigma |p + jq|, its 95 % disc and
+    one-direction half-width set to match (capped points left alone)."""
     rng = np.random.default_rng(seed)
     out = []
     for p in response.points:
         if p.converged:
             sigma = relative_sigma * p.magnitude
             dp, dq = rng.normal(0.0, sigma, 2)
-            p = dataclasses.replace(p, p=p.p + dp, q=p.q + dq, uncertainty=UNCERTAINTY_PER_SIGMA * sigma)
+            p = dataclasses.replace(p, p=p.p + dp, q=p.q + dq, uncertainty=DISC_PER_SIGMA * sigma,
+                                    uncertainty_1d=LINE_PER_SIGMA * sigma)
         out.append(p)
     return FrequencyResponse(out, response.config, response.case)
 
