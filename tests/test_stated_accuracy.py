@@ -6,7 +6,6 @@ long fixed runs, the noise statistics the simulated drive is configured with.
 
 from __future__ import annotations
 
-import copy
 import math
 from typing import Any
 
@@ -22,7 +21,7 @@ from instrument.session import BenchSession
 from sim.controller import FeedbackSensing
 from sim.plants import LinearOscillator
 
-from test_bench_e2e import BASE, config
+from test_bench_e2e import config
 
 PAPER = {"mass": 2.533e-4, "stiffness": 1.0, "amplitude": 0.01}
 
