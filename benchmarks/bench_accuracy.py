@@ -48,9 +48,9 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from instrument.fourier import PeriodIntegrator  # noqa: E402
-from instrument.rules import RESOLUTION, AdaptiveRule, SeriesHistory, Verdict  # noqa: E402
-from sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant  # noqa: E402
+from bodebench.core.fourier import PeriodIntegrator  # noqa: E402
+from bodebench.core.rules import RESOLUTION, AdaptiveRule, SeriesHistory, Verdict  # noqa: E402
+from bodebench.sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant  # noqa: E402
 
 CACHE = Path(__file__).resolve().parent / "out" / "accuracy_cache"
 STEPS = 200

@@ -54,11 +54,11 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from instrument.config import AnalysisConfig, CaseConfig, PlantConfig, load_config  # noqa: E402
-from instrument.experiment import OUTPUT_CHANNEL, build_plant, measure_frequency  # noqa: E402
-from instrument.fourier import PeriodIntegrator  # noqa: E402
-from instrument.rules import CAPPED, CRITERIA, SeriesHistory, StoppingRule, make_rule  # noqa: E402
-from sim.plants import LinearOscillator, Plant  # noqa: E402
+from bodebench.io.config import AnalysisConfig, CaseConfig, PlantConfig, load_config  # noqa: E402
+from bodebench.bench.offline import OUTPUT_CHANNEL, build_plant, measure_frequency  # noqa: E402
+from bodebench.core.fourier import PeriodIntegrator  # noqa: E402
+from bodebench.core.rules import CAPPED, CRITERIA, SeriesHistory, StoppingRule, make_rule  # noqa: E402
+from bodebench.sim.plants import LinearOscillator, Plant  # noqa: E402
 
 CONFIG = ROOT / "configs" / "paper2013.toml"
 OUT = Path(__file__).resolve().parent / "out"

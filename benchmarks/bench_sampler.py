@@ -17,7 +17,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from instrument.fourier import PeriodIntegrator  # noqa: E402
+from bodebench.core.fourier import PeriodIntegrator  # noqa: E402
 
 N_SAMPLES = 1_000_000
 SAMPLE_RATE_HZ = 10_000.0

@@ -98,7 +98,7 @@ class Probe:
         self.rows.append((time.monotonic() - self.started, {p: rss_mb(p) for p in pids}))
 
     def listener(self, inner):
-        from instrument.session import BusStatus
+        from bodebench.bench.session import BusStatus
 
         def wrapped(event: object) -> None:
             if isinstance(event, BusStatus):
@@ -109,7 +109,7 @@ class Probe:
 
 def patch_sessions(probe: Probe) -> None:
     """Route every session's events through the probe as well (the UI builds its own sessions)."""
-    import instrument.session as session_module
+    import bodebench.bench.session as session_module
 
     original = session_module.BenchSession.__init__
 
@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-ui", action="store_true")
     args = parser.parse_args(argv)
 
-    from instrument.config import load_config
+    from bodebench.io.config import load_config
 
     freqs = [round(2.0 + 0.1 * i, 1) for i in range(981)]  # 2 to 100 Hz: a sweep longer than the soak (~1.6 s a point)
     tmp = Path(tempfile.mkdtemp(prefix="bodebench-soak-"))
@@ -170,8 +170,8 @@ def main(argv: list[str] | None = None) -> int:
     patch_sessions(probe)
 
     if args.no_ui:
-        from instrument.links import plan_link
-        from instrument.session import BenchSession
+        from bodebench.bench.connection import plan_link
+        from bodebench.bench.session import BenchSession
 
         case = config.cases[0]
         session = BenchSession(case, plan_link(case, cfg), tmp / "out")
@@ -190,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run_quietly(session) -> None:  # type: ignore[no-untyped-def]
-    from instrument.session import SessionError
+    from bodebench.bench.session import SessionError
 
     try:
         session.run()
@@ -199,7 +199,7 @@ def _run_quietly(session) -> None:  # type: ignore[no-untyped-def]
 
 
 async def _with_ui(config, out: Path, probe: Probe, seconds: float) -> None:  # type: ignore[no-untyped-def]
-    from instrument.tui.app import BodeBenchApp
+    from bodebench.apps.tui.app import BodeBenchApp
 
     app = BodeBenchApp(config, out)
     async with app.run_test(size=(120, 40)) as pilot:

@@ -28,10 +28,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from instrument import experiment  # noqa: E402
-from instrument.config import load_config  # noqa: E402
-from instrument.response import FrequencyResponse  # noqa: E402
-from sim.plants import CoulombOscillator, LinearOscillator  # noqa: E402
+from bodebench.bench import offline as experiment  # noqa: E402
+from bodebench.io.config import load_config  # noqa: E402
+from bodebench.core.response import FrequencyResponse  # noqa: E402
+from bodebench.sim.plants import CoulombOscillator, LinearOscillator  # noqa: E402
 
 CONFIG = ROOT / "configs" / "paper2013.toml"
 KERNEL_FRICTION = 0.008  # F_ct for Fbar 0.8 at A_F = 0.01

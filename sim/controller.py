@@ -24,13 +24,13 @@ from typing import Callable
 
 import numpy as np
 
-from drivers.errors import DriverTimeoutError, LayoutError
-from drivers.e2e import crc_byte, seal
-from drivers.layout import CRC, SETPOINT_ECHO, Layout, Message
-from drivers.ports import Frame, FramePort
-from drivers.realtime import keep_to, lower_timer_slack, pacing_cpu, request_fifo
-from sim.faults import ValueFaults
-from sim.plants import Plant
+from bodebench.drivers.errors import DriverTimeoutError, LayoutError
+from bodebench.drivers.e2e import crc_byte, seal
+from bodebench.drivers.layout import CRC, SETPOINT_ECHO, Layout, Message
+from bodebench.drivers.ports import Frame, FramePort
+from bodebench.drivers.scheduling import keep_to, lower_timer_slack, pacing_cpu, request_fifo
+from bodebench.sim.faults import ValueFaults
+from bodebench.sim.plants import Plant
 
 CLOCKS = ("lockstep", "realtime")
 DRIVE_PRIORITY = 10

@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from drivers.ports import Frame, FramePort
+from bodebench.drivers.ports import Frame, FramePort
 
 ERROR_FRAME_ID = 0x0  # error frames carry no meaningful id; python-can flags them
 

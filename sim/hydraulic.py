@@ -30,7 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
-from sim.plants import LinearPlant, Plant, PlantState
+from bodebench.sim.plants import LinearPlant, Plant, PlantState
 
 __all__ = ["ElectrohydraulicDrive", "HYDRAULIC_DEFAULTS"]
 

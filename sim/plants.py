@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim import _kernels
+from bodebench.sim import _kernels
 
 __all__ = ["Plant", "PlantState", "CoulombOscillator", "LinearPlant", "LinearOscillator", "FirstOrderLag",
            "plant_from_config"]
@@ -258,7 +258,7 @@ def plant_from_config(model: str, *, mass: float = 1.0, stiffness: float = 1.0, 
     if model == "lag":
         return FirstOrderLag(time_constant, gain)
     if model == "hydraulic":
-        from sim.hydraulic import HYDRAULIC_DEFAULTS, ElectrohydraulicDrive
+        from bodebench.sim.hydraulic import HYDRAULIC_DEFAULTS, ElectrohydraulicDrive
 
         unknown = sorted(set(hydraulic) - set(HYDRAULIC_DEFAULTS))
         if unknown:

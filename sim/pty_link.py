@@ -16,7 +16,7 @@ import select
 import time
 import tty
 
-from drivers.ports import Frame, FramePort
+from bodebench.drivers.ports import Frame, FramePort
 
 MAX_LINE = 64
 

@@ -14,12 +14,12 @@ import threading
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-from drivers.layout import Layout
-from drivers.ports import CanPort, Frame, FramePort, SerialPort
-from sim.controller import ControllerTiming, FeedbackSensing, SimulatedController
-from sim.faults import FaultConfig, FaultyPort, ValueFaults
-from sim.plants import plant_from_config
-from sim.pty_link import FdStream, Pty, SlcanAdapterPort
+from bodebench.drivers.layout import Layout
+from bodebench.drivers.ports import CanPort, Frame, FramePort, SerialPort
+from bodebench.sim.controller import ControllerTiming, FeedbackSensing, SimulatedController
+from bodebench.sim.faults import FaultConfig, FaultyPort, ValueFaults
+from bodebench.sim.plants import plant_from_config
+from bodebench.sim.pty_link import FdStream, Pty, SlcanAdapterPort
 
 PTY_TRANSPORTS = ("serial", "slcan")
 

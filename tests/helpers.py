@@ -6,7 +6,7 @@ import threading
 
 import can
 
-from drivers.layout import default_layout
+from bodebench.drivers.layout import default_layout
 
 
 class BusRecorder:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from instrument.config import parse_config
-from instrument.experiment import sweep
-from sim.plants import FirstOrderLag, LinearOscillator
+from bodebench.io.config import parse_config
+from bodebench.bench.offline import sweep
+from bodebench.sim.plants import FirstOrderLag, LinearOscillator
 
 PAPER_GRID = [1, 1.3, 2, 2.3, 3, 3.3, 4, 4.3, 5, 5.3, 6, 6.3, 7, 7.3, 8, 8.3, 9, 9.3, 10, 10.03, 10.1, 10.2,
               10.3, 10.4, 13, 20, 23, 30, 33, 40, 43, 50, 53, 60, 63, 70, 73, 80, 83, 90, 93, 100]

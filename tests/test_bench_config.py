@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from instrument.config import ConfigError, parse_config
+from bodebench.io.config import ConfigError, parse_config
 
 GOOD: dict[str, Any] = {
     "plant": {"model": "coulomb", "mass": 2.533e-4, "stiffness": 1.0, "friction": 0.008},

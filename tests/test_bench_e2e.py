@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from instrument.config import parse_config
-from instrument.links import plan_link
-from instrument.response import FrequencyResponse
-from instrument.session import BenchSession, BusStatus, PointProgress, SessionError
+from bodebench.io.config import parse_config
+from bodebench.bench.connection import plan_link
+from bodebench.core.response import FrequencyResponse
+from bodebench.bench.session import BenchSession, BusStatus, PointProgress, SessionError
 
 from helpers import BusRecorder
 

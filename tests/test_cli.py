@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from instrument.cli import main
-from instrument.response import FrequencyResponse
-from sim.plants import LinearOscillator
+from bodebench.apps.cli import main
+from bodebench.core.response import FrequencyResponse
+from bodebench.sim.plants import LinearOscillator
 
 CONFIG = """
 title = "two dampings"
@@ -36,7 +36,7 @@ damping_ratio = 0.7
 
 def bodebench(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     exe = shutil.which("bodebench")
-    cmd = [exe] if exe else [sys.executable, "-m", "instrument.cli"]
+    cmd = [exe] if exe else [sys.executable, "-m", "bodebench"]
     return subprocess.run(cmd + list(args), cwd=cwd, capture_output=True, text=True, timeout=300)
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from instrument.response import FrequencyResponse
+from bodebench.core.response import FrequencyResponse
 
 SERIAL_BENCH = """
 title = "lockstep serial drive"
@@ -57,7 +57,7 @@ watchdog_s = 2.0
 
 def command() -> list[str]:
     exe = shutil.which("bodebench")
-    return [exe] if exe else [sys.executable, "-m", "instrument.cli"]
+    return [exe] if exe else [sys.executable, "-m", "bodebench"]
 
 
 def test_run_command_sweeps_the_simulated_can_bench(tmp_path: Path) -> None:
@@ -164,7 +164,7 @@ def test_a_write_failure_mid_sweep_stops_safely_and_keeps_every_point_on_disk(tm
     mid-sweep. One line says so; every point saved before is on disk, whole; the drive was zeroed and disabled."""
     import resource
 
-    from instrument.config import load_config
+    from bodebench.io.config import load_config
 
     cfg = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
     case = load_config(cfg).cases[0]

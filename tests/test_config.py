@@ -15,8 +15,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from instrument import config as cfg
-from instrument.config import (
+from bodebench.io import config as cfg
+from bodebench.io.config import (
     AnalysisConfig,
     CaseConfig,
     ConfigError,
@@ -27,7 +27,7 @@ from instrument.config import (
     load_config,
     parse_config,
 )
-from instrument.rules import CRITERIA
+from bodebench.core.rules import CRITERIA
 
 SRC = "configs/x.toml"
 

@@ -15,11 +15,11 @@ from typing import Callable
 import can
 import pytest
 
-from drivers.layout import Layout
-from instrument.config import parse_config
-from instrument.links import plan_link, simulator_spec
-from instrument.session import BenchSession, PointProgress, SessionError
-from sim.serve import serve_can
+from bodebench.drivers.layout import Layout
+from bodebench.io.config import parse_config
+from bodebench.bench.connection import plan_link, simulator_spec
+from bodebench.bench.session import BenchSession, PointProgress, SessionError
+from bodebench.sim.serve import serve_can
 
 from test_bench_config import FRAMES
 from test_bench_e2e import config

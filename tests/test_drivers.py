@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers import (
+from bodebench.drivers import (
     BusHealth,
     CanPort,
     Driver,
@@ -34,7 +34,7 @@ from drivers import (
     Unwrapper,
     default_layout,
 )
-from drivers.serial_framing import AsciiDeframer, BinaryDeframer, ascii_line, encode_binary
+from bodebench.drivers.serial_framing import AsciiDeframer, BinaryDeframer, ascii_line, encode_binary
 
 F32 = struct.Struct("<f")
 

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 
-from instrument.bus_worker import Credit
-from instrument.config import parse_config
-from instrument.links import plan_link
-from instrument.response import FrequencyResponse
-from instrument.session import BenchSession, PointProgress, SessionError
+from bodebench.bench.worker import Credit
+from bodebench.io.config import parse_config
+from bodebench.bench.connection import plan_link
+from bodebench.core.response import FrequencyResponse
+from bodebench.bench.session import BenchSession, PointProgress, SessionError
 
 from helpers import BusRecorder
 from test_bench_e2e import SERIAL_FRAMES, config

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from instrument.fourier import PeriodIntegrator
+from bodebench.core.fourier import PeriodIntegrator
 
 # Test signal y = a sin(w x + phi) + b sin(2 w x + psi) + dc, x = t - t0, w = 2 pi f.
 F = 7.3

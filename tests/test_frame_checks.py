@@ -16,17 +16,17 @@ import can
 import numpy as np
 import pytest
 
-from drivers.driver import Driver
-from drivers.e2e import crc8_sae_j1850, crc_byte, intact, seal
-from drivers.errors import LayoutError
-from drivers.layout import Layout
-from drivers.ports import CanPort, SerialPort
-from drivers.serial_framing import encode_binary
-from instrument.config import parse_config
-from instrument.links import plan_link
-from instrument.response import ResponsePoint
-from instrument.session import BenchSession, BusStatus, _absurd_point
-from sim.pty_link import Pty
+from bodebench.drivers.driver import Driver
+from bodebench.drivers.e2e import crc8_sae_j1850, crc_byte, intact, seal
+from bodebench.drivers.errors import LayoutError
+from bodebench.drivers.layout import Layout
+from bodebench.drivers.ports import CanPort, SerialPort
+from bodebench.drivers.serial_framing import encode_binary
+from bodebench.io.config import parse_config
+from bodebench.bench.connection import plan_link
+from bodebench.core.response import ResponsePoint
+from bodebench.bench.session import BenchSession, BusStatus, _absurd_point
+from bodebench.sim.pty_link import Pty
 
 from test_bench_e2e import SERIAL_FRAMES, compare, config
 

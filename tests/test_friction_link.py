@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from instrument.config import CaseConfig, parse_config
-from instrument.experiment import measure_frequency
-from instrument.fourier import PeriodIntegrator
-from instrument.rules import CRITERIA
-from sim.plants import CoulombOscillator
+from bodebench.io.config import CaseConfig, parse_config
+from bodebench.bench.offline import measure_frequency
+from bodebench.core.fourier import PeriodIntegrator
+from bodebench.core.rules import CRITERIA
+from bodebench.sim.plants import CoulombOscillator
 
 # The 2013 test plant (METHOD.md section 2).
 MASS = 2.533e-4

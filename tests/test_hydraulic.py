@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from instrument.config import ConfigError, PlantConfig, parse_config
-from instrument.experiment import build_plant
-from instrument.fourier import PeriodIntegrator
-from sim.hydraulic import HYDRAULIC_DEFAULTS, ElectrohydraulicDrive
-from sim.plants import plant_from_config
+from bodebench.io.config import ConfigError, PlantConfig, parse_config
+from bodebench.bench.offline import build_plant
+from bodebench.core.fourier import PeriodIntegrator
+from bodebench.sim.hydraulic import HYDRAULIC_DEFAULTS, ElectrohydraulicDrive
+from bodebench.sim.plants import plant_from_config
 
 D = HYDRAULIC_DEFAULTS
 POSITION, VELOCITY, SPOOL, PRESSURE = range(4)

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from instrument import calibration
-from instrument.calibration import (
+from bodebench.analysis import calibration
+from bodebench.analysis.calibration import (
     DEFAULT_FBAR_GRID,
     DEFAULT_OFFSET_GRID,
     STEPS_PER_PERIOD,
@@ -30,10 +30,10 @@ from instrument.calibration import (
     crossing_ratio,
     load_calibration,
 )
-from instrument.cli import main
-from instrument.config import CaseConfig, parse_config
-from instrument.experiment import default_executor, measure_frequency, sweep
-from instrument.identify import (
+from bodebench.apps.cli import main
+from bodebench.io.config import CaseConfig, parse_config
+from bodebench.bench.offline import default_executor, measure_frequency, sweep
+from bodebench.analysis.identify import (
     NO_CROSSING,
     IdentificationError,
     crossing_frequency,
@@ -45,7 +45,7 @@ from instrument.identify import (
     predicted_response,
     tick_frequencies,
 )
-from instrument.response import FrequencyResponse, ResponsePoint
+from bodebench.core.response import FrequencyResponse, ResponsePoint
 
 AMPLITUDE = 0.01  # A_F
 STIFFNESS = 1.0  # K_p

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from sim._kernels import expm_small
+from bodebench.sim._kernels import expm_small
 
 
 @pytest.mark.parametrize("n", [1, 2, 4, 7])

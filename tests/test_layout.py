@@ -12,8 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers import Layout, LayoutError, Message, Signal, default_layout
-from drivers.dbc import DbcMessage
+from bodebench.drivers import Layout, LayoutError, Message, Signal, default_layout
+from bodebench.drivers.dbc import DbcMessage
 
 # independent description of the types: struct code and raw limits
 TYPES = {

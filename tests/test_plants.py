@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant
+from bodebench.sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant
 
 # The 2013 test plant (METHOD.md section 2): resonance near 10 Hz.
 MASS = 2.533e-4

@@ -6,7 +6,7 @@ import os
 import threading
 from typing import Any, Callable
 
-from drivers.realtime import keep_to, pacing_cpu, pacing_cpu_left_alone, request_fifo
+from bodebench.drivers.scheduling import keep_to, pacing_cpu, pacing_cpu_left_alone, request_fifo
 
 
 def in_thread(fn: Callable[[], Any]) -> Any:

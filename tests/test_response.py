@@ -15,8 +15,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from instrument.plots import plot_bode, plot_periods
-from instrument.response import FrequencyResponse, ResponsePoint, ResultsError
+from bodebench.apps.plots import plot_bode, plot_periods
+from bodebench.core.response import FrequencyResponse, ResponsePoint, ResultsError
 
 HEADER = (
     "frequency_hz,harmonic,channel,amplitude,gain,gain_db,phase_deg,p,q,periods,converged,status,"

@@ -12,14 +12,14 @@ from pathlib import Path
 
 import pytest
 
-from instrument.response import FrequencyResponse
+from bodebench.core.response import FrequencyResponse
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
 
 
 def command() -> list[str]:
     exe = shutil.which("bodebench")
-    return [exe] if exe else [sys.executable, "-m", "instrument.cli"]
+    return [exe] if exe else [sys.executable, "-m", "bodebench"]
 
 
 def small_config(tmp_path: Path) -> Path:

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from instrument.rules import (BELOW_RESOLUTION, CAPPED, CONVERGED, CRITERIA, NOISE_LIMITED, AdaptiveRule,
+from bodebench.core.rules import (BELOW_RESOLUTION, CAPPED, CONVERGED, CRITERIA, NOISE_LIMITED, AdaptiveRule,
                               SeriesHistory, extrapolate_modes, make_rule, relative_change_percent, settled_estimate)
 
 

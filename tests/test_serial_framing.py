@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers import LayoutError, Message, Signal, default_layout
-from drivers.serial_framing import (
+from bodebench.drivers import LayoutError, Message, Signal, default_layout
+from bodebench.drivers.serial_framing import (
     AsciiDeframer,
     BinaryDeframer,
     ascii_line,
@@ -339,10 +339,10 @@ def test_a_write_that_stalls_is_retried_until_the_line_takes_it() -> None:
     import os
     import threading
 
-    from drivers.errors import DriverTimeoutError
-    from drivers.layout import Layout
-    from drivers.ports import Frame, SerialPort
-    from sim.pty_link import Pty
+    from bodebench.drivers.errors import DriverTimeoutError
+    from bodebench.drivers.layout import Layout
+    from bodebench.drivers.ports import Frame, SerialPort
+    from bodebench.sim.pty_link import Pty
     from test_bench_e2e import SERIAL_FRAMES
 
     layout = Layout.from_mapping(SERIAL_FRAMES)

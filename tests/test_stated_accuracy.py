@@ -12,14 +12,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from drivers.ports import Frame
-from instrument.bench_config import build_layout
-from instrument.config import ConfigError, parse_config
-from instrument.experiment import measure_frequency
-from instrument.links import plan_link, simulator_spec
-from instrument.session import BenchSession
-from sim.controller import FeedbackSensing
-from sim.plants import LinearOscillator
+from bodebench.drivers.ports import Frame
+from bodebench.io.bench_config import build_layout
+from bodebench.io.config import ConfigError, parse_config
+from bodebench.bench.offline import measure_frequency
+from bodebench.bench.connection import plan_link, simulator_spec
+from bodebench.bench.session import BenchSession
+from bodebench.sim.controller import FeedbackSensing
+from bodebench.sim.plants import LinearOscillator
 
 from test_bench_e2e import config
 

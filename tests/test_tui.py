@@ -20,19 +20,19 @@ from typing import Callable
 import numpy as np
 import pytest
 
-from instrument.autointegration import SeriesState
-from instrument.config import ExperimentConfig, load_config
-from instrument.response import FrequencyResponse, ResponsePoint
-from instrument.rules import Verdict
-from instrument.session import PointProgress
-from instrument.tui import BodeBenchApp
-from instrument.tui.bridge import SessionBridge
-from instrument.tui.braille import Axis, BrailleCanvas, HLine, PlotError, Trace, auto_axis, render_plot
-from instrument.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
-from instrument.tui.model import (CONVERGED, FAILED, INTEGRATING, PENDING, SETTLING, SKIPPED, BusRates,
+from bodebench.core.autointegration import SeriesState
+from bodebench.io.config import ExperimentConfig, load_config
+from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.core.rules import Verdict
+from bodebench.bench.session import PointProgress
+from bodebench.apps.tui import BodeBenchApp
+from bodebench.apps.tui.bridge import SessionBridge
+from bodebench.apps.tui.braille import Axis, BrailleCanvas, HLine, PlotError, Trace, auto_axis, render_plot
+from bodebench.apps.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
+from bodebench.apps.tui.model import (CONVERGED, FAILED, INTEGRATING, PENDING, SETTLING, SKIPPED, BusRates,
                                   SweepModel, format_duration, periods_to_go, relative_error_percent,
                                   remaining_seconds, row_key)
-from instrument.tui.widgets import PlotView
+from bodebench.apps.tui.widgets import PlotView
 
 from helpers import BusRecorder
 
@@ -299,7 +299,7 @@ class Gate:
                     gate.reached.set()
                     gate.release.wait(30.0)
 
-        monkeypatch.setattr("instrument.tui.app.SessionBridge", GatedBridge)
+        monkeypatch.setattr("bodebench.apps.tui.app.SessionBridge", GatedBridge)
 
     async def wait(self, pilot, what: str) -> None:
         await wait_for(pilot, self.reached.is_set, what)

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from instrument.response import FrequencyResponse
+from bodebench.core.response import FrequencyResponse
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

@@ -15,10 +15,10 @@ from typing import Callable, Collection, Iterator, Sequence
 
 import numpy as np
 
-from instrument.autointegration import Autointegrator
-from instrument.config import CaseConfig, PlantConfig
-from instrument.response import FrequencyResponse, ResponsePoint
-from sim.plants import Plant, plant_from_config
+from bodebench.core.autointegration import Autointegrator
+from bodebench.io.config import CaseConfig, PlantConfig
+from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.sim.plants import Plant, plant_from_config
 
 OUTPUT_CHANNEL = "position"
 FIRST_BATCH_PERIODS = 8
@@ -101,7 +101,7 @@ def _run_all(case: CaseConfig, executor: Executor | None, skip: Collection[float
 
 def write_case(response: FrequencyResponse, directory: Path) -> list[Path]:
     """Save a finished case: response.csv, its sidecar and the plots."""
-    from instrument.plots import plot_bode, plot_periods
+    from bodebench.apps.plots import plot_bode, plot_periods
 
     response.save(directory)
     title = response.case or str(response.config.get("title", ""))

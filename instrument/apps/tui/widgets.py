@@ -18,10 +18,10 @@ from textual.widget import Widget
 from textual.widgets import DataTable, Footer, Static
 from textual.widgets._footer import FooterKey
 
-from instrument.bus_worker import Health
-from instrument.response import FrequencyResponse
-from instrument.tui.braille import Axis, HLine, PlotError, Trace, auto_axis, render_plot
-from instrument.tui.model import (CAPPED, CONVERGED, FAILED, INTEGRATING, NOISE_LIMITED, PENDING, SETTLING, SKIPPED,
+from bodebench.bench.worker import Health
+from bodebench.core.response import FrequencyResponse
+from bodebench.apps.tui.braille import Axis, HLine, PlotError, Trace, auto_axis, render_plot
+from bodebench.apps.tui.model import (CAPPED, CONVERGED, FAILED, INTEGRATING, NOISE_LIMITED, PENDING, SETTLING, SKIPPED,
                                   Row, SeriesTrace, periods_to_go)
 
 #: trace colours, in order of use

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 from textual.message import Message
 
-from instrument.autointegration import SeriesState
-from instrument.bus_worker import Health
-from instrument.session import BusStatus, PointProgress
+from bodebench.core.autointegration import SeriesState
+from bodebench.bench.worker import Health
+from bodebench.bench.session import BusStatus, PointProgress
 
 #: progress summaries kept between two refreshes of the UI (older ones are dropped first)
 PROGRESS_BACKLOG = 4096

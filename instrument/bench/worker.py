@@ -25,12 +25,12 @@ from typing import Any
 
 import numpy as np
 
-from drivers.driver import BusHealth, Driver, FeedbackSample
-from drivers.errors import DriverError
-from drivers.layout import SETPOINT_ECHO
-from drivers.ports import FramePort
-from drivers.realtime import keep_to, lower_timer_slack, pacing_cpu, request_fifo
-from drivers.stop_signals import StopSignal, stop_on_signals
+from bodebench.drivers.driver import BusHealth, Driver, FeedbackSample
+from bodebench.drivers.errors import DriverError
+from bodebench.drivers.layout import SETPOINT_ECHO
+from bodebench.drivers.ports import FramePort
+from bodebench.drivers.scheduling import keep_to, lower_timer_slack, pacing_cpu, request_fifo
+from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
 
 # ------------------------------------------------------------------------------------------- messages to the worker
 

@@ -1,5 +1,5 @@
 """The terminal UI of the instrument (``bodebench tui``): a bench session watched and steered from a terminal."""
 
-from instrument.tui.app import BodeBenchApp, run_tui
+from bodebench.apps.tui.app import BodeBenchApp, run_tui
 
 __all__ = ["BodeBenchApp", "run_tui"]

@@ -26,15 +26,15 @@ from textual.containers import Horizontal, Vertical
 from textual.widget import Widget
 from textual.widgets import Static
 
-from instrument.bus_worker import Health
-from instrument.config import CaseConfig, ExperimentConfig
-from instrument.response import CSV_NAME, FrequencyResponse, ResponsePoint, ResultsError
-from instrument.session import (BenchSession, PointFinished, PointStarted, SessionEnded, SessionError,
+from bodebench.bench.worker import Health
+from bodebench.io.config import CaseConfig, ExperimentConfig
+from bodebench.core.response import CSV_NAME, FrequencyResponse, ResponsePoint, ResultsError
+from bodebench.bench.session import (BenchSession, PointFinished, PointStarted, SessionEnded, SessionError,
                                 SessionFault, SessionStarted)
-from instrument.tui.bridge import CaseBegins, CaseSaved, SessionBridge, SessionEvent, WorkerReport
-from instrument.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
-from instrument.tui.model import BusRates, SweepModel, format_duration
-from instrument.tui.widgets import (STATE_STYLES, AbortLabel, BenchFooter, BodePanel, BusPanel, LivePanel, SweepPanel,
+from bodebench.apps.tui.bridge import CaseBegins, CaseSaved, SessionBridge, SessionEvent, WorkerReport
+from bodebench.apps.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
+from bodebench.apps.tui.model import BusRates, SweepModel, format_duration
+from bodebench.apps.tui.widgets import (STATE_STYLES, AbortLabel, BenchFooter, BodePanel, BusPanel, LivePanel, SweepPanel,
                                     SweepTable, bus_summary)
 
 VIEWS = ("live", "sweep", "bode", "bus")
@@ -395,7 +395,7 @@ class BodeBenchApp(App[int]):
                         group="save")
 
     def _save_thread(self, response: FrequencyResponse, directory: Path) -> None:
-        from instrument.experiment import write_case
+        from bodebench.bench.offline import write_case
 
         try:
             files = write_case(response, directory)
@@ -491,8 +491,8 @@ class BodeBenchApp(App[int]):
     def _session_thread(self, control: RunControl, bridge: SessionBridge, cases: list[CaseConfig], first: int,
                         frequency_hz: float | None) -> None:
         """The worker: sweep the cases in turn (own thread; talks to the UI only through messages)."""
-        from instrument.experiment import write_case
-        from instrument.links import plan_link
+        from bodebench.bench.offline import write_case
+        from bodebench.bench.connection import plan_link
 
         completed, error, saved = False, "", ""
         merged: FrequencyResponse | None = None

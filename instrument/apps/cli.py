@@ -10,11 +10,11 @@ import traceback
 from pathlib import Path
 from typing import Sequence
 
-from drivers.errors import DriverError
-from drivers.stop_signals import StopSignal, stop_on_signals
-from instrument.config import ConfigError, ExperimentConfig, load_config
-from instrument.response import FrequencyResponse, ResultsError
-from sim.serve import SimulatorStartError
+from bodebench.drivers.errors import DriverError
+from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
+from bodebench.io.config import ConfigError, ExperimentConfig, load_config
+from bodebench.core.response import FrequencyResponse, ResultsError
+from bodebench.sim.serve import SimulatorStartError
 
 
 def _case_dir(config: ExperimentConfig, out: Path, name: str) -> Path:
@@ -27,7 +27,7 @@ def _is_bench(config: ExperimentConfig) -> bool:
 
 def _previous_run(directory: Path, raw: dict, resume: bool) -> FrequencyResponse | None:
     """The interrupted sweep to resume in ``directory``, or None; refuses to overwrite measured points."""
-    from instrument.response import CSV_NAME
+    from bodebench.core.response import CSV_NAME
 
     if not (directory / CSV_NAME).exists():
         return None
@@ -44,10 +44,10 @@ def _previous_run(directory: Path, raw: dict, resume: bool) -> FrequencyResponse
 
 def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False) -> int:
     """Run every case of a bench config as a session (``direct``: the simulated drive without a bus)."""
-    from instrument.experiment import write_case
-    from instrument.links import plan_link
-    from instrument.progress import ProgressPrinter
-    from instrument.session import BenchSession, SessionError
+    from bodebench.bench.offline import write_case
+    from bodebench.bench.connection import plan_link
+    from bodebench.apps.progress import ProgressPrinter
+    from bodebench.bench.session import BenchSession, SessionError
 
     status = 0
     for case in config.cases:
@@ -98,7 +98,7 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
 
 def _cause(exc: BaseException) -> str:
     """One line naming why a sweep stopped."""
-    from instrument.session import SessionError
+    from bodebench.bench.session import SessionError
 
     if isinstance(exc, StopSignal):
         return f"interrupted ({exc.signame})"
@@ -118,7 +118,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _tui(args: argparse.Namespace) -> int:
-    from instrument.tui import run_tui
+    from bodebench.apps.tui import run_tui
 
     config = load_config(args.config)
     if not _is_bench(config):
@@ -128,9 +128,9 @@ def _tui(args: argparse.Namespace) -> int:
 
 
 def _sim_controller(args: argparse.Namespace) -> int:
-    from instrument.links import simulator_spec
-    from instrument.bench_config import build_layout
-    from sim.serve import serve_can, serve_serial_pty, serve_slcan_pty
+    from bodebench.bench.connection import simulator_spec
+    from bodebench.io.bench_config import build_layout
+    from bodebench.sim.serve import serve_can, serve_serial_pty, serve_slcan_pty
 
     config = load_config(args.config)
     case = config.cases[0]
@@ -173,8 +173,8 @@ def _sim_controller(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from instrument.experiment import default_executor, sweep, write_case
-    from instrument.session import completed_frequencies
+    from bodebench.bench.offline import default_executor, sweep, write_case
+    from bodebench.bench.session import completed_frequencies
 
     config: ExperimentConfig = load_config(args.config)
     out = Path(args.out)
@@ -218,8 +218,8 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    from instrument import calibration
-    from instrument.experiment import default_executor
+    from bodebench.analysis import calibration
+    from bodebench.bench.offline import default_executor
 
     if args.jobs is not None and args.jobs < 1:
         print(f"bodebench: --jobs must be >= 1, got {args.jobs}", file=sys.stderr)
@@ -249,9 +249,9 @@ def _identify(args: argparse.Namespace) -> int:
     import dataclasses
     import json
 
-    from instrument.calibration import CalibrationError, load_calibration
-    from instrument.identify import IdentificationError, format_report, identify, plot_identification
-    from instrument.response import FrequencyResponse
+    from bodebench.analysis.calibration import CalibrationError, load_calibration
+    from bodebench.analysis.identify import IdentificationError, format_report, identify, plot_identification
+    from bodebench.core.response import FrequencyResponse
 
     directory = Path(args.results)
     response = FrequencyResponse.load(directory)

@@ -11,13 +11,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from drivers.layout import Layout
-from drivers.ports import CanPort, FramePort, SerialPort
-from instrument.bench_config import BenchConfig, CanConfig, SerialConfig, SimulatorConfig, build_layout
-from instrument.config import CaseConfig, ConfigError
-from sim.controller import ControllerTiming, FeedbackSensing
-from sim.faults import FaultConfig
-from sim.serve import ControllerPort, SimulatorProcess, SimulatorSpec, serve_can
+from bodebench.drivers.layout import Layout
+from bodebench.drivers.ports import CanPort, FramePort, SerialPort
+from bodebench.io.bench_config import BenchConfig, CanConfig, SerialConfig, SimulatorConfig, build_layout
+from bodebench.io.config import CaseConfig, ConfigError
+from bodebench.sim.controller import ControllerTiming, FeedbackSensing
+from bodebench.sim.faults import FaultConfig
+from bodebench.sim.serve import ControllerPort, SimulatorProcess, SimulatorSpec, serve_can
 
 SLCAN_DEFAULTS = {"sleep_after_open": 0.0}
 

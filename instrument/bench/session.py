@@ -19,15 +19,15 @@ from typing import Callable
 
 import numpy as np
 
-from drivers.realtime import pacing_cpu_left_alone
-from drivers.stop_signals import StopSignal
-from instrument.autointegration import Autointegrator, SeriesState
-from instrument.bench_config import BenchConfig, SafetyConfig
-from instrument.bus_worker import (Credit, Fault, Health, Limits, Ready, Samples, SineStarted, StartSine, Stop,
+from bodebench.drivers.scheduling import pacing_cpu_left_alone
+from bodebench.drivers.stop_signals import StopSignal
+from bodebench.core.autointegration import Autointegrator, SeriesState
+from bodebench.io.bench_config import BenchConfig, SafetyConfig
+from bodebench.bench.worker import (Credit, Fault, Health, Limits, Ready, Samples, SineStarted, StartSine, Stop,
                                    Stopped, WorkerSpec, start_worker)
-from instrument.config import AnalysisConfig, CaseConfig
-from instrument.links import LinkPlan
-from instrument.response import FrequencyResponse, ResponsePoint, check_output
+from bodebench.io.config import AnalysisConfig, CaseConfig
+from bodebench.bench.connection import LinkPlan
+from bodebench.core.response import FrequencyResponse, ResponsePoint, check_output
 
 # ---------------------------------------------------------------------------------------------- events to listeners
 

@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 if TYPE_CHECKING:
-    from drivers.layout import Layout
-    from instrument.config import CaseConfig
+    from bodebench.drivers.layout import Layout
+    from bodebench.io.config import CaseConfig
 
 TRANSPORTS = ("can", "serial")
 CLOCKS = ("lockstep", "realtime")
@@ -132,7 +132,7 @@ class SafetyConfig:
                                                      "doc": "no feedback for this long aborts, s"})
 
     def validate(self, where: Callable[[str], str]) -> None:
-        from instrument.config import FieldError
+        from bodebench.io.config import FieldError
 
         for channel, window in self.feedback_limits.items():
             ok = (isinstance(window, list) and len(window) == 2
@@ -159,8 +159,8 @@ class SimulatorConfig:
     faults: dict = field(default_factory=dict, metadata={"doc": "fault injection (sim/faults.py FaultConfig)"})
 
     def validate(self, where: Callable[[str], str]) -> None:
-        from instrument.config import FieldError
-        from sim.faults import FaultConfig
+        from bodebench.io.config import FieldError
+        from bodebench.sim.faults import FaultConfig
 
         try:
             FaultConfig.from_mapping(self.faults)
@@ -200,7 +200,7 @@ def frames_mapping(frames: FramesConfig) -> dict[str, Any]:
 
 def build_layout(frames: FramesConfig | None, source: str) -> "Layout":
     """The frame layout a case uses (default layout without [frames]); raises LayoutError."""
-    from drivers.layout import Layout, default_layout
+    from bodebench.drivers.layout import Layout, default_layout
 
     if frames is None:
         return default_layout()
@@ -258,7 +258,7 @@ def check_bench_case(case: "CaseConfig", key: Callable[[str, str], str], source:
             raise CaseCheckError(f"{key('excitation', 'frequencies_hz')}[{i}]",
                                  f"{f:g} Hz: the sine's slew 2*pi*f*A = {2 * math.pi * f * amplitude:g} exceeds "
                                  f"safety.max_rate ({safety.max_rate:g})")
-    from drivers.errors import LayoutError
+    from bodebench.drivers.errors import LayoutError
 
     try:
         layout = build_layout(tables.get("frames"), source)

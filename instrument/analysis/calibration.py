@@ -38,8 +38,8 @@ import numpy as np
 from scipy.interpolate import CubicSpline, PchipInterpolator
 from scipy.optimize import brentq
 
-from instrument.response import atomic_write_text, read_json_file
-from sim.plants import CoulombOscillator, PlantState
+from bodebench.core.response import atomic_write_text, read_json_file
+from bodebench.sim.plants import CoulombOscillator, PlantState
 
 __all__ = [
     "CalibrationError",

@@ -34,14 +34,14 @@ from scipy import stats
 from scipy.interpolate import PchipInterpolator
 from scipy.optimize import least_squares
 
-from instrument.calibration import (
+from bodebench.analysis.calibration import (
     CalibrationError,
     CalibrationTable,
     FrictionLink,
     SteadyStateError,
     load_calibration,
 )
-from instrument.response import FrequencyResponse
+from bodebench.core.response import FrequencyResponse
 
 __all__ = [
     "CONFIDENCE",

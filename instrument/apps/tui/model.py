@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from instrument.autointegration import SeriesState
-from instrument.plots import CAPPED_STATUS, NOISE_LIMITED_STATUS
-from instrument.response import ResponsePoint
+from bodebench.core.autointegration import SeriesState
+from bodebench.apps.plots import CAPPED_STATUS, NOISE_LIMITED_STATUS
+from bodebench.core.response import ResponsePoint
 
 #: states of a row in the sweep table
 PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, NOISE_LIMITED, FAILED, SKIPPED = (

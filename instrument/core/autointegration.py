@@ -12,10 +12,10 @@ from typing import Sequence
 
 import numpy as np
 
-from instrument.config import AnalysisConfig
-from instrument.fourier import PeriodIntegrator
-from instrument.response import ResponsePoint
-from instrument.rules import SeriesHistory, StoppingRule, Verdict, make_rule
+from bodebench.io.config import AnalysisConfig
+from bodebench.core.fourier import PeriodIntegrator
+from bodebench.core.response import ResponsePoint
+from bodebench.core.rules import SeriesHistory, StoppingRule, Verdict, make_rule
 
 
 @dataclass(frozen=True)

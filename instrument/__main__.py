@@ -1,0 +1,5 @@
+"""``python -m bodebench``: the command line."""
+
+from bodebench.apps.cli import main
+
+raise SystemExit(main())
