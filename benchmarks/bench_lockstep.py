@@ -31,9 +31,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bodebench.io.config import load_config  # noqa: E402
 from bodebench.bench.connection import plan_link  # noqa: E402
 from bodebench.bench.session import BenchSession, SessionResult  # noqa: E402
+from bodebench.io.config import load_config  # noqa: E402
 
 CONFIGS = (ROOT / "configs" / "sim_can.toml", ROOT / "configs" / "sim_serial.toml")
 TARGET_FRAMES_PER_S = 10_000.0

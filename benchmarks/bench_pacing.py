@@ -44,11 +44,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bodebench.drivers.driver import BusHealth  # noqa: E402
-from bodebench.bench.worker import PacingStats  # noqa: E402
-from bodebench.io.config import parse_config  # noqa: E402
 from bodebench.bench.connection import plan_link  # noqa: E402
 from bodebench.bench.session import BenchSession, BusStatus, PointFinished, SessionError  # noqa: E402
+from bodebench.bench.worker import PacingStats  # noqa: E402
+from bodebench.drivers.driver import BusHealth  # noqa: E402
+from bodebench.io.config import parse_config  # noqa: E402
 
 CONFIG = ROOT / "configs" / "sim_serial.toml"
 FREQUENCIES_HZ = [2.0, 5.0, 10.0, 20.0]

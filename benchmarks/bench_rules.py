@@ -53,11 +53,10 @@ import matplotlib  # noqa: E402
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-
-from bodebench.io.config import AnalysisConfig, CaseConfig, PlantConfig, load_config  # noqa: E402
 from bodebench.bench.offline import OUTPUT_CHANNEL, build_plant, measure_frequency  # noqa: E402
 from bodebench.core.fourier import PeriodIntegrator  # noqa: E402
 from bodebench.core.rules import CAPPED, CRITERIA, SeriesHistory, StoppingRule, make_rule  # noqa: E402
+from bodebench.io.config import AnalysisConfig, CaseConfig, PlantConfig, load_config  # noqa: E402
 from bodebench.sim.plants import LinearOscillator, Plant  # noqa: E402
 
 CONFIG = ROOT / "configs" / "paper2013.toml"

@@ -33,10 +33,10 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bodebench.io.config import ExperimentConfig, load_config, parse_config  # noqa: E402
+from bodebench.apps.tui import BodeBenchApp  # noqa: E402
 from bodebench.bench.connection import plan_link  # noqa: E402
 from bodebench.bench.session import BenchSession  # noqa: E402
-from bodebench.apps.tui import BodeBenchApp  # noqa: E402
+from bodebench.io.config import ExperimentConfig, load_config, parse_config  # noqa: E402
 
 REPEATS = 3
 REPEATS_REALTIME = 7  # short runs whose p99 a single stall of the machine moves: more of them

@@ -10,8 +10,8 @@ import dataclasses
 import time
 from dataclasses import dataclass
 
-from .errors import LayoutError
 from .e2e import crc_byte, intact
+from .errors import LayoutError
 from .layout import COUNTER, SETPOINT, TIMESTAMP, Codec, Layout
 from .ports import Frame, FramePort
 

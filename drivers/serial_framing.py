@@ -118,7 +118,7 @@ class _Counters:
 
     def drop_pending(self) -> int:
         """Discard the bytes held for an unfinished frame (one that will never be finished); returns how many."""
-        buf: bytearray = getattr(self, "_buf")
+        buf: bytearray = self._buf
         count = len(buf)
         self._discard(count)
         buf.clear()

@@ -23,9 +23,8 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-
-from bodebench.drivers.errors import DriverTimeoutError, LayoutError
 from bodebench.drivers.e2e import crc_byte, seal
+from bodebench.drivers.errors import DriverTimeoutError, LayoutError
 from bodebench.drivers.layout import CRC, SETPOINT_ECHO, Layout, Message
 from bodebench.drivers.ports import Frame, FramePort
 from bodebench.drivers.scheduling import keep_to, lower_timer_slack, pacing_cpu, request_fifo

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from bodebench.io.config import parse_config
 from bodebench.bench.offline import sweep
+from bodebench.io.config import parse_config
 from bodebench.sim.plants import FirstOrderLag, LinearOscillator
 
 PAPER_GRID = [1, 1.3, 2, 2.3, 3, 3.3, 4, 4.3, 5, 5.3, 6, 6.3, 7, 7.3, 8, 8.3, 9, 9.3, 10, 10.03, 10.1, 10.2,

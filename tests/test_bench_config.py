@@ -7,7 +7,6 @@ import os
 from typing import Any
 
 import pytest
-
 from bodebench.io.config import ConfigError, parse_config
 
 GOOD: dict[str, Any] = {

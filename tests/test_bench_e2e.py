@@ -8,19 +8,16 @@ disabled, as seen on the bus.
 from __future__ import annotations
 
 import copy
-import math
 import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-
-from bodebench.io.config import parse_config
 from bodebench.bench.connection import plan_link
-from bodebench.core.response import FrequencyResponse
 from bodebench.bench.session import BenchSession, BusStatus, PointProgress, SessionError
-
+from bodebench.core.response import FrequencyResponse
+from bodebench.io.config import parse_config
 from helpers import BusRecorder
 
 FREQS = [3.0, 8.0, 20.0]

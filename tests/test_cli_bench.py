@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from bodebench.core.response import FrequencyResponse
 
 SERIAL_BENCH = """

@@ -12,9 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
-
+from bodebench.core.rules import CRITERIA
 from bodebench.io import config as cfg
 from bodebench.io.config import (
     AnalysisConfig,
@@ -27,7 +25,8 @@ from bodebench.io.config import (
     load_config,
     parse_config,
 )
-from bodebench.core.rules import CRITERIA
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 SRC = "configs/x.toml"
 

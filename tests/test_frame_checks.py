@@ -15,7 +15,9 @@ from typing import Any
 import can
 import numpy as np
 import pytest
-
+from bodebench.bench.connection import plan_link
+from bodebench.bench.session import BenchSession, BusStatus, _absurd_point
+from bodebench.core.response import ResponsePoint
 from bodebench.drivers.driver import Driver
 from bodebench.drivers.e2e import crc8_sae_j1850, crc_byte, intact, seal
 from bodebench.drivers.errors import LayoutError
@@ -23,11 +25,7 @@ from bodebench.drivers.layout import Layout
 from bodebench.drivers.ports import CanPort, SerialPort
 from bodebench.drivers.serial_framing import encode_binary
 from bodebench.io.config import parse_config
-from bodebench.bench.connection import plan_link
-from bodebench.core.response import ResponsePoint
-from bodebench.bench.session import BenchSession, BusStatus, _absurd_point
 from bodebench.sim.pty_link import Pty
-
 from test_bench_e2e import SERIAL_FRAMES, compare, config
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"

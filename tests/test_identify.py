@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from bodebench.analysis import calibration
 from bodebench.analysis.calibration import (
     DEFAULT_FBAR_GRID,
@@ -30,9 +29,6 @@ from bodebench.analysis.calibration import (
     crossing_ratio,
     load_calibration,
 )
-from bodebench.apps.cli import main
-from bodebench.io.config import CaseConfig, parse_config
-from bodebench.bench.offline import default_executor, measure_frequency, sweep
 from bodebench.analysis.identify import (
     NO_CROSSING,
     IdentificationError,
@@ -45,7 +41,10 @@ from bodebench.analysis.identify import (
     predicted_response,
     tick_frequencies,
 )
+from bodebench.apps.cli import main
+from bodebench.bench.offline import default_executor, measure_frequency, sweep
 from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.io.config import CaseConfig, parse_config
 
 AMPLITUDE = 0.01  # A_F
 STIFFNESS = 1.0  # K_p

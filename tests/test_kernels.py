@@ -6,9 +6,8 @@ import math
 
 import numpy as np
 import pytest
-from scipy.linalg import expm
-
 from bodebench.sim._kernels import expm_small
+from scipy.linalg import expm
 
 
 @pytest.mark.parametrize("n", [1, 2, 4, 7])

@@ -6,9 +6,19 @@ import math
 
 import numpy as np
 import pytest
-
-from bodebench.core.rules import (BELOW_RESOLUTION, CAPPED, CONVERGED, CRITERIA, NOISE_LIMITED, AdaptiveRule,
-                              SeriesHistory, extrapolate_modes, make_rule, relative_change_percent, settled_estimate)
+from bodebench.core.rules import (
+    BELOW_RESOLUTION,
+    CAPPED,
+    CONVERGED,
+    CRITERIA,
+    NOISE_LIMITED,
+    AdaptiveRule,
+    SeriesHistory,
+    extrapolate_modes,
+    make_rule,
+    relative_change_percent,
+    settled_estimate,
+)
 
 
 def run(rule, z: np.ndarray, reference: float | None = None, cap: int | None = None):

@@ -10,9 +10,6 @@ import random
 import struct
 
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
 from bodebench.drivers import LayoutError, Message, Signal, default_layout
 from bodebench.drivers.serial_framing import (
     AsciiDeframer,
@@ -24,6 +21,8 @@ from bodebench.drivers.serial_framing import (
     encode_binary,
     format_value,
 )
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -19,21 +19,31 @@ from typing import Callable
 
 import numpy as np
 import pytest
-
+from bodebench.apps.tui import BodeBenchApp
+from bodebench.apps.tui.braille import Axis, BrailleCanvas, HLine, PlotError, Trace, auto_axis, render_plot
+from bodebench.apps.tui.bridge import SessionBridge
+from bodebench.apps.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
+from bodebench.apps.tui.model import (
+    CONVERGED,
+    FAILED,
+    INTEGRATING,
+    PENDING,
+    SETTLING,
+    SKIPPED,
+    BusRates,
+    SweepModel,
+    format_duration,
+    periods_to_go,
+    relative_error_percent,
+    remaining_seconds,
+    row_key,
+)
+from bodebench.apps.tui.widgets import PlotView
+from bodebench.bench.session import PointProgress
 from bodebench.core.autointegration import SeriesState
-from bodebench.io.config import ExperimentConfig, load_config
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.rules import Verdict
-from bodebench.bench.session import PointProgress
-from bodebench.apps.tui import BodeBenchApp
-from bodebench.apps.tui.bridge import SessionBridge
-from bodebench.apps.tui.braille import Axis, BrailleCanvas, HLine, PlotError, Trace, auto_axis, render_plot
-from bodebench.apps.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
-from bodebench.apps.tui.model import (CONVERGED, FAILED, INTEGRATING, PENDING, SETTLING, SKIPPED, BusRates,
-                                  SweepModel, format_duration, periods_to_go, relative_error_percent,
-                                  remaining_seconds, row_key)
-from bodebench.apps.tui.widgets import PlotView
-
+from bodebench.io.config import ExperimentConfig, load_config
 from helpers import BusRecorder
 
 ROOT = Path(__file__).resolve().parent.parent

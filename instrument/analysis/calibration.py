@@ -35,11 +35,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.interpolate import CubicSpline, PchipInterpolator
-from scipy.optimize import brentq
-
 from bodebench.core.response import atomic_write_text, read_json_file
 from bodebench.sim.plants import CoulombOscillator, PlantState
+from scipy.interpolate import CubicSpline, PchipInterpolator
+from scipy.optimize import brentq
 
 __all__ = [
     "CalibrationError",

@@ -10,10 +10,10 @@ import traceback
 from pathlib import Path
 from typing import Sequence
 
+from bodebench.core.response import FrequencyResponse, ResultsError
 from bodebench.drivers.errors import DriverError
 from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
 from bodebench.io.config import ConfigError, ExperimentConfig, load_config
-from bodebench.core.response import FrequencyResponse, ResultsError
 from bodebench.sim.serve import SimulatorStartError
 
 
@@ -44,9 +44,9 @@ def _previous_run(directory: Path, raw: dict, resume: bool) -> FrequencyResponse
 
 def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False) -> int:
     """Run every case of a bench config as a session (``direct``: the simulated drive without a bus)."""
-    from bodebench.bench.offline import write_case
-    from bodebench.bench.connection import plan_link
     from bodebench.apps.progress import ProgressPrinter
+    from bodebench.bench.connection import plan_link
+    from bodebench.bench.offline import write_case
     from bodebench.bench.session import BenchSession, SessionError
 
     status = 0

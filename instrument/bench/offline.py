@@ -14,10 +14,9 @@ from pathlib import Path
 from typing import Callable, Collection, Iterator, Sequence
 
 import numpy as np
-
 from bodebench.core.autointegration import Autointegrator
-from bodebench.io.config import CaseConfig, PlantConfig
 from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.io.config import CaseConfig, PlantConfig
 from bodebench.sim.plants import Plant, plant_from_config
 
 OUTPUT_CHANNEL = "position"

@@ -18,16 +18,27 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-
+from bodebench.bench.connection import LinkPlan
+from bodebench.bench.worker import (
+    Credit,
+    Fault,
+    Health,
+    Limits,
+    Ready,
+    Samples,
+    SineStarted,
+    StartSine,
+    Stop,
+    Stopped,
+    WorkerSpec,
+    start_worker,
+)
+from bodebench.core.autointegration import Autointegrator, SeriesState
+from bodebench.core.response import FrequencyResponse, ResponsePoint, check_output
 from bodebench.drivers.scheduling import pacing_cpu_left_alone
 from bodebench.drivers.stop_signals import StopSignal
-from bodebench.core.autointegration import Autointegrator, SeriesState
 from bodebench.io.bench_config import BenchConfig, SafetyConfig
-from bodebench.bench.worker import (Credit, Fault, Health, Limits, Ready, Samples, SineStarted, StartSine, Stop,
-                                   Stopped, WorkerSpec, start_worker)
 from bodebench.io.config import AnalysisConfig, CaseConfig
-from bodebench.bench.connection import LinkPlan
-from bodebench.core.response import FrequencyResponse, ResponsePoint, check_output
 
 # ---------------------------------------------------------------------------------------------- events to listeners
 
@@ -250,7 +261,7 @@ class BenchSession:
             raise
         finally:
             stopped = self._shutdown(reason, abort=not completed)
-            join = getattr(handle, "join")
+            join = handle.join
             join(timeout=10)
             cpu_yielded.close()
             self.plan.close()

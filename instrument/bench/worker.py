@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import gc
 import math
-import os
 import select
 import statistics
 import threading
@@ -24,11 +23,9 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 import numpy as np
-
 from bodebench.drivers.driver import BusHealth, Driver, FeedbackSample
 from bodebench.drivers.errors import DriverError
 from bodebench.drivers.layout import SETPOINT_ECHO
-from bodebench.drivers.ports import FramePort
 from bodebench.drivers.scheduling import keep_to, lower_timer_slack, pacing_cpu, request_fifo
 from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
 

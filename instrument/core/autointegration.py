@@ -11,11 +11,10 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-
-from bodebench.io.config import AnalysisConfig
 from bodebench.core.fourier import PeriodIntegrator
 from bodebench.core.response import ResponsePoint
 from bodebench.core.rules import SeriesHistory, StoppingRule, Verdict, make_rule
+from bodebench.io.config import AnalysisConfig
 
 
 @dataclass(frozen=True)

@@ -39,8 +39,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
-from bodebench.io.bench_config import BENCH_TABLES, CaseCheckError, check_bench_case
 from bodebench.core.rules import CRITERIA
+from bodebench.io.bench_config import BENCH_TABLES, CaseCheckError, check_bench_case
 
 __all__ = [
     "AnalysisConfig",

@@ -19,23 +19,38 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from bodebench.apps.tui.bridge import CaseBegins, CaseSaved, SessionBridge, SessionEvent, WorkerReport
+from bodebench.apps.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
+from bodebench.apps.tui.model import BusRates, SweepModel, format_duration
+from bodebench.apps.tui.widgets import (
+    STATE_STYLES,
+    AbortLabel,
+    BenchFooter,
+    BodePanel,
+    BusPanel,
+    LivePanel,
+    SweepPanel,
+    SweepTable,
+    bus_summary,
+)
+from bodebench.bench.session import (
+    BenchSession,
+    PointFinished,
+    PointStarted,
+    SessionEnded,
+    SessionError,
+    SessionFault,
+    SessionStarted,
+)
+from bodebench.bench.worker import Health
+from bodebench.core.response import CSV_NAME, FrequencyResponse, ResponsePoint, ResultsError
+from bodebench.io.config import CaseConfig, ExperimentConfig
 from rich.text import Text
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.widget import Widget
 from textual.widgets import Static
-
-from bodebench.bench.worker import Health
-from bodebench.io.config import CaseConfig, ExperimentConfig
-from bodebench.core.response import CSV_NAME, FrequencyResponse, ResponsePoint, ResultsError
-from bodebench.bench.session import (BenchSession, PointFinished, PointStarted, SessionEnded, SessionError,
-                                SessionFault, SessionStarted)
-from bodebench.apps.tui.bridge import CaseBegins, CaseSaved, SessionBridge, SessionEvent, WorkerReport
-from bodebench.apps.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
-from bodebench.apps.tui.model import BusRates, SweepModel, format_duration
-from bodebench.apps.tui.widgets import (STATE_STYLES, AbortLabel, BenchFooter, BodePanel, BusPanel, LivePanel, SweepPanel,
-                                    SweepTable, bus_summary)
 
 VIEWS = ("live", "sweep", "bode", "bus")
 VIEW_TITLES = {"live": "Live", "sweep": "Sweep", "bode": "Bode", "bus": "Bus"}
@@ -491,8 +506,8 @@ class BodeBenchApp(App[int]):
     def _session_thread(self, control: RunControl, bridge: SessionBridge, cases: list[CaseConfig], first: int,
                         frequency_hz: float | None) -> None:
         """The worker: sweep the cases in turn (own thread; talks to the UI only through messages)."""
-        from bodebench.bench.offline import write_case
         from bodebench.bench.connection import plan_link
+        from bodebench.bench.offline import write_case
 
         completed, error, saved = False, "", ""
         merged: FrequencyResponse | None = None

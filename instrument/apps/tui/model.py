@@ -11,9 +11,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-
-from bodebench.core.autointegration import SeriesState
 from bodebench.apps.plots import CAPPED_STATUS, NOISE_LIMITED_STATUS
+from bodebench.core.autointegration import SeriesState
 from bodebench.core.response import ResponsePoint
 
 #: states of a row in the sweep table
