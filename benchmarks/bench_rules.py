@@ -53,6 +53,7 @@ import matplotlib  # noqa: E402
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+
 from bodebench.bench.offline import OUTPUT_CHANNEL, build_plant, measure_frequency  # noqa: E402
 from bodebench.core.fourier import PeriodIntegrator  # noqa: E402
 from bodebench.core.rules import CAPPED, CRITERIA, SeriesHistory, StoppingRule, make_rule  # noqa: E402

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+
 from bodebench.drivers.e2e import crc_byte, seal
 from bodebench.drivers.errors import DriverTimeoutError, LayoutError
 from bodebench.drivers.layout import CRC, SETPOINT_ECHO, Layout, Message

@@ -17,6 +17,7 @@ from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
 import numpy as np
+
 from bodebench.drivers.ports import Frame, FramePort
 
 ERROR_FRAME_ID = 0x0  # error frames carry no meaningful id; python-can flags them

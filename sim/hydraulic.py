@@ -28,8 +28,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from bodebench.sim.plants import LinearPlant, Plant, PlantState
 from numba import njit
+
+from bodebench.sim.plants import LinearPlant, Plant, PlantState
 
 __all__ = ["ElectrohydraulicDrive", "HYDRAULIC_DEFAULTS"]
 

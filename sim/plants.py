@@ -21,6 +21,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
+
 from bodebench.sim import _kernels
 
 __all__ = ["Plant", "PlantState", "CoulombOscillator", "LinearPlant", "LinearOscillator", "FirstOrderLag",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import threading
 
 import can
+
 from bodebench.drivers.layout import default_layout
 
 

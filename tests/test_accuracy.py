@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from bodebench.bench.offline import sweep
 from bodebench.io.config import parse_config
 from bodebench.sim.plants import FirstOrderLag, LinearOscillator

@@ -7,6 +7,7 @@ import os
 from typing import Any
 
 import pytest
+
 from bodebench.io.config import ConfigError, parse_config
 
 GOOD: dict[str, Any] = {

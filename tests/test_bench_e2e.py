@@ -14,11 +14,12 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers import BusRecorder
+
 from bodebench.bench.connection import plan_link
 from bodebench.bench.session import BenchSession, BusStatus, PointProgress, SessionError
 from bodebench.core.response import FrequencyResponse
 from bodebench.io.config import parse_config
-from helpers import BusRecorder
 
 FREQS = [3.0, 8.0, 20.0]
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from bodebench.apps.cli import main
 from bodebench.core.response import FrequencyResponse
 from bodebench.sim.plants import LinearOscillator

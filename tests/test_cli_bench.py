@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from bodebench.core.response import FrequencyResponse
 
 SERIAL_BENCH = """

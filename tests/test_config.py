@@ -12,6 +12,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
 from bodebench.core.rules import CRITERIA
 from bodebench.io import config as cfg
 from bodebench.io.config import (
@@ -25,8 +28,6 @@ from bodebench.io.config import (
     load_config,
     parse_config,
 )
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
 
 SRC = "configs/x.toml"
 

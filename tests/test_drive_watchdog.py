@@ -14,14 +14,15 @@ from typing import Callable
 
 import can
 import pytest
+from test_bench_config import FRAMES
+from test_bench_e2e import config
+from test_cli_bench import SERIAL_BENCH, command
+
 from bodebench.bench.connection import plan_link, simulator_spec
 from bodebench.bench.session import BenchSession, PointProgress, SessionError
 from bodebench.drivers.layout import Layout
 from bodebench.io.config import parse_config
 from bodebench.sim.serve import serve_can
-from test_bench_config import FRAMES
-from test_bench_e2e import config
-from test_cli_bench import SERIAL_BENCH, command
 
 CAN_FRAMES = {**FRAMES, "heartbeat": {"id": 0x700, "data": [5], "period_s": 0.1}, "drive_watchdog_s": 0.5}
 WATCHDOG_TOML = """

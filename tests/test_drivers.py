@@ -16,6 +16,9 @@ from typing import Any
 
 import can
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from bodebench.drivers import (
     BusHealth,
     CanPort,
@@ -32,8 +35,6 @@ from bodebench.drivers import (
     default_layout,
 )
 from bodebench.drivers.serial_framing import AsciiDeframer, BinaryDeframer, ascii_line, encode_binary
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 F32 = struct.Struct("<f")
 

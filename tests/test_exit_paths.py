@@ -8,13 +8,14 @@ import signal
 from pathlib import Path
 
 import pytest
+from helpers import BusRecorder
+from test_bench_e2e import SERIAL_FRAMES, config
+
 from bodebench.bench.connection import plan_link
 from bodebench.bench.session import BenchSession, PointProgress, SessionError
 from bodebench.bench.worker import Credit
 from bodebench.core.response import FrequencyResponse
 from bodebench.io.config import parse_config
-from helpers import BusRecorder
-from test_bench_e2e import SERIAL_FRAMES, config
 
 
 def _session(data: dict, out: Path | None, trigger) -> BenchSession:  # type: ignore[no-untyped-def]

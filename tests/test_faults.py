@@ -10,10 +10,11 @@ from typing import Any
 
 import numpy as np
 import pytest
+from test_bench_e2e import SERIAL_FRAMES, compare, config
+
 from bodebench.bench.connection import plan_link
 from bodebench.bench.session import BenchSession, BusStatus, SessionError
 from bodebench.io.config import parse_config
-from test_bench_e2e import SERIAL_FRAMES, compare, config
 
 FREQS = [3.0, 8.0, 20.0]
 

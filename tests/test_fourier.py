@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from bodebench.core.fourier import PeriodIntegrator
 
 # Test signal y = a sin(w x + phi) + b sin(2 w x + psi) + dc, x = t - t0, w = 2 pi f.

@@ -15,6 +15,8 @@ from typing import Any
 import can
 import numpy as np
 import pytest
+from test_bench_e2e import SERIAL_FRAMES, compare, config
+
 from bodebench.bench.connection import plan_link
 from bodebench.bench.session import BenchSession, BusStatus, _absurd_point
 from bodebench.core.response import ResponsePoint
@@ -26,7 +28,6 @@ from bodebench.drivers.ports import CanPort, SerialPort
 from bodebench.drivers.serial_framing import encode_binary
 from bodebench.io.config import parse_config
 from bodebench.sim.pty_link import Pty
-from test_bench_e2e import SERIAL_FRAMES, compare, config
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 FIRST = {"harmonics": [1], "tolerance_percent": 0.05}

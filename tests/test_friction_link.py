@@ -14,12 +14,13 @@ import math
 
 import numpy as np
 import pytest
+from scipy.integrate import quad
+
 from bodebench.bench.offline import measure_frequency
 from bodebench.core.fourier import PeriodIntegrator
 from bodebench.core.rules import CRITERIA
 from bodebench.io.config import CaseConfig, parse_config
 from bodebench.sim.plants import CoulombOscillator
-from scipy.integrate import quad
 
 # The 2013 test plant (METHOD.md section 2).
 MASS = 2.533e-4

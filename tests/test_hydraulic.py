@@ -9,12 +9,13 @@ from typing import Any
 
 import numpy as np
 import pytest
+from scipy.optimize import brentq
+
 from bodebench.bench.offline import build_plant
 from bodebench.core.fourier import PeriodIntegrator
 from bodebench.io.config import ConfigError, PlantConfig, parse_config
 from bodebench.sim.hydraulic import HYDRAULIC_DEFAULTS, ElectrohydraulicDrive
 from bodebench.sim.plants import plant_from_config
-from scipy.optimize import brentq
 
 D = HYDRAULIC_DEFAULTS
 POSITION, VELOCITY, SPOOL, PRESSURE = range(4)

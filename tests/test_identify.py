@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from bodebench.analysis import calibration
 from bodebench.analysis.calibration import (
     DEFAULT_FBAR_GRID,

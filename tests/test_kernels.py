@@ -6,8 +6,9 @@ import math
 
 import numpy as np
 import pytest
-from bodebench.sim._kernels import expm_small
 from scipy.linalg import expm
+
+from bodebench.sim._kernels import expm_small
 
 
 @pytest.mark.parametrize("n", [1, 2, 4, 7])

@@ -9,10 +9,11 @@ from typing import Any
 
 import cantools
 import pytest
-from bodebench.drivers import Layout, LayoutError, Message, Signal, default_layout
-from bodebench.drivers.dbc import DbcMessage
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
+from bodebench.drivers import Layout, LayoutError, Message, Signal, default_layout
+from bodebench.drivers.dbc import DbcMessage
 
 # independent description of the types: struct code and raw limits
 TYPES = {

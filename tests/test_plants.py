@@ -11,8 +11,9 @@ import math
 
 import numpy as np
 import pytest
-from bodebench.sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant
 from scipy import signal
+
+from bodebench.sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant
 
 # The 2013 test plant (METHOD.md section 2): resonance near 10 Hz.
 MASS = 2.533e-4

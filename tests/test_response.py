@@ -12,10 +12,11 @@ matplotlib.use("Agg")
 
 import numpy as np
 import pytest
-from bodebench.apps.plots import plot_bode, plot_periods
-from bodebench.core.response import FrequencyResponse, ResponsePoint, ResultsError
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
+from bodebench.apps.plots import plot_bode, plot_periods
+from bodebench.core.response import FrequencyResponse, ResponsePoint, ResultsError
 
 HEADER = (
     "frequency_hz,harmonic,channel,amplitude,gain,gain_db,phase_deg,p,q,periods,converged,status,"

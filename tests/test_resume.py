@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+
 from bodebench.core.response import FrequencyResponse
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"

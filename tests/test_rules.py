@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from bodebench.core.rules import (
     BELOW_RESOLUTION,
     CAPPED,

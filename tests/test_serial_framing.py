@@ -10,6 +10,9 @@ import random
 import struct
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from bodebench.drivers import LayoutError, Message, Signal, default_layout
 from bodebench.drivers.serial_framing import (
     AsciiDeframer,
@@ -21,8 +24,6 @@ from bodebench.drivers.serial_framing import (
     encode_binary,
     format_value,
 )
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -338,11 +339,12 @@ def test_a_write_that_stalls_is_retried_until_the_line_takes_it() -> None:
     import os
     import threading
 
+    from test_bench_e2e import SERIAL_FRAMES
+
     from bodebench.drivers.errors import DriverTimeoutError
     from bodebench.drivers.layout import Layout
     from bodebench.drivers.ports import Frame, SerialPort
     from bodebench.sim.pty_link import Pty
-    from test_bench_e2e import SERIAL_FRAMES
 
     layout = Layout.from_mapping(SERIAL_FRAMES)
     frame = Frame(0x21, bytes.fromhex("0000c03f0201"))

@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from test_bench_e2e import config
+
 from bodebench.bench.connection import plan_link, simulator_spec
 from bodebench.bench.offline import measure_frequency
 from bodebench.bench.session import BenchSession
@@ -19,7 +21,6 @@ from bodebench.io.bench_config import build_layout
 from bodebench.io.config import ConfigError, parse_config
 from bodebench.sim.controller import FeedbackSensing
 from bodebench.sim.plants import LinearOscillator
-from test_bench_e2e import config
 
 PAPER = {"mass": 2.533e-4, "stiffness": 1.0, "amplitude": 0.01}
 

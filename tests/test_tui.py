@@ -19,6 +19,8 @@ from typing import Callable
 
 import numpy as np
 import pytest
+from helpers import BusRecorder
+
 from bodebench.apps.tui import BodeBenchApp
 from bodebench.apps.tui.braille import Axis, BrailleCanvas, HLine, PlotError, Trace, auto_axis, render_plot
 from bodebench.apps.tui.bridge import SessionBridge
@@ -44,7 +46,6 @@ from bodebench.core.autointegration import SeriesState
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.rules import Verdict
 from bodebench.io.config import ExperimentConfig, load_config
-from helpers import BusRecorder
 
 ROOT = Path(__file__).resolve().parent.parent
 FREQS = (3.0, 8.0, 20.0)

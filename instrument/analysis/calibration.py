@@ -35,10 +35,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bodebench.core.response import atomic_write_text, read_json_file
-from bodebench.sim.plants import CoulombOscillator, PlantState
 from scipy.interpolate import CubicSpline, PchipInterpolator
 from scipy.optimize import brentq
+
+from bodebench.core.response import atomic_write_text, read_json_file
+from bodebench.sim.plants import CoulombOscillator, PlantState
 
 __all__ = [
     "CalibrationError",

@@ -30,6 +30,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import stats
+from scipy.interpolate import PchipInterpolator
+from scipy.optimize import least_squares
+
 from bodebench.analysis.calibration import (
     CalibrationError,
     CalibrationTable,
@@ -38,9 +42,6 @@ from bodebench.analysis.calibration import (
     load_calibration,
 )
 from bodebench.core.response import FrequencyResponse
-from scipy import stats
-from scipy.interpolate import PchipInterpolator
-from scipy.optimize import least_squares
 
 __all__ = [
     "CONFIDENCE",

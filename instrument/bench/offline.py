@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Callable, Collection, Iterator, Sequence
 
 import numpy as np
+
 from bodebench.core.autointegration import Autointegrator
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.io.config import CaseConfig, PlantConfig

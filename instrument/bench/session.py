@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+
 from bodebench.bench.connection import LinkPlan
 from bodebench.bench.worker import (
     Credit,

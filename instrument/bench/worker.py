@@ -23,6 +23,7 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 import numpy as np
+
 from bodebench.drivers.driver import BusHealth, Driver, FeedbackSample
 from bodebench.drivers.errors import DriverError
 from bodebench.drivers.layout import SETPOINT_ECHO

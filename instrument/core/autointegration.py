@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+
 from bodebench.core.fourier import PeriodIntegrator
 from bodebench.core.response import ResponsePoint
 from bodebench.core.rules import SeriesHistory, StoppingRule, Verdict, make_rule

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bodebench.status import PointStatus
+
 CRITERIA: tuple[str, ...] = (
     "adaptive",
     "full",
@@ -33,11 +35,11 @@ CRITERIA: tuple[str, ...] = (
 )
 
 # statuses a finished series can carry
-CONVERGED = "converged"
-BELOW_RESOLUTION = "below_resolution"
-FIXED = "fixed"
-CAPPED = "capped"
-NOISE_LIMITED = "noise_limited"
+CONVERGED = PointStatus.CONVERGED
+BELOW_RESOLUTION = PointStatus.BELOW_RESOLUTION
+FIXED = PointStatus.FIXED
+CAPPED = PointStatus.CAPPED
+NOISE_LIMITED = PointStatus.NOISE_LIMITED
 
 CONFIDENCE = 0.95
 """Level of every interval a rule states."""

@@ -19,6 +19,13 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from rich.text import Text
+from textual.app import App, ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical
+from textual.widget import Widget
+from textual.widgets import Static
+
 from bodebench.apps.tui.bridge import CaseBegins, CaseSaved, SessionBridge, SessionEvent, WorkerReport
 from bodebench.apps.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
 from bodebench.apps.tui.model import BusRates, SweepModel, format_duration
@@ -45,12 +52,6 @@ from bodebench.bench.session import (
 from bodebench.bench.worker import Health
 from bodebench.core.response import CSV_NAME, FrequencyResponse, ResponsePoint, ResultsError
 from bodebench.io.config import CaseConfig, ExperimentConfig
-from rich.text import Text
-from textual.app import App, ComposeResult
-from textual.binding import Binding
-from textual.containers import Horizontal, Vertical
-from textual.widget import Widget
-from textual.widgets import Static
 
 VIEWS = ("live", "sweep", "bode", "bus")
 VIEW_TITLES = {"live": "Live", "sweep": "Sweep", "bode": "Bode", "bus": "Bus"}

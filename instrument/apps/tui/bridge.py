@@ -14,10 +14,11 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from textual.message import Message
+
 from bodebench.bench.session import BusStatus, PointProgress
 from bodebench.bench.worker import Health
 from bodebench.core.autointegration import SeriesState
-from textual.message import Message
 
 #: progress summaries kept between two refreshes of the UI (older ones are dropped first)
 PROGRESS_BACKLOG = 4096

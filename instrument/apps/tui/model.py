@@ -11,6 +11,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from bodebench.apps.plots import CAPPED_STATUS, NOISE_LIMITED_STATUS
 from bodebench.core.autointegration import SeriesState
 from bodebench.core.response import ResponsePoint

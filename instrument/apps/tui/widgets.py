@@ -10,6 +10,14 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from rich.text import Text
+from textual.app import ComposeResult
+from textual.containers import Vertical
+from textual.strip import Strip
+from textual.widget import Widget
+from textual.widgets import DataTable, Footer, Static
+from textual.widgets._footer import FooterKey
+
 from bodebench.apps.tui.braille import Axis, HLine, PlotError, Trace, auto_axis, render_plot
 from bodebench.apps.tui.model import (
     CAPPED,
@@ -26,13 +34,6 @@ from bodebench.apps.tui.model import (
 )
 from bodebench.bench.worker import Health
 from bodebench.core.response import FrequencyResponse
-from rich.text import Text
-from textual.app import ComposeResult
-from textual.containers import Vertical
-from textual.strip import Strip
-from textual.widget import Widget
-from textual.widgets import DataTable, Footer, Static
-from textual.widgets._footer import FooterKey
 
 #: trace colours, in order of use
 PALETTE = ("cyan", "yellow", "magenta", "green", "bright_blue", "bright_red", "white", "bright_green")

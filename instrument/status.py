@@ -1,0 +1,43 @@
+"""The words the floors exchange: how a point ended and why a sweep stopped.
+
+String enums: a member equals its value (``PointStatus.CAPPED == "capped"``), which is what the results files
+hold, so files written before these types existed read back unchanged.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+
+class PointStatus(StrEnum):
+    """How the stopping rule ended a series (one channel, one harmonic, one frequency)."""
+
+    CONVERGED = "converged"
+    """The rule's error bound is within the tolerance."""
+    BELOW_RESOLUTION = "below_resolution"
+    """The coefficient is zero to within the instrument's resolution (phase undefined)."""
+    NOISE_LIMITED = "noise_limited"
+    """The noise would need more periods than allowed; the interval is stated, not within the tolerance."""
+    CAPPED = "capped"
+    """The period limit came first; the interval is stated, not within the tolerance."""
+    FIXED = "fixed"
+    """A fixed number of periods was averaged (criterion "fixed")."""
+
+
+class FaultKind(StrEnum):
+    """Why a bench sweep stopped before its end. In every case the drive was sent zero and disabled first."""
+
+    WATCHDOG = "watchdog"
+    """No valid feedback within the safety watchdog."""
+    FEEDBACK_LIMIT = "feedback_limit"
+    """A feedback sample left its [safety] window."""
+    BUS = "bus"
+    """The bus or the drive link failed (bus off, send errors, a worker that went away)."""
+    ERROR = "error"
+    """An unexpected error in the bus worker."""
+    TIMEOUT = "timeout"
+    """The bus worker did not answer in time."""
+    ABORT = "abort"
+    """The user aborted (Ctrl-C, the abort key, SIGTERM or SIGHUP)."""
+    OUTPUT = "output"
+    """A converged point could not be written to the results directory."""
