@@ -59,7 +59,7 @@ class Row:
 def sweep(path: Path) -> Row:
     """One whole sweep of the config at ``path``."""
     case = load_config(path).cases[0]
-    plan = plan_link(case, path)
+    plan = plan_link(case)
     session = BenchSession(case, plan)
     start = time.perf_counter()
     result: SessionResult = session.run()

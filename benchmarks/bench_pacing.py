@@ -45,7 +45,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bodebench.bench.connection import plan_link  # noqa: E402
-from bodebench.bench.session import BenchSession, BusStatus, PointFinished, SessionError  # noqa: E402
+from bodebench.bench.events import BusStatus, PointFinished, SessionError  # noqa: E402
+from bodebench.bench.session import BenchSession  # noqa: E402
 from bodebench.bench.worker import PacingStats  # noqa: E402
 from bodebench.drivers.driver import BusHealth  # noqa: E402
 from bodebench.io.config import parse_config  # noqa: E402
@@ -128,7 +129,7 @@ def run(rate_hz: int, worker: str, busy: bool, frequencies_hz: list[float]) -> R
         elif isinstance(event, PointFinished):
             points.extend(event.points)
 
-    plan = plan_link(case, CONFIG)
+    plan = plan_link(case)
     session = BenchSession(case, plan, listener=listener, worker_mode=worker)
     ui = BusyUi()
     error = ""

@@ -98,7 +98,7 @@ class Probe:
         self.rows.append((time.monotonic() - self.started, {p: rss_mb(p) for p in pids}))
 
     def listener(self, inner):
-        from bodebench.bench.session import BusStatus
+        from bodebench.bench.events import BusStatus
 
         def wrapped(event: object) -> None:
             if isinstance(event, BusStatus):
@@ -174,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
         from bodebench.bench.session import BenchSession
 
         case = config.cases[0]
-        session = BenchSession(case, plan_link(case, cfg), tmp / "out")
+        session = BenchSession(case, plan_link(case), tmp / "out")
         runner = threading.Thread(target=lambda: _run_quietly(session), daemon=True)
         runner.start()
         end = time.monotonic() + args.seconds
@@ -190,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run_quietly(session) -> None:  # type: ignore[no-untyped-def]
-    from bodebench.bench.session import SessionError
+    from bodebench.bench.events import SessionError
 
     try:
         session.run()

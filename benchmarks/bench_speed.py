@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bodebench.bench import offline as experiment  # noqa: E402
-from bodebench.core.response import FrequencyResponse  # noqa: E402
+from bodebench.core.response import FrequencyResponse
 from bodebench.io.config import load_config  # noqa: E402
 from bodebench.sim.plants import CoulombOscillator, LinearOscillator  # noqa: E402
 

@@ -63,7 +63,7 @@ def realtime_config() -> ExperimentConfig:
 def without_ui(config: ExperimentConfig, out: Path, worker_mode: str | None = None) -> tuple[float, float]:
     """(session wall time s, pacing p99 s or NaN) of a plain session (``worker_mode`` None: the config's)."""
     case = config.cases[0]
-    session = BenchSession(case, plan_link(case, config.path), out, worker_mode=worker_mode)
+    session = BenchSession(case, plan_link(case), out, worker_mode=worker_mode)
     started = time.perf_counter()
     result = session.run()
     elapsed = time.perf_counter() - started

@@ -13,8 +13,8 @@ from __future__ import annotations
 import heapq
 import math
 import time
-from dataclasses import dataclass, fields
-from typing import Any, Mapping
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -41,50 +41,28 @@ class FaultConfig:
     stop_after_s: from then on the drive answers nothing (cable pulled, drive crashed).
     bus_off_after_s: from then on the drive sends only error frames (its CAN controller went bus-off).
     seed: random seed.
+
+    The fields carry their bounds as validation metadata: the configuration loader checks a
+    ``[simulator.faults]`` table against them.
     """
 
-    drop: float = 0.0
-    duplicate: float = 0.0
-    reorder: float = 0.0
-    delay_s: float = 0.0
-    delay_jitter_s: float = 0.0
-    error_frames: float = 0.0
-    garbage: float = 0.0
-    forged: float = 0.0
-    truncated: float = 0.0
-    counter_stuck_after: int = -1
-    counter_jump_at: int = -1
-    counter_jump_by: int = 0
-    nan: float = 0.0
-    out_of_range_after_s: float = -1.0
-    stop_after_s: float = -1.0
-    bus_off_after_s: float = -1.0
-    seed: int = 0
-
-    @classmethod
-    def from_mapping(cls, data: Mapping[str, Any]) -> "FaultConfig":
-        """Build from a ``[simulator.faults]`` table; ValueError names the key at fault."""
-        known = {f.name: f for f in fields(cls)}
-        values: dict[str, Any] = {}
-        for key, value in data.items():
-            spec = known.get(key)
-            if spec is None:
-                raise ValueError(f"{key}: unknown key")
-            want = int if spec.type in ("int", int) else float
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or (want is int and
-                                                                               not isinstance(value, int)):
-                raise ValueError(f"{key}: expected {'an integer' if want is int else 'a number'}, got {value!r}")
-            if want is float and not math.isfinite(value):
-                raise ValueError(f"{key}: must be finite, got {value!r}")
-            if key in ("drop", "duplicate", "reorder", "error_frames", "garbage", "forged", "truncated",
-                       "nan") and not 0 <= value <= 1:
-                raise ValueError(f"{key}: a probability in [0, 1], got {value!r}")
-            if key in ("delay_s", "delay_jitter_s") and value < 0:
-                raise ValueError(f"{key}: must be >= 0, got {value!r}")
-            if key == "seed" and value < 0:
-                raise ValueError(f"{key}: must be >= 0 (a numpy random seed), got {value!r}")
-            values[key] = want(value)
-        return cls(**values)
+    drop: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per feedback frame"})
+    duplicate: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per feedback frame"})
+    reorder: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per feedback frame"})
+    delay_s: float = field(default=0.0, metadata={"min": 0, "doc": "s"})
+    delay_jitter_s: float = field(default=0.0, metadata={"min": 0, "doc": "s"})
+    error_frames: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per feedback frame"})
+    garbage: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per feedback frame"})
+    forged: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per feedback frame"})
+    truncated: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per feedback frame"})
+    counter_stuck_after: int = field(default=-1, metadata={"doc": "controller tick (negative: never)"})
+    counter_jump_at: int = field(default=-1, metadata={"doc": "controller tick (negative: never)"})
+    counter_jump_by: int = field(default=0, metadata={"doc": "counts"})
+    nan: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per feedback frame"})
+    out_of_range_after_s: float = field(default=-1.0, metadata={"doc": "controller time, s (negative: never)"})
+    stop_after_s: float = field(default=-1.0, metadata={"doc": "controller time, s (negative: never)"})
+    bus_off_after_s: float = field(default=-1.0, metadata={"doc": "controller time, s (negative: never)"})
+    seed: int = field(default=0, metadata={"min": 0, "doc": "numpy random seed"})
 
     @property
     def any(self) -> bool:

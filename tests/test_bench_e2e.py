@@ -17,9 +17,11 @@ import pytest
 from helpers import BusRecorder
 
 from bodebench.bench.connection import plan_link
-from bodebench.bench.session import BenchSession, BusStatus, PointProgress, SessionError
+from bodebench.bench.events import BusStatus, PointProgress, SessionError
+from bodebench.bench.session import BenchSession
 from bodebench.core.response import FrequencyResponse
 from bodebench.io.config import parse_config
+from bodebench.io.results import load_response
 
 FREQS = [3.0, 8.0, 20.0]
 
@@ -57,7 +59,7 @@ def config(**tables: dict[str, Any]) -> dict[str, Any]:
 
 def sweep(data: dict[str, Any], out: Path | None = None, direct: bool = False, listener=None) -> BenchSession:
     case = parse_config(data, "e2e.toml").cases[0]
-    session = BenchSession(case, plan_link(case, "e2e.toml", direct=direct), out, listener)
+    session = BenchSession(case, plan_link(case, direct=direct), out, listener)
     session.run()
     return session
 
@@ -85,7 +87,7 @@ def offline_serial() -> FrequencyResponse:
 def test_virtual_can_agrees_with_the_offline_run(offline: FrequencyResponse, tmp_path: Path) -> None:
     session = sweep(config(), tmp_path)
     compare(session.response, offline, 0.05, 0.2)
-    on_disk = FrequencyResponse.load(tmp_path)
+    on_disk = load_response(tmp_path)
     assert len(on_disk.points) == len(session.response.points) == 2 * len(FREQS)
 
 
@@ -164,13 +166,13 @@ def test_abort_leaves_zero_setpoint_and_disable_on_the_bus(tmp_path: Path) -> No
             holder["s"].request_abort()
 
     case = parse_config(config(can={"channel": "e2e-abort"}), "e2e.toml").cases[0]
-    session = holder["s"] = BenchSession(case, plan_link(case, "e2e.toml"), tmp_path, listener)
+    session = holder["s"] = BenchSession(case, plan_link(case), tmp_path, listener)
     with pytest.raises(SessionError, match="abort"):
         session.run()
     value, disabled = recorder.close()
     assert value == 0.0 and disabled
     # the point measured before the abort is on disk, whole
-    kept = FrequencyResponse.load(tmp_path)
+    kept = load_response(tmp_path)
     assert [p.frequency_hz for p in kept.points] == [3.0, 3.0]
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from bodebench.apps.cli import main
-from bodebench.core.response import FrequencyResponse
+from bodebench.io.results import load_response
 from bodebench.sim.plants import LinearOscillator
 
 CONFIG = """
@@ -56,7 +56,7 @@ def test_simulate_writes_one_directory_per_case(tmp_path: Path) -> None:
         for stem in ("bode", "periods"):
             assert (d / f"{stem}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
             assert "<svg" in (d / f"{stem}.svg").read_text()
-        response = FrequencyResponse.load(d)
+        response = load_response(d)
         first = response.select(harmonic=1)
         exact = LinearOscillator(1e-3, 1.0, zeta).frequency_response(first.frequency_hz)[:, 0]
         assert np.allclose(first.gain, np.abs(exact), rtol=2e-4)

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from bodebench.core.response import FrequencyResponse
+from bodebench.io.results import load_response, save_response
 
 SERIAL_BENCH = """
 title = "lockstep serial drive"
@@ -70,14 +71,14 @@ def test_run_command_sweeps_the_simulated_can_bench(tmp_path: Path) -> None:
                           text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip().splitlines()[-1].endswith("drive left at setpoint 0, disabled")
-    response = FrequencyResponse.load(tmp_path / "out")
+    response = load_response(tmp_path / "out")
     assert sorted({p.frequency_hz for p in response.points}) == [4.0, 12.0]
     assert all(p.converged for p in response.points)
     # the offline run of the same bench config gives the same numbers
     proc = subprocess.run(command() + ["simulate", str(small), "--out", str(tmp_path / "offline")],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
-    offline = FrequencyResponse.load(tmp_path / "offline")
+    offline = load_response(tmp_path / "offline")
     a, b = response.select(harmonic=1), offline.select(harmonic=1)
     assert np.allclose(a.gain_db, b.gain_db, atol=0.05) and np.allclose(a.phase_deg, b.phase_deg, atol=0.2)
 
@@ -124,7 +125,7 @@ def test_a_stop_signal_mid_sweep_keeps_points_and_leaves_the_drive_at_zero(tmp_p
         last = err.strip().splitlines()[-1]
         assert f"interrupted ({signal.Signals(signum).name})" in last
         assert last.endswith("drive left at setpoint 0, disabled"), last
-        kept = FrequencyResponse.load(out)
+        kept = load_response(out)
         assert len(kept.points) >= 2 and all(p.converged for p in kept.points)
     finally:
         os.killpg(drive.pid, signal.SIGINT)
@@ -168,7 +169,7 @@ def test_a_write_failure_mid_sweep_stops_safely_and_keeps_every_point_on_disk(tm
 
     cfg = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
     case = load_config(cfg).cases[0]
-    FrequencyResponse(config=case.raw, case=case.name).save(tmp_path / "probe")
+    save_response(FrequencyResponse(config=case.raw, case=case.name), tmp_path / "probe")
     limit = (tmp_path / "probe" / "response.json").stat().st_size + 1000  # the sidecar fits, the CSV outgrows it
 
     def limited() -> None:
@@ -180,7 +181,7 @@ def test_a_write_failure_mid_sweep_stops_safely_and_keeps_every_point_on_disk(tm
     assert proc.returncode == 1
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
-    kept = FrequencyResponse.load(out)
+    kept = load_response(out)
     assert 0 < len(kept.points) < 2 * len(case.excitation.frequencies_hz)
     assert all(p.converged for p in kept.points)
     assert lines[0].startswith(f"bodebench: sim_can: stopped: output: {out}: cannot write the point at ")

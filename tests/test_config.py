@@ -124,7 +124,8 @@ def test_valid_file_round_trips_with_defaults(tmp_path: Path) -> None:
     expected = ExperimentConfig(
         path=path,
         title="Coulomb link, 2013 experiment",
-        cases=(CaseConfig(name="paper", plant=plant, excitation=excitation, analysis=analysis, raw=raw),),
+        cases=(CaseConfig(name="paper", source=path, plant=plant, excitation=excitation, analysis=analysis,
+                          raw=raw),),
         has_cases=False,
     )
     assert exp == expected
@@ -133,7 +134,7 @@ def test_valid_file_round_trips_with_defaults(tmp_path: Path) -> None:
     assert json.loads(json.dumps(case.raw)) == raw
     assert type(case.plant.stiffness) is float
     assert all(type(f) is float for f in case.excitation.frequencies_hz)
-    assert case.tables["plant"] is case.plant
+    assert case.source == path
 
 
 def test_defaults_filled_when_optional_tables_absent(tmp_path: Path) -> None:
@@ -557,20 +558,24 @@ def test_build_table_generic_types() -> None:
         assert str(info.value) == expected
 
 
-def test_registered_table_is_loaded_and_overridable(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_an_optional_table_is_loaded_and_overridable_per_case() -> None:
     data = minimal()
-    data["port"] = {"channel": "can0"}
-    assert error_of(data) == f"{SRC}: port: unknown key"
-    monkeypatch.setitem(cfg.TABLES, "port", _PortConfig)
-    data["cases"] = {"a": {}, "b": {"port": {"bitrate": 250000}}}
+    data["bench"] = {"transport": "can", "rate_hz": 1000.0}
+    data["safety"] = {"max_amplitude": 1.0}
+    data["simulator"] = {}
+    data["excitation"]["frequencies_hz"] = [1.0]
+    data["can"] = {"interface": "virtual", "bitrate": 500000}
+    data["cases"] = {"a": {}, "b": {"can": {"bitrate": 250000}}}
     exp = parse_config(data)
-    assert exp.cases[0].tables["port"] == _PortConfig(channel="can0")
-    assert exp.cases[1].tables["port"].bitrate == 250000
-    assert exp.cases[1].raw["port"] == {"channel": "can0", "bitrate": 250000, "fd": False, "names": ["a"]}
+    assert exp.cases[0].can == cfg.CanConfig(interface="virtual", bitrate=500000)
+    assert exp.cases[1].can is not None and exp.cases[1].can.bitrate == 250000
+    assert exp.cases[1].raw["can"] == {"interface": "virtual", "channel": "", "bitrate": 250000, "options": {}}
     # An optional table that is absent yields None.
-    del data["port"]
-    del data["cases"]["b"]
-    assert parse_config(data).cases[0].tables["port"] is None
+    del data["cases"]
+    del data["simulator"]
+    assert parse_config({**minimal(), "plant": data["plant"]}).cases[0].can is None
+    data["can"]["channel"] = "can0"
+    assert parse_config(data).cases[0].simulator is None
 
 
 # --------------------------------------------------------------------------------------------- property test

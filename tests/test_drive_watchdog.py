@@ -19,7 +19,8 @@ from test_bench_e2e import config
 from test_cli_bench import SERIAL_BENCH, command
 
 from bodebench.bench.connection import plan_link, simulator_spec
-from bodebench.bench.session import BenchSession, PointProgress, SessionError
+from bodebench.bench.events import PointProgress, SessionError
+from bodebench.bench.session import BenchSession
 from bodebench.drivers.layout import Layout
 from bodebench.io.config import parse_config
 from bodebench.sim.serve import serve_can
@@ -111,7 +112,7 @@ def _paused_sweep(frames: dict, channel: str, resume: bool) -> tuple[int, int, l
     layout = Layout.from_mapping(frames)
     events: list[str] = []
     serving = serve_can(simulator_spec(parse_config(config(can={"channel": channel}, frames=frames),
-                                                    "watchdog.toml").cases[0], layout))
+                                                    "watchdog.toml").cases[0]))
     serving.controller.on_event = events.append
     recorder = can.Bus(interface="virtual", channel=channel)
     holder: dict[str, BenchSession] = {}
@@ -125,7 +126,7 @@ def _paused_sweep(frames: dict, channel: str, resume: bool) -> tuple[int, int, l
             threading.Timer(4 * layout.drive_watchdog_s, then).start()
 
     try:
-        session = holder["s"] = BenchSession(case, plan_link(case, "watchdog.toml"), None, listener)
+        session = holder["s"] = BenchSession(case, plan_link(case), None, listener)
         if resume:
             session.run()
         else:

@@ -12,10 +12,11 @@ from helpers import BusRecorder
 from test_bench_e2e import SERIAL_FRAMES, config
 
 from bodebench.bench.connection import plan_link
-from bodebench.bench.session import BenchSession, PointProgress, SessionError
+from bodebench.bench.events import PointProgress, SessionError
+from bodebench.bench.session import BenchSession
 from bodebench.bench.worker import Credit
-from bodebench.core.response import FrequencyResponse
 from bodebench.io.config import parse_config
+from bodebench.io.results import load_response
 
 
 def _session(data: dict, out: Path | None, trigger) -> BenchSession:  # type: ignore[no-untyped-def]
@@ -29,7 +30,7 @@ def _session(data: dict, out: Path | None, trigger) -> BenchSession:  # type: ig
             trigger(holder["s"])
 
     case = parse_config(data, "exit.toml").cases[0]
-    session = holder["s"] = BenchSession(case, plan_link(case, "exit.toml"), out, listener)
+    session = holder["s"] = BenchSession(case, plan_link(case), out, listener)
     return session
 
 
@@ -48,7 +49,7 @@ def test_an_exception_in_the_session_zeroes_and_disables_and_is_not_called_compl
     assert ended is not None and not ended.completed
     assert ended.reason == "error: RuntimeError: display crashed"
     assert ended.drive_state() == "drive left at setpoint 0, disabled"
-    assert [p.frequency_hz for p in FrequencyResponse.load(tmp_path).points] == [3.0, 3.0]
+    assert [p.frequency_hz for p in load_response(tmp_path).points] == [3.0, 3.0]
 
 
 def test_an_exception_in_the_bus_worker_zeroes_and_disables() -> None:
@@ -87,7 +88,7 @@ def test_a_port_that_does_not_exist_sends_nothing_and_says_so(tmp_path: Path) ->
     data = config(bench={"transport": "serial"}, can=None, simulator=None, frames=SERIAL_FRAMES,
                   serial={"framing": "binary", "port": str(tmp_path / "no-such-tty")})
     case = parse_config(data, "exit.toml").cases[0]
-    session = BenchSession(case, plan_link(case, "exit.toml"), tmp_path / "out")
+    session = BenchSession(case, plan_link(case), tmp_path / "out")
     with pytest.raises(SessionError, match="cannot open serial port"):
         session.run()
     assert session.ended is not None and session.ended.drive_state() == "nothing was sent to the drive"

@@ -13,7 +13,8 @@ import pytest
 from test_bench_e2e import SERIAL_FRAMES, compare, config
 
 from bodebench.bench.connection import plan_link
-from bodebench.bench.session import BenchSession, BusStatus, SessionError
+from bodebench.bench.events import BusStatus, SessionError
+from bodebench.bench.session import BenchSession
 from bodebench.io.config import parse_config
 
 FREQS = [3.0, 8.0, 20.0]
@@ -22,7 +23,7 @@ FREQS = [3.0, 8.0, 20.0]
 def run(data: dict[str, Any]) -> tuple[BenchSession, BusStatus | None, SessionError | None]:
     case = parse_config(data, "faults.toml").cases[0]
     last: dict[str, BusStatus] = {}
-    session = BenchSession(case, plan_link(case, "faults.toml"), None,
+    session = BenchSession(case, plan_link(case), None,
                            lambda e: last.__setitem__("h", e) if isinstance(e, BusStatus) else None)
     error = None
     try:
@@ -50,7 +51,7 @@ def serial_config(faults: dict[str, Any], **tables: Any) -> dict[str, Any]:
 @pytest.fixture(scope="module")
 def offline_can():
     case = parse_config(config(analysis=FIRST), "faults.toml").cases[0]
-    session = BenchSession(case, plan_link(case, "faults.toml", direct=True))
+    session = BenchSession(case, plan_link(case, direct=True))
     session.run()
     return session.response
 
@@ -58,7 +59,7 @@ def offline_can():
 @pytest.fixture(scope="module")
 def offline_serial():
     case = parse_config(serial_config({}), "faults.toml").cases[0]
-    session = BenchSession(case, plan_link(case, "faults.toml", direct=True))
+    session = BenchSession(case, plan_link(case, direct=True))
     session.run()
     return session.response
 

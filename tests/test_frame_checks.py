@@ -18,7 +18,8 @@ import pytest
 from test_bench_e2e import SERIAL_FRAMES, compare, config
 
 from bodebench.bench.connection import plan_link
-from bodebench.bench.session import BenchSession, BusStatus, _absurd_point
+from bodebench.bench.events import BusStatus
+from bodebench.bench.session import BenchSession, _absurd_point
 from bodebench.core.response import ResponsePoint
 from bodebench.drivers.driver import Driver
 from bodebench.drivers.e2e import crc8_sae_j1850, crc_byte, intact, seal
@@ -164,7 +165,7 @@ class Adversary:
 def _run(data: dict[str, Any]) -> tuple[BenchSession, Any]:
     case = parse_config(data, "checks.toml").cases[0]
     last: dict[str, Any] = {}
-    session = BenchSession(case, plan_link(case, "checks.toml"), None,
+    session = BenchSession(case, plan_link(case), None,
                            lambda e: last.__setitem__("h", e.health) if isinstance(e, BusStatus) else None)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -175,7 +176,7 @@ def _run(data: dict[str, Any]) -> tuple[BenchSession, Any]:
 
 def _offline(data: dict[str, Any]):  # type: ignore[no-untyped-def]
     case = parse_config(data, "checks.toml").cases[0]
-    session = BenchSession(case, plan_link(case, "checks.toml", direct=True))
+    session = BenchSession(case, plan_link(case, direct=True))
     session.run()
     return session.response
 

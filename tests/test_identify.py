@@ -46,6 +46,7 @@ from bodebench.apps.cli import main
 from bodebench.bench.offline import default_executor, measure_frequency, sweep
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.io.config import CaseConfig, parse_config
+from bodebench.io.results import save_response
 
 AMPLITUDE = 0.01  # A_F
 STIFFNESS = 1.0  # K_p
@@ -377,7 +378,7 @@ def test_measured_curve_refuses_mixed_amplitudes_and_missing_harmonics() -> None
 
 def test_identify_command_json(pool: Executor, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     response = measured(pool, 0.3, 12.0, "arbitrary")
-    response.save(tmp_path)
+    save_response(response, tmp_path)
     assert main(["identify", str(tmp_path), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     for method in ("procedure", "fit"):
@@ -392,7 +393,7 @@ def test_identify_command_json(pool: Executor, tmp_path: Path, capsys: pytest.Ca
 
 
 def test_identify_command_text(pool: Executor, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    measured(pool, 0.8, 5.0, "paper").save(tmp_path)
+    save_response(measured(pool, 0.8, 5.0, "paper"), tmp_path)
     assert main(["identify", str(tmp_path), "--no-plot"]) == 0
     text = capsys.readouterr().out
     assert "paper procedure" in text and "fit (95 % CI)" in text and "f_-90 =" in text
@@ -404,12 +405,12 @@ def test_identify_command_on_bad_directories(tmp_path: Path, capsys: pytest.Capt
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "response.json" in err
     point = ResponsePoint(1.0, 1, "position", 1.0, -0.1, -0.1, 10, True, "converged")
-    FrequencyResponse([point], {}, "bench").save(tmp_path)
+    save_response(FrequencyResponse([point], {}, "bench"), tmp_path)
     (tmp_path / "response.csv").write_text("frequency_hz,harmonic\n1,oops\n")
     assert main(["identify", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "response.csv" in err
-    FrequencyResponse([point], {}, "bench").save(tmp_path)
+    save_response(FrequencyResponse([point], {}, "bench"), tmp_path)
     assert main(["identify", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--stiffness" in err

@@ -16,7 +16,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bodebench.apps.plots import plot_bode, plot_periods
-from bodebench.core.response import FrequencyResponse, ResponsePoint, ResultsError
+from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.io.results import ResultsError, ResultsWriter, load_response, save_response
 
 HEADER = (
     "frequency_hz,harmonic,channel,amplitude,gain,gain_db,phase_deg,p,q,periods,converged,status,"
@@ -254,8 +255,8 @@ def sample_response() -> FrequencyResponse:
 
 def test_save_load_round_trip_is_exact(tmp_path: Path) -> None:
     fr = sample_response()
-    fr.save(tmp_path / "run")
-    back = FrequencyResponse.load(tmp_path / "run")
+    save_response(fr, tmp_path / "run")
+    back = load_response(tmp_path / "run")
     assert len(back) == len(fr)
     assert all(same_point(a, b) for a, b in zip(fr, back))
     assert back.case == fr.case
@@ -284,14 +285,14 @@ def test_save_load_round_trip_is_exact(tmp_path: Path) -> None:
 def test_round_trip_property(tmp_path_factory: pytest.TempPathFactory, rows: list) -> None:
     directory = tmp_path_factory.mktemp("rt")
     fr = FrequencyResponse(point(p, q, f=f, amplitude=a, k=k) for f, p, q, a, k in rows)
-    fr.save(directory)
-    back = FrequencyResponse.load(directory)
+    save_response(fr, directory)
+    back = load_response(directory)
     assert all(same_point(a, b) for a, b in zip(fr, back)) and len(back) == len(fr)
 
 
 def test_csv_layout(tmp_path: Path) -> None:
     fr = FrequencyResponse([point(3.0, 4.0, amplitude=2.0, periods=7, converged=False, status="capped")])
-    fr.save(tmp_path)
+    save_response(fr, tmp_path)
     lines = (tmp_path / "response.csv").read_text().splitlines()
     assert lines[0] == HEADER
     cells = dict(zip(HEADER.split(","), lines[1].split(",")))
@@ -302,7 +303,7 @@ def test_csv_layout(tmp_path: Path) -> None:
 
 
 def test_sidecar_content(tmp_path: Path) -> None:
-    sample_response().save(tmp_path)
+    save_response(sample_response(), tmp_path)
     data = json.loads((tmp_path / "response.json").read_text())
     assert data["format"] == "bodebench-response" and data["version"] == 2
     assert data["case"] == "friction Fbar=0.8"
@@ -310,12 +311,42 @@ def test_sidecar_content(tmp_path: Path) -> None:
     assert data["software"]["name"] == "bodebench" and isinstance(data["software"]["version"], str)
 
 
-def test_write_point_persists_each_point(tmp_path: Path) -> None:
-    fr = FrequencyResponse(case="live")
-    for i in range(3):
-        fr.write_point(tmp_path / "out", point(1.0, -float(i), f=1.0 + i))
-        assert len(FrequencyResponse.load(tmp_path / "out")) == i + 1
+def rows(points: list[ResponsePoint]) -> list[tuple[float, int, str, float, float, int, str]]:
+    """What identifies a point in a file (NaN uncertainties compare unequal to themselves)."""
+    return [(p.frequency_hz, p.harmonic, p.channel, p.p, p.q, p.periods, p.status) for p in points]
+
+
+def test_the_writer_appends_and_syncs_each_point(tmp_path: Path) -> None:
+    writer = ResultsWriter(tmp_path / "out", "live", {"analysis": {"harmonics": [1]}})
+    points = [point(1.0, -float(i), f=1.0 + i) for i in range(3)]
+    for i, pt in enumerate(points):
+        writer.append([pt])
+        back = load_response(tmp_path / "out")
+        assert rows(back.points) == rows(points[: i + 1]) and back.case == "live"
     assert not [p for p in (tmp_path / "out").iterdir() if p.name.endswith(".tmp")]
+
+
+def test_a_row_an_interrupted_append_left_is_not_read_and_resuming_cuts_it(tmp_path: Path) -> None:
+    points = [point(1.0, -float(i), f=1.0 + i) for i in range(3)]
+    reference = ResultsWriter(tmp_path / "reference", "live", {})
+    reference.append(points)
+    expected = reference.path.read_bytes()
+    ResultsWriter(tmp_path, "live", {}).append(points[:2])
+    whole = (tmp_path / "response.csv").read_bytes()
+    row = whole.split(b"\n")[-2]
+    for cut in (1, len(row) // 2, len(row) - 20):  # torn inside the first, a middle and a derived column
+        (tmp_path / "response.csv").write_bytes(whole + row[:cut])
+        with pytest.raises(ResultsError, match=r"response\.csv: line 4: unterminated row"):
+            load_response(tmp_path)
+        assert rows(load_response(tmp_path, drop_torn_row=True).points) == rows(points[:2])
+        ResultsWriter(tmp_path, "live", {}, resume=True).append(points[2:])
+        assert rows(load_response(tmp_path).points) == rows(points)
+        assert (tmp_path / "response.csv").read_bytes() == expected
+    # a whole last row without its newline (an editor's doing) is read, and resuming ends it
+    (tmp_path / "response.csv").write_bytes(whole[:-1])
+    assert rows(load_response(tmp_path).points) == rows(points[:2])
+    ResultsWriter(tmp_path, "live", {}, resume=True).append(points[2:])
+    assert rows(load_response(tmp_path).points) == rows(points)
 
 
 def test_config_must_be_json_serialisable() -> None:
@@ -333,55 +364,55 @@ def _replace_cell(csv_path: Path, line: int, column: str, value: str) -> None:
 
 @pytest.mark.parametrize("column", ["gain", "gain_db", "phase_deg", "gain_ci", "phase_ci_deg"])
 def test_tampered_derived_column_names_file_line_column(tmp_path: Path, column: str) -> None:
-    sample_response().save(tmp_path)
+    save_response(sample_response(), tmp_path)
     _replace_cell(tmp_path / "response.csv", 2, column, "0.123")
     with pytest.raises(ResultsError) as info:
-        FrequencyResponse.load(tmp_path)
+        load_response(tmp_path)
     message = str(info.value)
     assert "response.csv" in message and "line 2" in message and repr(column) in message
 
 
 def test_derived_within_tolerance_accepted(tmp_path: Path) -> None:
-    FrequencyResponse([point(3.0, 4.0, amplitude=2.0)]).save(tmp_path)
+    save_response(FrequencyResponse([point(3.0, 4.0, amplitude=2.0)]), tmp_path)
     _replace_cell(tmp_path / "response.csv", 2, "gain", repr(2.5 * (1 + 1e-11)))
-    assert FrequencyResponse.load(tmp_path).points[0].gain == pytest.approx(2.5)
+    assert load_response(tmp_path).points[0].gain == pytest.approx(2.5)
 
 
 def test_unparsable_number_names_column(tmp_path: Path) -> None:
-    sample_response().save(tmp_path)
+    save_response(sample_response(), tmp_path)
     _replace_cell(tmp_path / "response.csv", 3, "p", "1.2.3")
     with pytest.raises(ResultsError, match=r"line 3.*'p'"):
-        FrequencyResponse.load(tmp_path)
+        load_response(tmp_path)
 
 
 def test_truncated_csv(tmp_path: Path) -> None:
-    sample_response().save(tmp_path)
+    save_response(sample_response(), tmp_path)
     csv_path = tmp_path / "response.csv"
     text = csv_path.read_text()
     csv_path.write_text(text[: len(text) - 25])
     with pytest.raises(ResultsError, match=r"response\.csv: line 7"):
-        FrequencyResponse.load(tmp_path)
+        load_response(tmp_path)
 
 
 def test_bad_header(tmp_path: Path) -> None:
-    sample_response().save(tmp_path)
+    save_response(sample_response(), tmp_path)
     csv_path = tmp_path / "response.csv"
     csv_path.write_text(csv_path.read_text().replace("gain_db,", "gain_dB,", 1))
     with pytest.raises(ResultsError, match=r"line 1.*gain_dB"):
-        FrequencyResponse.load(tmp_path)
+        load_response(tmp_path)
 
 
 def test_missing_files(tmp_path: Path) -> None:
-    sample_response().save(tmp_path)
+    save_response(sample_response(), tmp_path)
     (tmp_path / "response.json").unlink()
     with pytest.raises(ResultsError, match=r"response\.json"):
-        FrequencyResponse.load(tmp_path)
+        load_response(tmp_path)
     with pytest.raises(ResultsError, match="not found"):
-        FrequencyResponse.load(tmp_path / "nowhere")
-    sample_response().save(tmp_path)
+        load_response(tmp_path / "nowhere")
+    save_response(sample_response(), tmp_path)
     (tmp_path / "response.csv").unlink()
     with pytest.raises(ResultsError, match=r"response\.csv"):
-        FrequencyResponse.load(tmp_path)
+        load_response(tmp_path)
 
 
 @pytest.mark.parametrize(
@@ -395,10 +426,10 @@ def test_missing_files(tmp_path: Path) -> None:
     ],
 )
 def test_bad_sidecar(tmp_path: Path, content: str, fragment: str) -> None:
-    sample_response().save(tmp_path)
+    save_response(sample_response(), tmp_path)
     (tmp_path / "response.json").write_text(content)
     with pytest.raises(ResultsError) as info:
-        FrequencyResponse.load(tmp_path)
+        load_response(tmp_path)
     assert "response.json" in str(info.value) and fragment in str(info.value)
 
 
@@ -457,13 +488,13 @@ def test_plots_reject_empty_input(tmp_path: Path) -> None:
 def test_a_version_1_results_file_still_loads(tmp_path: Path) -> None:
     """Files written before the added columns load, the new fields taking their defaults."""
     response = sample_response()
-    response.save(tmp_path)
+    save_response(response, tmp_path)
     csv = tmp_path / "response.csv"
     lines = csv.read_text().splitlines()
     csv.write_text("\n".join(",".join(line.split(",")[:16]) for line in lines) + "\n")
     sidecar = json.loads((tmp_path / "response.json").read_text())
     sidecar["version"] = 1
     (tmp_path / "response.json").write_text(json.dumps(sidecar))
-    loaded = FrequencyResponse.load(tmp_path)
+    loaded = load_response(tmp_path)
     assert [repr((p.p, p.q)) for p in loaded.points] == [repr((p.p, p.q)) for p in response.points]
     assert all(math.isnan(p.uncertainty_1d) and not p.within_eps and p.periods_needed == 0 for p in loaded.points)

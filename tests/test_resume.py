@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from bodebench.core.response import FrequencyResponse
+from bodebench.io.results import load_response, save_response
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
 
@@ -51,7 +52,7 @@ def test_kill_9_then_resume_keeps_every_converged_point(tmp_path: Path) -> None:
     before = measured_rows(out)
     assert len(before) >= 3
     # the files on disk are whole: they load, every row parses, no temporary file is left as the results
-    assert len(FrequencyResponse.load(out).points) == len(before)
+    assert len(load_response(out).points) == len(before)
 
     refused = subprocess.run(command() + ["run", str(cfg), "--out", str(out)], capture_output=True, text=True,
                              timeout=120)
@@ -63,7 +64,7 @@ def test_kill_9_then_resume_keeps_every_converged_point(tmp_path: Path) -> None:
     assert resumed.returncode == 0, resumed.stderr
     after = measured_rows(out)
     assert after[: len(before)] == before  # measured points kept unchanged, in place
-    response = FrequencyResponse.load(out)
+    response = load_response(out)
     assert sorted(p.frequency_hz for p in response.points) == [3, 4, 5, 6, 8, 10, 12, 15]
     assert all(p.converged for p in response.points)
 
@@ -88,7 +89,7 @@ def test_corrupt_results_directory_gives_one_line(tmp_path: Path, damage: str) -
     out = tmp_path / "out"
     out.mkdir()
     response = FrequencyResponse(config={}, case="x")
-    response.save(out)
+    save_response(response, out)
     csv = out / "response.csv"
     header = csv.read_text().splitlines()[0]
     if damage == "truncate":
@@ -130,13 +131,13 @@ def test_simulate_refuses_to_overwrite_and_resumes(tmp_path: Path, kind: str) ->
                            capture_output=True, text=True, timeout=120)
     assert again.returncode == 2 and "--resume" in again.stderr and "Traceback" not in again.stderr
     assert measured_rows(out) == finished
-    whole = FrequencyResponse.load(out)
+    whole = load_response(out)
     kept = sorted(whole.points, key=lambda p: p.frequency_hz)[:2]  # what an interrupted sweep had saved
-    FrequencyResponse(kept, config=whole.config, case=whole.case).save(out)
+    save_response(FrequencyResponse(kept, config=whole.config, case=whole.case), out)
     resumed = subprocess.run(command() + ["simulate", str(cfg), "--out", str(out), "--quiet", "--jobs", "1",
                                           "--resume"], capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr
-    response = FrequencyResponse.load(out)
+    response = load_response(out)
     assert sorted(p.frequency_hz for p in response.points) == sorted(p.frequency_hz for p in whole.points)
     assert [p for p in response.points if p.frequency_hz in {k.frequency_hz for k in kept}] == kept
     assert all(p.converged for p in response.points)

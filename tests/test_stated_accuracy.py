@@ -17,7 +17,6 @@ from bodebench.bench.connection import plan_link, simulator_spec
 from bodebench.bench.offline import measure_frequency
 from bodebench.bench.session import BenchSession
 from bodebench.drivers.ports import Frame
-from bodebench.io.bench_config import build_layout
 from bodebench.io.config import ConfigError, parse_config
 from bodebench.sim.controller import FeedbackSensing
 from bodebench.sim.plants import LinearOscillator
@@ -76,8 +75,8 @@ def test_the_simulated_drive_adds_the_configured_noise_and_quantization() -> Non
     rounded to the configured LSB; the same seed gives the same samples."""
     data = config(simulator={"noise": 2e-3, "quantization": 5e-4, "seed": 4})
     case = parse_config(data, "e2e.toml").cases[0]
-    layout = build_layout(case.tables.get("frames"), "e2e.toml")
-    spec = simulator_spec(case, layout)
+    spec = simulator_spec(case)
+    layout = case.on_bench.layout
     assert spec.sensing == FeedbackSensing(2e-3, 5e-4, 4)
 
     def samples(n: int) -> np.ndarray:
@@ -115,7 +114,7 @@ def jitter_config(jitter: float, **simulator: Any) -> dict[str, Any]:
 
 def run_session(data: dict[str, Any], direct: bool):
     case = parse_config(data, "jitter.toml").cases[0]
-    session = BenchSession(case, plan_link(case, "jitter.toml", direct=direct))
+    session = BenchSession(case, plan_link(case, direct=direct))
     session.run()
     return session.response
 
@@ -176,7 +175,7 @@ def test_simulate_on_a_bench_config_applies_the_drives_noise_and_refuses_wire_fa
     data["simulator"]["faults"] = {"drop": 0.01}
     case = parse_config(data, "jitter.toml").cases[0]
     with pytest.raises(ConfigError, match="simulator.faults"):
-        plan_link(case, "jitter.toml", direct=True)
+        plan_link(case, direct=True)
 
 
 def test_seeds_make_noisy_runs_reproducible() -> None:

@@ -41,11 +41,12 @@ from bodebench.apps.tui.model import (
     row_key,
 )
 from bodebench.apps.tui.widgets import PlotView
-from bodebench.bench.session import PointProgress
+from bodebench.bench.events import PointProgress
 from bodebench.core.autointegration import SeriesState
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.rules import Verdict
 from bodebench.io.config import ExperimentConfig, load_config
+from bodebench.io.results import load_response, save_response
 
 ROOT = Path(__file__).resolve().parent.parent
 FREQS = (3.0, 8.0, 20.0)
@@ -352,7 +353,7 @@ async def test_start_runs_the_sweep_and_the_screen_follows(tmp_path: Path, monke
         assert app.state == "done", app.worker_errors
         assert table_states(app) == [CONVERGED] * 6
         assert "3/3" in app.w_status.render().plain and "DONE" in app.w_status.render().plain
-        on_disk = FrequencyResponse.load(out)
+        on_disk = load_response(out)
         assert sorted((p.frequency_hz, p.harmonic) for p in on_disk.points) == sorted(
             (f, k) for f in FREQS for k in (1, 3))
         assert (out / "bode.png").exists() and (out / "periods.svg").exists()
@@ -393,9 +394,9 @@ async def test_pause_skip_and_remeasure_during_a_sweep(tmp_path: Path, monkeypat
         await wait_for(pilot, lambda: finished(app), "the end of the sweep")
         assert app.state == "done", app.worker_errors
         assert states(app, 8.0) == {SKIPPED} and states(app, 3.0) == states(app, 20.0) == {CONVERGED}
-        measured = [p.frequency_hz for p in app.control.session.response.points]
+        measured = [p.frequency_hz for p in app.control.procedure.current.session.response.points]
         assert measured.count(3.0) == 4 and 8.0 not in measured  # 3 Hz twice (2 harmonics each)
-        on_disk = FrequencyResponse.load(out)
+        on_disk = load_response(out)
         assert sorted(p.frequency_hz for p in on_disk.points) == [3.0, 3.0, 20.0, 20.0]  # the latest 3 Hz only
 
 
@@ -423,7 +424,7 @@ async def test_abort_leaves_a_zero_setpoint_and_keeps_the_measured_points(tmp_pa
     finally:
         value, disabled = recorder.close()
     assert value == 0.0 and disabled
-    kept = FrequencyResponse.load(out)
+    kept = load_response(out)
     assert sorted(p.frequency_hz for p in kept.points) == [3.0, 3.0]
 
 
@@ -433,7 +434,7 @@ async def test_tolerance_remeasure_after_the_sweep_save_and_overlay(tmp_path: Pa
     out = tmp_path / "out"
     other = tmp_path / "other"
     reference = lag_response(tmp_path, (3.0, 20.0))
-    reference.save(other)
+    save_response(reference, other)
     app = BodeBenchApp(config, out)
     async with app.run_test(size=(80, 24)) as pilot:
         await pilot.press("t")
@@ -446,13 +447,13 @@ async def test_tolerance_remeasure_after_the_sweep_save_and_overlay(tmp_path: Pa
         await pilot.press("s")
         await wait_for(pilot, lambda: finished(app), "the first sweep")
         assert app.state == "done" and app.model.tolerance_percent == 0.2
-        first = {(p.frequency_hz, p.harmonic): p for p in FrequencyResponse.load(out).points}
+        first = {(p.frequency_hz, p.harmonic): p for p in load_response(out).points}
         # tighter tolerance, then re-measure the selected row (20 Hz) after the sweep
         await pilot.press("t", "ctrl+a", "ctrl+k", *"0.02", "enter")
         await pilot.press("2", "down", "down", "r")
         await wait_for(pilot, lambda: app.control.run == 2 and finished(app), "the re-measure")
         assert app.state == "done", app.worker_errors
-        second = {(p.frequency_hz, p.harmonic): p for p in FrequencyResponse.load(out).points}
+        second = {(p.frequency_hz, p.harmonic): p for p in load_response(out).points}
         assert second.keys() == first.keys()
         assert second[(3.0, 1)] == first[(3.0, 1)]  # untouched
         redone = second[(20.0, 1)]
@@ -560,7 +561,7 @@ def lag_response(tmp_path: Path, freqs: tuple[float, ...], case: str = "lag") ->
 
 def loaded_app(tmp_path: Path) -> BodeBenchApp:
     config = write_bench_config(tmp_path, "tui-snapshot", freqs=SNAP_FREQS)
-    lag_response(tmp_path, SNAP_FREQS, case="bench").save(tmp_path / "out")
+    save_response(lag_response(tmp_path, SNAP_FREQS, case="bench"), tmp_path / "out")
     return BodeBenchApp(config, tmp_path / "out")
 
 
@@ -630,7 +631,7 @@ def test_the_command_in_tmux(tmp_path: Path) -> None:
         wait_screen("EXIT=0", 30)
     finally:
         subprocess.run([*base, "kill-server"], capture_output=True)
-    response = FrequencyResponse.load(out)
+    response = load_response(out)
     assert len(response.points) == 6 and all(p.converged for p in response.points)
     assert (out / "bode.png").exists()
 

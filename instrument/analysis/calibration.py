@@ -38,7 +38,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline, PchipInterpolator
 from scipy.optimize import brentq
 
-from bodebench.core.response import atomic_write_text, read_json_file
+from bodebench.io.results import atomic_write_text, read_json_file
 from bodebench.sim.plants import CoulombOscillator, PlantState
 
 __all__ = [

@@ -10,87 +10,64 @@ import traceback
 from pathlib import Path
 from typing import Sequence
 
-from bodebench.core.response import FrequencyResponse, ResultsError
 from bodebench.drivers.errors import DriverError
 from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
 from bodebench.io.config import ConfigError, ExperimentConfig, load_config
+from bodebench.io.results import ResultsError, load_response, save_response
 from bodebench.sim.serve import SimulatorStartError
 
 
-def _case_dir(config: ExperimentConfig, out: Path, name: str) -> Path:
-    return out / name if config.has_cases else out
-
-
-def _is_bench(config: ExperimentConfig) -> bool:
-    return config.cases[0].tables.get("bench") is not None
-
-
-def _previous_run(directory: Path, raw: dict, resume: bool) -> FrequencyResponse | None:
-    """The interrupted sweep to resume in ``directory``, or None; refuses to overwrite measured points."""
-    from bodebench.core.response import CSV_NAME
-
-    if not (directory / CSV_NAME).exists():
-        return None
-    if not resume:
-        raise ResultsError(f"{directory / CSV_NAME}: results already here; --resume continues that sweep, "
-                           "or choose another --out")
-    previous = FrequencyResponse.load(directory)
-    if previous.config != FrequencyResponse(config=raw).config:
-        changed = sorted(k for k in set(previous.config) | set(raw) if previous.config.get(k) != raw.get(k))
-        raise ResultsError(f"{directory / 'response.json'}: made with another configuration (tables differ: "
-                           f"{', '.join(changed)}); cannot resume")
-    return previous
-
-
 def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False) -> int:
-    """Run every case of a bench config as a session (``direct``: the simulated drive without a bus)."""
+    """Run every case of a bench config (``direct``: the simulated drive without a bus); the exit status."""
+    from bodebench.apps.plots import write_plots
     from bodebench.apps.progress import ProgressPrinter
-    from bodebench.bench.connection import plan_link
-    from bodebench.bench.offline import write_case
-    from bodebench.bench.session import BenchSession, SessionError
+    from bodebench.bench.events import CaseBegins, SessionError
+    from bodebench.bench.procedure import SweepProcedure
 
+    printer: ProgressPrinter | None = None
+
+    def listener(event: object) -> None:
+        nonlocal printer
+        if isinstance(event, CaseBegins):
+            case = config.cases[event.index]
+            printer = ProgressPrinter(event.name, len(case.excitation.frequencies_hz), quiet=quiet)
+        elif printer is not None:
+            printer(event)
+
+    procedure = SweepProcedure(config, out, listener=listener, direct=direct, plots=write_plots,
+                               existing="resume" if resume else "refuse")
+    try:
+        outcomes = procedure.run()
+    except ResultsError as exc:  # a results directory cannot take the sweep: found before any setpoint
+        where = procedure.current.case.name if procedure.current else config.path.stem
+        print(f"bodebench: {where}: not started: {exc}; nothing was sent to the drive", file=sys.stderr)
+        return 2
+    except BaseException as exc:
+        if procedure.current is None:
+            raise
+        current = procedure.current
+        session = current.session
+        if not isinstance(exc, (SessionError, KeyboardInterrupt)):
+            traceback.print_exc()
+        kept = len(current.response.points)  # each of them saved when it was measured
+        where = f"{kept} points kept in {current.directory}" if kept else "no point measured"
+        drive = (session.ended.drive_state() if session is not None and session.ended is not None
+                 else "nothing was sent to the drive")
+        print(f"bodebench: {current.case.name}: stopped: {_cause(exc)}; {where}; {drive}", file=sys.stderr)
+        return 128 + exc.signum if isinstance(exc, StopSignal) else 130 if isinstance(exc, KeyboardInterrupt) \
+            else 1
     status = 0
-    for case in config.cases:
-        directory = _case_dir(config, out, case.name)
-        previous = _previous_run(directory, case.raw, resume)
-        plan = plan_link(case, config.path, direct=direct)
-        label = case.name or config.path.stem
-        printer = ProgressPrinter(label, len(case.excitation.frequencies_hz), quiet=quiet)
-        session = BenchSession(case, plan, directory, printer, resume=previous)
-        try:
-            result = session.run()
-        except ResultsError as exc:  # the results directory cannot take the sweep: found before any setpoint
-            print(f"bodebench: {label}: not started: {exc}; nothing was sent to the drive", file=sys.stderr)
-            return 2
-        except BaseException as exc:
-            cause = _cause(exc)
-            if not isinstance(exc, (SessionError, KeyboardInterrupt)):
-                traceback.print_exc()
-            kept = len(session.response.points)  # each of them saved when it was measured
-            if kept and not (isinstance(exc, SessionError) and exc.kind == "output"):
-                try:
-                    write_case(session.response, directory)
-                except OSError:
-                    pass  # the plots only: the points are on disk already
-            where = f"{kept} points kept in {directory}" if kept else "no point measured"
-            drive = session.ended.drive_state() if session.ended is not None else "nothing was sent to the drive"
-            print(f"bodebench: {label}: stopped: {cause}; {where}; {drive}", file=sys.stderr)
-            return 128 + exc.signum if isinstance(exc, StopSignal) else 130 if isinstance(exc, KeyboardInterrupt) \
-                else 1
-        try:
-            files = write_case(result.response, directory)
-        except OSError as exc:
-            print(f"bodebench: {label}: {len(result.response.points)} points on disk in {directory}, but the plots "
-                  f"could not be written: {exc.strerror or exc}; {session.ended.drive_state() if session.ended else ''}",
-                  file=sys.stderr)
-            return 1
-        unconverged = [p for p in result.response.points if not p.converged]
+    for outcome in outcomes:
+        session, result = outcome.session, outcome.result
+        assert session is not None and result is not None
+        unconverged = [p for p in outcome.response.points if not p.converged]
         rt = f", round trip {result.round_trip_s * 1e6:.0f} us" if result.round_trip_s == result.round_trip_s else ""
         drive = session.ended.drive_state() if session.ended is not None else ""
         refused = (f", {len(session.refused)} frequencies refused as not physical (not written; --resume "
                    "measures them again)" if session.refused else "")
-        print(f"{label}: {len(result.response.points)} points, {len(unconverged)} not "
-              f"converged{refused}{rt} -> {directory}/response.csv (+ {', '.join(f.name for f in files)}); {drive}")
+        print(f"{outcome.case.name}: {len(outcome.response.points)} points, {len(unconverged)} not "
+              f"converged{refused}{rt} -> {outcome.directory}/response.csv "
+              f"(+ {', '.join(f.name for f in outcome.files)}); {drive}")
         if session.refused:
             status = 1
     return status
@@ -98,7 +75,7 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
 
 def _cause(exc: BaseException) -> str:
     """One line naming why a sweep stopped."""
-    from bodebench.bench.session import SessionError
+    from bodebench.bench.events import SessionError
 
     if isinstance(exc, StopSignal):
         return f"interrupted ({exc.signame})"
@@ -111,7 +88,7 @@ def _cause(exc: BaseException) -> str:
 
 def _run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
-    if not _is_bench(config):
+    if not config.on_bench:
         raise ConfigError(f"{args.config}: bench: missing (bodebench run needs a bench config; "
                           "use bodebench simulate for an offline experiment)", "bench")
     return _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet, resume=args.resume)
@@ -121,7 +98,7 @@ def _tui(args: argparse.Namespace) -> int:
     from bodebench.apps.tui import run_tui
 
     config = load_config(args.config)
-    if not _is_bench(config):
+    if not config.on_bench:
         raise ConfigError(f"{args.config}: bench: missing (bodebench tui needs a bench config)", "bench")
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
     return run_tui(config, out)
@@ -129,21 +106,19 @@ def _tui(args: argparse.Namespace) -> int:
 
 def _sim_controller(args: argparse.Namespace) -> int:
     from bodebench.bench.connection import simulator_spec
-    from bodebench.io.bench_config import build_layout
     from bodebench.sim.serve import serve_can, serve_serial_pty, serve_slcan_pty
 
     config = load_config(args.config)
     case = config.cases[0]
-    if case.tables.get("bench") is None or case.tables.get("simulator") is None:
+    if case.bench is None or case.simulator is None:
         raise ConfigError(f"{args.config}: simulator: missing (sim-controller needs [bench], [plant] and "
                           "[simulator])", "simulator")
-    layout = build_layout(case.tables.get("frames"), str(config.path))
-    spec = simulator_spec(case, layout)
-    bench = case.tables["bench"]
+    bench, layout = case.on_bench.bench, case.on_bench.layout
+    spec = simulator_spec(case)
     if bench.transport == "serial":
         serving, path = serve_serial_pty(spec)
         where = f"serial ({spec.framing} framing) on {path}: set [serial] port = \"{path}\""
-    elif case.tables["can"].interface == "slcan":
+    elif case.can is not None and case.can.interface == "slcan":
         serving, path = serve_slcan_pty(spec)
         where = f"SLCAN adapter on {path}: set [can] channel = \"{path}\""
     else:
@@ -156,7 +131,7 @@ def _sim_controller(args: argparse.Namespace) -> int:
 
     serving.controller.on_event = report
     watchdog = (f"; watchdog {layout.drive_watchdog_s:g} s" if layout.drive_watchdog_s else "; no watchdog")
-    print(f"simulated {case.raw['plant']['model']} drive, {bench.clock} clock at {bench.rate_hz:g} Hz{watchdog}, "
+    print(f"simulated {case.plant.model} drive, {bench.clock} clock at {bench.rate_hz:g} Hz{watchdog}, "
           f"listening: {where}", flush=True)
     try:
         while not serving.stop.wait(0.5):
@@ -173,43 +148,38 @@ def _sim_controller(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from bodebench.bench.offline import default_executor, sweep, write_case
-    from bodebench.bench.session import completed_frequencies
+    from bodebench.apps.plots import write_plots
+    from bodebench.bench.events import CaseBegins, PointFinished
+    from bodebench.bench.offline import default_executor
+    from bodebench.bench.procedure import SweepProcedure
 
     config: ExperimentConfig = load_config(args.config)
     out = Path(args.out)
     started = time.perf_counter()
-    if _is_bench(config):
+    if config.on_bench:
         return _bench_sweeps(config, out, direct=True, quiet=args.quiet, resume=args.resume)
-    previous = {case.name: _previous_run(_case_dir(config, out, case.name), case.raw, args.resume)
-                for case in config.cases}  # every case checked before the first is measured
+    done, total, name = 0, 0, ""
+
+    def listener(event: object) -> None:
+        nonlocal done, total, name
+        if isinstance(event, CaseBegins):
+            name, done = event.name, 0
+            total = len(config.cases[event.index].excitation.frequencies_hz)
+        elif isinstance(event, PointFinished) and not args.quiet:
+            done += 1
+            worst = max(p.periods for p in event.points)
+            print(f"{name}: {done}/{total}  f = {event.points[0].frequency_hz:g} Hz  {worst} periods",
+                  file=sys.stderr)
+
     executor = None if args.jobs == 1 else default_executor(args.jobs)
     try:
-        for case in config.cases:
-            directory = _case_dir(config, out, case.name)
-            before = previous[case.name]
-            partial = FrequencyResponse(before.points if before else (), config=case.raw, case=case.name)
-            measured = (completed_frequencies(before, tuple({p.channel for p in before.points}),
-                                              case.analysis.harmonics) if before else set())
-            total = len(case.excitation.frequencies_hz)
-            done = len(measured)
-
-            def saved(points: list, directory: Path = directory, partial: FrequencyResponse = partial) -> None:
-                nonlocal done
-                for p in points:
-                    partial.write_point(directory, p)
-                done += 1
-                if not args.quiet:
-                    f = points[0].frequency_hz
-                    worst = max(p.periods for p in points)
-                    print(f"{case.name}: {done}/{total}  f = {f:g} Hz  {worst} periods", file=sys.stderr)
-
-            response = sweep(case, executor, on_point=saved, measured=partial.points, skip=measured)
-            files = write_case(response, directory)
-            unconverged = [p for p in response.points if not p.converged]
-            print(f"{case.name or config.path.stem}: {len(response.points)} points, "
-                  f"{len(unconverged)} not converged -> {directory}/response.csv "
-                  f"(+ {', '.join(f.name for f in files)})")
+        procedure = SweepProcedure(config, out, listener=listener, executor=executor, plots=write_plots,
+                                   existing="resume" if args.resume else "refuse")
+        for outcome in procedure.run():
+            unconverged = [p for p in outcome.response.points if not p.converged]
+            print(f"{outcome.case.name}: {len(outcome.response.points)} points, "
+                  f"{len(unconverged)} not converged -> {outcome.directory}/response.csv "
+                  f"(+ {', '.join(f.name for f in outcome.files)})")
     finally:
         if executor is not None:
             executor.shutdown(cancel_futures=True)
@@ -234,7 +204,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         if executor is not None:
             executor.shutdown(cancel_futures=True)
     try:
-        table.save(out)
+        save_response(table, out)
     except OSError as exc:
         print(f"bodebench: {out}: cannot write the calibration: {exc}", file=sys.stderr)
         return 1
@@ -251,10 +221,9 @@ def _identify(args: argparse.Namespace) -> int:
 
     from bodebench.analysis.calibration import CalibrationError, load_calibration
     from bodebench.analysis.identify import IdentificationError, format_report, identify, plot_identification
-    from bodebench.core.response import FrequencyResponse
 
     directory = Path(args.results)
-    response = FrequencyResponse.load(directory)
+    response = load_response(directory)
     try:
         report = identify(response, args.stiffness, args.amplitude, harmonic=args.harmonic, channel=args.channel,
                           fit_stiffness=args.fit_stiffness, fit_damping=args.fit_damping,

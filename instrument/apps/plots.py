@@ -189,3 +189,8 @@ def plot_periods(
     if title:
         ax.set_title(title)
     return _save(fig, path_stem)
+
+
+def write_plots(response: FrequencyResponse, directory: Path, title: str) -> list[Path]:
+    """The plots of a finished case in ``directory``: the Bode plot and the periods each point took."""
+    return plot_bode(response, directory / "bode", title) + plot_periods(response, directory / "periods", title)

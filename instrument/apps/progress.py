@@ -6,7 +6,7 @@ import sys
 import time
 from typing import TextIO
 
-from bodebench.bench.session import BusStatus, PointFinished, PointProgress, PointStarted, SessionStarted
+from bodebench.bench.events import BusStatus, PointFinished, PointProgress, PointStarted, SessionStarted
 
 
 class ProgressPrinter:

@@ -7,16 +7,13 @@ resources to close when the worker ends).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
-from pathlib import Path
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 from bodebench.drivers.layout import Layout
 from bodebench.drivers.ports import CanPort, FramePort, SerialPort
-from bodebench.io.bench_config import BenchConfig, CanConfig, SerialConfig, SimulatorConfig, build_layout
 from bodebench.io.config import CaseConfig, ConfigError
 from bodebench.sim.controller import ControllerTiming, FeedbackSensing
-from bodebench.sim.faults import FaultConfig
 from bodebench.sim.serve import ControllerPort, SimulatorProcess, SimulatorSpec, serve_can
 
 SLCAN_DEFAULTS = {"sleep_after_open": 0.0}
@@ -61,11 +58,12 @@ class SerialLink:
                 self.layout, [])
 
 
-def stall_budget(case: CaseConfig, layout: Layout) -> float:
+def stall_budget(case: CaseConfig) -> float:
     """How long (s) a stalled write may be retried: until the host's watchdog (safety.watchdog_s) would stop the
     sweep anyway, and no longer than the drive's own watchdog lets it go without a frame."""
-    budget = float(case.tables["safety"].watchdog_s)
-    return min(budget, layout.drive_watchdog_s) if layout.drive_watchdog_s else budget
+    tables = case.on_bench
+    budget = float(tables.safety.watchdog_s)
+    return min(budget, tables.layout.drive_watchdog_s) if tables.layout.drive_watchdog_s else budget
 
 
 @dataclass(frozen=True)
@@ -93,53 +91,50 @@ class LinkPlan:
             r.close()
 
 
-def simulator_spec(case: CaseConfig, layout: Layout, *, wire_faults: bool = True) -> SimulatorSpec:
+def simulator_spec(case: CaseConfig, *, wire_faults: bool = True) -> SimulatorSpec:
     """The simulated drive of a case: [plant] behind the controller at [bench] rate and clock, with the
     [simulator] jitter, noise and quantization.
 
     wire_faults: with the configured faults (False: none, for the in-process drive of ``bodebench simulate``)."""
-    bench: BenchConfig = case.tables["bench"]
-    sim: SimulatorConfig | None = case.tables.get("simulator")
+    tables = case.on_bench
+    bench, sim, serial, can = tables.bench, case.simulator, case.serial, case.can
     timing = ControllerTiming(bench.rate_hz, bench.clock, sim.jitter if sim else 0.0,
                               sim.seed if sim else 0, bench.pacing_cpu)
     sensing = FeedbackSensing(sim.noise, sim.quantization, sim.seed) if sim else None
-    serial: SerialConfig | None = case.tables.get("serial")
-    can: CanConfig | None = case.tables.get("can")
     can_map: dict[str, Any] = {}
     if can is not None:
         can_map = {"interface": can.interface, "channel": can.channel or "bodebench", "bitrate": can.bitrate,
                    "options": dict(can.options)}
-    faults = FaultConfig.from_mapping(sim.faults) if sim is not None and wire_faults else None
-    return SimulatorSpec(dict(case.raw["plant"]), layout, timing, serial.framing if serial else "binary", can_map,
+    faults = sim.faults if sim is not None and wire_faults else None
+    return SimulatorSpec(asdict(case.plant), tables.layout, timing, serial.framing if serial else "binary", can_map,
                          faults if faults is not None and faults.any else None, sensing)
 
 
-def plan_link(case: CaseConfig, source: str | Path, *, direct: bool = False) -> LinkPlan:
+def plan_link(case: CaseConfig, *, direct: bool = False) -> LinkPlan:
     """How the worker reaches the drive of ``case`` (starting the simulated drive where the config has one).
 
     direct: the simulated drive called in-process without a bus (``bodebench simulate``): its jitter, noise
     and quantization as configured; faults, which need a wire, are refused.
     """
-    bench: BenchConfig = case.tables["bench"]
-    layout = build_layout(case.tables.get("frames"), str(source))
-    sim: SimulatorConfig | None = case.tables.get("simulator")
+    tables = case.on_bench
+    bench, layout, sim, serial = tables.bench, tables.layout, case.simulator, case.serial
     simulated = sim is not None
     if direct:
-        if sim is not None and FaultConfig.from_mapping(sim.faults).any:
-            raise ConfigError(f"{source}: simulator.faults: fault injection needs a bus; bodebench simulate runs "
+        if sim is not None and sim.faults.any:
+            raise ConfigError(f"{case.source}: simulator.faults: fault injection needs a bus; bodebench simulate runs "
                               "the drive in-process (use bodebench run, or remove [simulator.faults])",
                               "simulator.faults")
-        serial: SerialConfig | None = case.tables.get("serial")
         transport = f"serial-{serial.framing}" if bench.transport == "serial" and serial else "can"
-        return LinkPlan(DirectLink(simulator_spec(case, layout, wire_faults=False), transport), layout,
+        return LinkPlan(DirectLink(simulator_spec(case, wire_faults=False), transport), layout,
                         where="in-process")
     if bench.transport == "can":
-        can: CanConfig = case.tables["can"]
+        can = case.can
+        assert can is not None  # the loader made sure: transport "can" needs a [can] table
         options = dict(can.options)
         if can.interface == "slcan":
             options = {**SLCAN_DEFAULTS, **options}
         if simulated and can.interface == "slcan" and not can.channel:
-            proc = SimulatorProcess(simulator_spec(case, layout), "slcan")
+            proc = SimulatorProcess(simulator_spec(case), "slcan")
             link = CanLink("slcan", proc.path, can.bitrate, options, layout)
             return LinkPlan(link, layout, [proc], where=f"slcan adapter on {proc.path}")
         channel = can.channel or "bodebench"
@@ -147,14 +142,14 @@ def plan_link(case: CaseConfig, source: str | Path, *, direct: bool = False) -> 
         if simulated and can.interface != "slcan":
             # served from the bus worker's own process: on the realtime clock the worker's pacing is the drive's
             # clock (a second pacing thread would fight the worker for the interpreter), so it answers each setpoint
-            spec = simulator_spec(case, layout)
+            spec = simulator_spec(case)
             spec = replace(spec, timing=replace(spec.timing, clock="lockstep"))
         link = CanLink(can.interface, channel, can.bitrate, options, layout, spec)
         return LinkPlan(link, layout, where=f"{can.interface} channel {channel}")
-    serial = case.tables["serial"]
-    budget = stall_budget(case, layout)
+    assert serial is not None  # the loader made sure: transport "serial" needs a [serial] table
+    budget = stall_budget(case)
     if simulated and not serial.port:
-        proc = SimulatorProcess(simulator_spec(case, layout), "serial")
+        proc = SimulatorProcess(simulator_spec(case), "serial")
         return LinkPlan(SerialLink(proc.path, serial.baudrate, serial.framing, layout, budget), layout, [proc],
                         where=f"serial {proc.path}")
     return LinkPlan(SerialLink(serial.port, serial.baudrate, serial.framing, layout, budget), layout,

@@ -10,7 +10,6 @@ from __future__ import annotations
 import os
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from dataclasses import asdict
-from pathlib import Path
 from typing import Callable, Collection, Iterator, Sequence
 
 import numpy as np
@@ -97,12 +96,3 @@ def _run_all(case: CaseConfig, executor: Executor | None, skip: Collection[float
     finally:
         for fut in futures:
             fut.cancel()
-
-
-def write_case(response: FrequencyResponse, directory: Path) -> list[Path]:
-    """Save a finished case: response.csv, its sidecar and the plots."""
-    from bodebench.apps.plots import plot_bode, plot_periods
-
-    response.save(directory)
-    title = response.case or str(response.config.get("title", ""))
-    return plot_bode(response, directory / "bode", title) + plot_periods(response, directory / "periods", title)

@@ -15,11 +15,21 @@ import threading
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from bodebench.bench.connection import LinkPlan
+from bodebench.bench.events import (
+    BusStatus,
+    Listener,
+    PointFinished,
+    PointProgress,
+    PointStarted,
+    SessionEnded,
+    SessionError,
+    SessionFault,
+    SessionStarted,
+)
 from bodebench.bench.worker import (
     Credit,
     Fault,
@@ -34,112 +44,13 @@ from bodebench.bench.worker import (
     WorkerSpec,
     start_worker,
 )
-from bodebench.core.autointegration import Autointegrator, SeriesState
-from bodebench.core.response import FrequencyResponse, ResponsePoint, check_output
+from bodebench.core.autointegration import Autointegrator
+from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.drivers.scheduling import pacing_cpu_left_alone
 from bodebench.drivers.stop_signals import StopSignal
-from bodebench.io.bench_config import BenchConfig, SafetyConfig
 from bodebench.io.config import AnalysisConfig, CaseConfig
-
-# ---------------------------------------------------------------------------------------------- events to listeners
-
-
-@dataclass(frozen=True)
-class SessionStarted:
-    frequencies_hz: tuple[float, ...]
-    channels: tuple[str, ...]
-    where: str
-
-
-@dataclass(frozen=True)
-class PointStarted:
-    index: int
-    frequency_hz: float
-
-
-@dataclass(frozen=True)
-class PointProgress:
-    """The current point after the latest batch of periods; ``scope``: recent (t, setpoint, output) samples."""
-
-    index: int
-    frequency_hz: float
-    periods: int
-    states: tuple[SeriesState, ...]
-    tolerance_percent: float
-    criterion: str
-    scope: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-
-
-@dataclass(frozen=True)
-class PointFinished:
-    """A point done: its ``points`` (one per channel and harmonic) on disk; ``skipped`` by the user, or
-    ``refused`` (the reason: not a physical response, nothing written)."""
-
-    index: int
-    points: tuple[ResponsePoint, ...]
-    skipped: bool = False
-    refused: str = ""
-
-
-@dataclass(frozen=True)
-class BusStatus:
-    health: Health
-
-
-@dataclass(frozen=True)
-class SessionFault:
-    """The sweep stopped early; ``kept`` points are on disk."""
-
-    kind: str
-    message: str
-    kept: int
-
-
-@dataclass(frozen=True)
-class SessionEnded:
-    """How the sweep ended and what the drive was last sent: ``last_setpoint`` (NaN: unknown, the worker did not
-    report), whether a zero setpoint and the disable frame went out after every other setpoint, whether the bus
-    worker reported at all (``reported``) and how many frames it sent; ``has_disable``: the layout has a disable
-    frame; ``drive_watchdog_s``: the drive's own watchdog time (0: the layout declares none)."""
-
-    reason: str
-    completed: bool
-    last_setpoint: float
-    disabled: bool
-    zero_sent: bool = False
-    frames_out: int = 0
-    reported: bool = True
-    has_disable: bool = True
-    drive_watchdog_s: float = 0.0
-
-    def drive_state(self) -> str:
-        """What the drive was actually sent, in words (the last line of a command)."""
-        watchdog = (f"the drive's watchdog zeroes and disables it {self.drive_watchdog_s:g} s after the last frame "
-                    "it received (frames.drive_watchdog_s)" if self.drive_watchdog_s > 0 else
-                    "the layout declares no drive watchdog (frames.drive_watchdog_s): make the drive safe by hand")
-        if not self.reported:
-            return f"the bus worker ended without reporting: the drive's state is unknown; {watchdog}"
-        if self.frames_out == 0:
-            return "nothing was sent to the drive"
-        if not self.zero_sent:
-            return (f"could not send the zero setpoint: the last setpoint that went out was {self.last_setpoint:g}"
-                    f"{'' if self.disabled else ', no disable frame sent'}; {watchdog}")
-        if self.disabled:
-            return "drive left at setpoint 0, disabled"
-        if not self.has_disable:
-            return "drive left at setpoint 0 (the layout has no disable frame)"
-        return f"drive left at setpoint 0, but the disable frame could not be sent; {watchdog}"
-
-
-Listener = Callable[[object], None]
-
-
-class SessionError(RuntimeError):
-    """The sweep could not complete; the drive was left at zero."""
-
-    def __init__(self, kind: str, message: str) -> None:
-        super().__init__(f"{kind}: {message}")
-        self.kind = kind
+from bodebench.io.results import CSV_NAME, ResultsWriter, check_output
+from bodebench.status import FaultKind
 
 
 @dataclass
@@ -175,17 +86,18 @@ class BenchSession:
         self.plan = plan
         self.out_dir = out_dir
         self.listener = listener or (lambda event: None)
-        bench: BenchConfig = case.tables["bench"]
-        self.bench = bench
+        tables = case.on_bench
+        self.bench = tables.bench
+        self.safety = tables.safety
         self.analysis: AnalysisConfig = case.analysis
-        self.worker_mode = worker_mode or (bench.worker if bench.worker != "auto" else
-                                           ("thread" if bench.clock == "lockstep" else "process"))
+        self.worker_mode = worker_mode or tables.bench.worker_mode()
         self.controls = _Controls()
         self.response = FrequencyResponse(resume.points if resume else (), config=case.raw, case=case.name)
-        self.period = 1.0 / bench.rate_hz
+        self.period = 1.0 / tables.bench.rate_hz
         self.last_health: Health | None = None
         self.ended: SessionEnded | None = None
         self.refused: list[tuple[float, str]] = []  # (frequency, reason) of points not written
+        self._writer: ResultsWriter | None = None
 
     # --- user requests (any thread)
     def request_abort(self) -> None:
@@ -206,7 +118,7 @@ class BenchSession:
 
     # --- the sweep
     def _spec(self) -> WorkerSpec:
-        safety: SafetyConfig = self.case.tables["safety"]
+        safety = self.safety
         limits = Limits(safety.max_amplitude, safety.max_rate,
                         {k: (float(v[0]), float(v[1])) for k, v in safety.feedback_limits.items()},
                         safety.watchdog_s)
@@ -302,12 +214,12 @@ class BenchSession:
                 return None
             message = self._conn.recv()
         except (EOFError, OSError):
-            raise SessionError("bus", "the bus worker ended unexpectedly") from None
+            raise SessionError(FaultKind.BUS, "the bus worker ended unexpectedly") from None
         if isinstance(message, Fault):
             self.listener(SessionFault(message.kind, message.message, len(self.response.points)))
             raise SessionError(message.kind, message.message)
         if isinstance(message, Stopped):
-            raise SessionError("bus", f"the bus worker stopped: {message.reason}")
+            raise SessionError(FaultKind.BUS, f"the bus worker stopped: {message.reason}")
         if isinstance(message, Health):
             self.last_health = message
             self.listener(BusStatus(message))
@@ -320,16 +232,27 @@ class BenchSession:
             message = self._receive(0.1)
             if isinstance(message, kind):
                 return message
-        raise SessionError("timeout", f"no {kind.__name__} from the bus worker within {timeout:g} s")
+        raise SessionError(FaultKind.TIMEOUT, f"no {kind.__name__} from the bus worker within {timeout:g} s")
+
+    def _results_writer(self) -> ResultsWriter:
+        """The writer of the results directory, opened with the first point (an interrupted sweep's file is
+        continued; its points are written first when it is not on disk in this directory)."""
+        if self._writer is None:
+            assert self.out_dir is not None
+            on_disk = (self.out_dir / CSV_NAME).exists() and bool(self.response.points)
+            self._writer = ResultsWriter(self.out_dir, self.case.name, self.case.raw, resume=on_disk)
+            if not on_disk:
+                self._writer.append(self.response.points)
+        return self._writer
 
     def _check_abort(self) -> None:
         if self.controls.abort.is_set():
-            self.listener(SessionFault("abort", "aborted by the user", len(self.response.points)))
-            raise SessionError("abort", "aborted by the user")
+            self.listener(SessionFault(FaultKind.ABORT, "aborted by the user", len(self.response.points)))
+            raise SessionError(FaultKind.ABORT, "aborted by the user")
 
     def _absurd(self, points: list[ResponsePoint]) -> str:
         """Why the points of a frequency are refused ("" when they are not)."""
-        limits = self.case.tables["safety"].feedback_limits
+        limits = self.safety.feedback_limits
         for p in points:
             window = limits.get(p.channel)
             reason = _absurd_point(p, (float(window[0]), float(window[1])) if window else None)
@@ -403,17 +326,15 @@ class BenchSession:
             self.refused.append((f, refused))
             self.listener(PointFinished(index, (), skipped=True, refused=refused))
             return
-        for p in points:
-            if self.out_dir is None:
-                self.response.add(p)
-                continue
+        if self.out_dir is not None:
             try:
-                self.response.write_point(self.out_dir, p)
-            except OSError as exc:  # the files on disk are still the last whole save: without this point
-                self.response.points.remove(p)
-                self.listener(SessionFault("output", str(exc), len(self.response.points)))
-                raise SessionError("output", f"{self.out_dir}: cannot write the point at {f:g} Hz: "
-                                             f"{exc.strerror or exc}") from None
+                self._results_writer().append(points)
+            except OSError as exc:  # the rows already on disk stay; a torn row of these is dropped on resume
+                self.listener(SessionFault(FaultKind.OUTPUT, str(exc), len(self.response.points)))
+                raise SessionError(FaultKind.OUTPUT, f"{self.out_dir}: cannot write the point at {f:g} Hz: "
+                                                     f"{exc.strerror or exc}") from None
+        for p in points:
+            self.response.add(p)
         self.listener(PointFinished(index, tuple(points)))
 
 

@@ -1,79 +1,28 @@
-"""Measured frequency response: points of a sweep, derived gain and phase, and their files.
+"""Measured frequency response: points of a sweep, derived gain and phase.
 
 A point holds the averaged Fourier coefficients ``(P, Q)`` of harmonic ``k`` of one output channel,
 ``y ~ P sin(2 pi k f t) + Q cos(2 pi k f t)``, for an input ``A_i sin(2 pi f t)``. Gain and phase are
 derived from them; nothing derived is stored independently of ``p``, ``q`` and ``amplitude``.
 
-Files (see :meth:`FrequencyResponse.save`): ``response.csv`` (one row per point) and the JSON sidecar
-``response.json`` (case name, configuration, software version). This module does no plotting.
+Pure data: the files are :mod:`bodebench.io.results`, the plots :mod:`bodebench.apps.plots`.
 """
 
 from __future__ import annotations
 
-import json
 import math
-import os
-import shutil
-import tempfile
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = [
-    "CSV_COLUMNS",
-    "CSV_NAME",
-    "FORMAT_NAME",
-    "FORMAT_VERSION",
-    "FrequencyResponse",
-    "PHASE_UNDEFINED_STATUSES",
-    "ResponsePoint",
-    "ResultsError",
-    "SIDECAR_NAME",
-]
+__all__ = ["FrequencyResponse", "PHASE_UNDEFINED_STATUSES", "ResponsePoint"]
 
 #: Statuses whose phase is not a number (the coefficient vector is below the resolution).
 PHASE_UNDEFINED_STATUSES: tuple[str, ...] = ("below_resolution",)
 
-CSV_NAME = "response.csv"
-SIDECAR_NAME = "response.json"
-FORMAT_NAME = "bodebench-response"
-FORMAT_VERSION = 2
-
-#: Columns of response.csv, in file order.
-CSV_COLUMNS: tuple[str, ...] = (
-    "frequency_hz",
-    "harmonic",
-    "channel",
-    "amplitude",
-    "gain",
-    "gain_db",
-    "phase_deg",
-    "p",
-    "q",
-    "periods",
-    "converged",
-    "status",
-    "uncertainty",
-    "gain_ci",
-    "gain_db_ci",
-    "phase_ci_deg",
-    "uncertainty_1d",
-    "within_eps",
-    "periods_needed",
-)
-#: Columns of a version-1 response.csv (read; the added columns take their defaults).
-_CSV_COLUMNS_V1 = CSV_COLUMNS[:16]
-_DERIVED_COLUMNS: tuple[str, ...] = ("gain", "gain_db", "phase_deg", "gain_ci", "gain_db_ci", "phase_ci_deg")
-_DERIVED_RTOL = 1e-9
 _FORBIDDEN_TOKEN_CHARS = frozenset(',"\r\n')
-
-
-class ResultsError(ValueError):
-    """A results file or sidecar is missing, malformed or inconsistent."""
 
 
 def _is_int(value: object) -> bool:
@@ -245,236 +194,6 @@ def _normalise_config(value: Any, where: str = "config") -> Any:
     raise ValueError(f"{where}: value {value!r} of type {type(value).__name__} is not JSON serialisable")
 
 
-def _software_version() -> str:
-    try:
-        return metadata.version("bodebench")
-    except metadata.PackageNotFoundError:
-        return "unknown"
-
-
-def _current_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-_UMASK = _current_umask()
-
-
-PLOTS_BYTES = 1 << 20
-"""Room the plots of a finished case take at most (four files of 50-100 KB each, with margin), bytes."""
-POINT_BYTES = 256
-"""Room one point takes in response.csv at most, bytes."""
-
-
-def check_output(directory: Path, points: int) -> bool:
-    """Before a sweep: ``directory`` exists or can be made, a file can be written in it, and its file system has
-    room for the results of ``points`` points (each save writes a new file before it replaces the old: twice the
-    CSV and sidecar) and the plots. ResultsError naming the directory otherwise; True when it made the
-    directory."""
-    made = not directory.exists()
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ResultsError(f"{directory}: cannot create the results directory: {exc.strerror or exc}") from None
-    probe = directory / ".bodebench-write-check"
-    try:
-        atomic_write_text(probe, "x" * POINT_BYTES)
-        probe.unlink()
-    except OSError as exc:
-        raise ResultsError(f"{directory}: cannot write results there: {exc.strerror or exc}") from None
-    need = 2 * (8192 + points * POINT_BYTES) + PLOTS_BYTES
-    free = shutil.disk_usage(directory).free
-    if free < need:
-        if made:
-            directory.rmdir()
-        raise ResultsError(f"{directory}: {free / 1024:.0f} KiB free, the sweep's files need about "
-                           f"{need / 1024:.0f} KiB")
-    return made
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a synced temporary file in the same directory and os.replace."""
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        os.fchmod(fd, 0o666 & ~_UMASK)  # the permissions an ordinary open() would give, not mkstemp's 0600
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp_name, path)
-    except BaseException:
-        try:
-            os.unlink(tmp_name)
-        except FileNotFoundError:
-            pass
-        raise
-    try:  # make the rename itself durable where the platform allows it
-        dir_fd = os.open(path.parent, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(dir_fd)
-    except OSError:
-        pass
-    finally:
-        os.close(dir_fd)
-
-
-def _format_float(value: float) -> str:
-    return repr(float(value))  # shortest round-tripping form; 'nan', 'inf', '-inf' for non-finite values
-
-
-def _point_row(point: ResponsePoint) -> str:
-    values: dict[str, str] = {
-        "frequency_hz": _format_float(point.frequency_hz),
-        "harmonic": str(point.harmonic),
-        "channel": point.channel,
-        "amplitude": _format_float(point.amplitude),
-        "p": _format_float(point.p),
-        "q": _format_float(point.q),
-        "periods": str(point.periods),
-        "converged": "true" if point.converged else "false",
-        "status": point.status,
-        "uncertainty": _format_float(point.uncertainty),
-        "uncertainty_1d": _format_float(point.uncertainty_1d),
-        "within_eps": "true" if point.within_eps else "false",
-        "periods_needed": str(point.periods_needed),
-    }
-    for name in _DERIVED_COLUMNS:
-        values[name] = _format_float(getattr(point, name))
-    return ",".join(values[name] for name in CSV_COLUMNS)
-
-
-def _agree(stored: float, computed: float) -> bool:
-    if math.isnan(stored) or math.isnan(computed):
-        return math.isnan(stored) and math.isnan(computed)
-    if math.isinf(stored) or math.isinf(computed):
-        return stored == computed
-    return abs(stored - computed) <= _DERIVED_RTOL * max(abs(stored), abs(computed))
-
-
-def _parse_csv(path: Path) -> list[ResponsePoint]:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ResultsError(f"{path}: results file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ResultsError(f"{path}: cannot read results file: {exc}") from None
-    lines = text.split("\n")
-    if lines and lines[-1] == "":
-        lines.pop()  # final newline
-    if not lines:
-        raise ResultsError(f"{path}: line 1: empty file, expected header {','.join(CSV_COLUMNS)!r}")
-    header = lines[0].rstrip("\r").split(",")
-    columns = _CSV_COLUMNS_V1 if tuple(header) == _CSV_COLUMNS_V1 else CSV_COLUMNS
-    if tuple(header) != columns:
-        for index, (got, want) in enumerate(zip(header, CSV_COLUMNS)):
-            if got != want:
-                raise ResultsError(
-                    f"{path}: line 1: bad header, column {index + 1} is {got!r}, expected {want!r}"
-                )
-        raise ResultsError(
-            f"{path}: line 1: bad header, {len(header)} columns, expected {len(CSV_COLUMNS)}: {','.join(CSV_COLUMNS)!r}"
-        )
-    points: list[ResponsePoint] = []
-    for lineno, line in enumerate(lines[1:], start=2):
-        cells = line.rstrip("\r").split(",")
-        if len(cells) != len(columns):
-            raise ResultsError(f"{path}: line {lineno}: {len(cells)} columns, expected {len(columns)}")
-        row = dict(zip(columns, cells))
-        points.append(_parse_row(path, lineno, row))
-    return points
-
-
-def _parse_row(path: Path, lineno: int, row: dict[str, str]) -> ResponsePoint:
-    where = f"{path}: line {lineno}"
-
-    def number(name: str) -> float:
-        cell = row[name]
-        try:
-            return float(cell)
-        except ValueError:
-            raise ResultsError(f"{where}: column {name!r}: cannot parse {cell!r} as a number") from None
-
-    def integer(name: str) -> int:
-        cell = row[name]
-        try:
-            return int(cell)
-        except ValueError:
-            raise ResultsError(f"{where}: column {name!r}: cannot parse {cell!r} as an integer") from None
-
-    def boolean(name: str) -> bool:
-        cell = row.get(name, "false")
-        if cell not in ("true", "false"):
-            raise ResultsError(f"{where}: column {name!r}: expected 'true' or 'false', got {cell!r}")
-        return cell == "true"
-
-    try:
-        point = ResponsePoint(
-            frequency_hz=number("frequency_hz"),
-            harmonic=integer("harmonic"),
-            channel=row["channel"],
-            amplitude=number("amplitude"),
-            p=number("p"),
-            q=number("q"),
-            periods=integer("periods"),
-            converged=boolean("converged"),
-            status=row["status"],
-            uncertainty=number("uncertainty"),
-            uncertainty_1d=number("uncertainty_1d") if "uncertainty_1d" in row else math.nan,
-            within_eps=boolean("within_eps"),
-            periods_needed=integer("periods_needed") if "periods_needed" in row else 0,
-        )
-    except ResultsError:
-        raise
-    except ValueError as exc:
-        raise ResultsError(f"{where}: invalid point: {exc}") from None
-    for name in _DERIVED_COLUMNS:
-        stored = number(name)
-        computed = getattr(point, name)
-        if not _agree(stored, computed):
-            raise ResultsError(
-                f"{where}: column {name!r}: stored value {row[name]!r} disagrees with {computed!r} "
-                "recomputed from p, q and amplitude"
-            )
-    return point
-
-
-def read_json_file(path: Path, error: type[Exception], what: str, missing_hint: str = "") -> Any:
-    """The JSON value stored in ``path``; ``error`` naming the file (and the line) when it is missing (with
-    ``missing_hint`` appended), unreadable or not JSON. ``what`` names the file's role, e.g. "sidecar file"."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise error(f"{path}: {what} not found{missing_hint}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise error(f"{path}: cannot read {what}: {exc}") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise error(f"{path}: line {exc.lineno}: {what} is not valid JSON: {exc.msg}") from None
-
-
-def _parse_sidecar(path: Path) -> tuple[str, dict[str, Any]]:
-    data = read_json_file(path, ResultsError, "sidecar file")
-    if not isinstance(data, dict):
-        raise ResultsError(f"{path}: sidecar must hold a JSON object, got {type(data).__name__}")
-    for key in ("format", "version", "case", "config"):
-        if key not in data:
-            raise ResultsError(f"{path}: key {key!r} missing from sidecar")
-    if data["format"] != FORMAT_NAME:
-        raise ResultsError(f"{path}: key 'format': unknown format {data['format']!r}, expected {FORMAT_NAME!r}")
-    if not _is_int(data["version"]) or data["version"] not in (1, FORMAT_VERSION):
-        raise ResultsError(
-            f"{path}: key 'version': unsupported version {data['version']!r}, expected {FORMAT_VERSION}"
-        )
-    if not isinstance(data["case"], str):
-        raise ResultsError(f"{path}: key 'case': expected a string, got {data['case']!r}")
-    if not isinstance(data["config"], dict):
-        raise ResultsError(f"{path}: key 'config': expected a JSON object, got {type(data['config']).__name__}")
-    return data["case"], data["config"]
-
 
 class FrequencyResponse:
     """Points of a sweep (any harmonics/channels), with the configuration that produced them.
@@ -611,31 +330,3 @@ class FrequencyResponse:
     def complex_response(self) -> np.ndarray:
         """G = (p + i q) / amplitude per point, so that angle(G) equals the phase (modulo 360 degrees)."""
         return np.array([complex(pt.p, pt.q) / pt.amplitude for pt in self.points], dtype=complex)
-
-    def save(self, directory: str | Path) -> None:
-        """Write ``directory/response.csv`` and ``directory/response.json`` atomically (creates the directory)."""
-        directory = Path(directory)
-        directory.mkdir(parents=True, exist_ok=True)
-        sidecar = {
-            "format": FORMAT_NAME,
-            "version": FORMAT_VERSION,
-            "case": self.case,
-            "config": _normalise_config(self.config),
-            "software": {"name": "bodebench", "version": _software_version()},
-        }
-        csv_text = "".join(line + "\n" for line in [",".join(CSV_COLUMNS), *map(_point_row, self.points)])
-        atomic_write_text(directory / SIDECAR_NAME, json.dumps(sidecar, indent=2) + "\n")
-        atomic_write_text(directory / CSV_NAME, csv_text)
-
-    @classmethod
-    def load(cls, directory: str | Path) -> FrequencyResponse:
-        """Read a response written by :meth:`save`; raises ResultsError for missing, malformed or tampered files."""
-        directory = Path(directory)
-        case, config = _parse_sidecar(directory / SIDECAR_NAME)
-        points = _parse_csv(directory / CSV_NAME)
-        return cls(points, config=config, case=case)
-
-    def write_point(self, directory: str | Path, point: ResponsePoint) -> None:
-        """Add ``point`` and save the whole response to ``directory``."""
-        self.add(point)
-        self.save(directory)

@@ -14,7 +14,7 @@ import signal
 import threading
 import time
 import traceback
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -26,7 +26,7 @@ from textual.containers import Horizontal, Vertical
 from textual.widget import Widget
 from textual.widgets import Static
 
-from bodebench.apps.tui.bridge import CaseBegins, CaseSaved, SessionBridge, SessionEvent, WorkerReport
+from bodebench.apps.tui.bridge import SessionBridge, SessionEvent, WorkerReport
 from bodebench.apps.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
 from bodebench.apps.tui.model import BusRates, SweepModel, format_duration
 from bodebench.apps.tui.widgets import (
@@ -40,8 +40,9 @@ from bodebench.apps.tui.widgets import (
     SweepTable,
     bus_summary,
 )
-from bodebench.bench.session import (
-    BenchSession,
+from bodebench.bench.events import (
+    CaseBegins,
+    CaseSaved,
     PointFinished,
     PointStarted,
     SessionEnded,
@@ -49,19 +50,17 @@ from bodebench.bench.session import (
     SessionFault,
     SessionStarted,
 )
+from bodebench.bench.procedure import SweepProcedure, case_directory
 from bodebench.bench.worker import Health
-from bodebench.core.response import CSV_NAME, FrequencyResponse, ResponsePoint, ResultsError
+from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.io.config import CaseConfig, ExperimentConfig
+from bodebench.io.results import CSV_NAME, ResultsError, load_response, save_response
+from bodebench.status import FaultKind
 
 VIEWS = ("live", "sweep", "bode", "bus")
 VIEW_TITLES = {"live": "Live", "sweep": "Sweep", "bode": "Bode", "bus": "Bus"}
 JOIN_TIMEOUT_S = 30.0
 ROW_PERIODS_EVERY = 3  # refresh ticks between redraws of the table for period counts alone
-
-
-def case_directory(config: ExperimentConfig, out: Path, case: CaseConfig) -> Path:
-    """Where a case's results go: ``out`` itself, or ``out/<case>`` for a config with [cases]."""
-    return out / case.name if config.has_cases else out
 
 
 def load_results(path: Path) -> list[tuple[str, FrequencyResponse]]:
@@ -70,51 +69,25 @@ def load_results(path: Path) -> list[tuple[str, FrequencyResponse]]:
     if not path.is_dir():
         raise ResultsError(f"{path}: not a directory")
     if (path / CSV_NAME).exists():
-        response = FrequencyResponse.load(path)
+        response = load_response(path)
         return [(response.case or path.name, response)]
     found = []
     for sub in sorted(p for p in path.iterdir() if p.is_dir() and (p / CSV_NAME).exists()):
-        response = FrequencyResponse.load(sub)
+        response = load_response(sub)
         found.append((f"{path.name}/{sub.name}", response))
     if not found:
         raise ResultsError(f"{path}: no {CSV_NAME} here or in its sub-directories")
     return found
 
 
-def _merge(base: FrequencyResponse, new: list[ResponsePoint], frequency_hz: float) -> FrequencyResponse:
-    """``base`` with its points at ``frequency_hz`` replaced by ``new`` (in their place)."""
-    out: list[ResponsePoint] = []
-    inserted = False
-    for p in base.points:
-        if math.isclose(p.frequency_hz, frequency_hz, rel_tol=1e-9):
-            if not inserted:
-                out.extend(new)
-                inserted = True
-        else:
-            out.append(p)
-    if not inserted:
-        out.extend(new)
-    return FrequencyResponse(out, config=base.config, case=base.case)
-
-
-def _latest_points(response: FrequencyResponse) -> FrequencyResponse:
-    """``response`` keeping only the latest point of each (frequency, harmonic, channel), in first-seen order
-    (a frequency re-measured during the sweep appears once)."""
-    latest: dict[tuple[float, int, str], ResponsePoint] = {}
-    for p in response.points:
-        latest[(p.frequency_hz, p.harmonic, p.channel)] = p
-    return FrequencyResponse(latest.values(), config=response.config, case=response.case)
-
-
 @dataclass
 class RunControl:
-    """Shared between the UI and one session thread: requests made before the session exists are applied
-    when it starts. Plain attributes, each written by one side."""
+    """Shared between the UI and one sweep thread: the sweep procedure takes the user's requests (those made
+    before a session exists are applied when it starts). Plain attributes, each written by one side."""
 
     run: int
-    abort: bool = False
+    procedure: SweepProcedure
     paused: bool = False
-    session: BenchSession | None = None
     done: threading.Event = field(default_factory=threading.Event)
     session_s: float = math.nan          # wall time of the last session.run(), s
     health: Health | None = None         # its last bus health
@@ -286,7 +259,7 @@ class BodeBenchApp(App[int]):
             if not (directory / CSV_NAME).exists():
                 continue
             try:
-                self.results[i] = FrequencyResponse.load(directory)
+                self.results[i] = load_response(directory)
             except ResultsError as exc:
                 self.notify(f"previous results not shown: {exc}", severity="warning", timeout=8)
         if 0 in self.results:
@@ -335,10 +308,7 @@ class BodeBenchApp(App[int]):
         if control is None or control.done.is_set():
             self.notify("no sweep running")
             return
-        control.abort = True
-        session = control.session
-        if session is not None:
-            session.request_abort()
+        control.procedure.request_abort()
         self.state = "aborting"
         self._refresh_status()
 
@@ -347,16 +317,15 @@ class BodeBenchApp(App[int]):
         if not self.running or control is None:
             return
         control.paused = not control.paused
-        if control.session is not None:
-            control.session.set_paused(control.paused)
+        control.procedure.set_paused(control.paused)
         self.state = "paused" if control.paused else "running"
         self._refresh_status()
 
     def action_skip(self) -> None:
         control = self.control
-        if not self.running or control is None or control.session is None:
+        if not self.running or control is None:
             return
-        control.session.request_skip()
+        control.procedure.request_skip()
         self.notify("skipping the current point")
 
     def action_remeasure(self) -> None:
@@ -366,10 +335,9 @@ class BodeBenchApp(App[int]):
         row = self.model.rows[key]
         control = self.control
         if self.running and control is not None:
-            if control.session is None:
+            if not control.procedure.request_remeasure(row.frequency_hz):
                 self.notify("the session is still starting", severity="warning")
                 return
-            control.session.request_remeasure(row.frequency_hz)
             self.notify(f"{row.frequency_hz:g} Hz will be measured again next")
             return
         if self.case_index not in self.results:
@@ -394,8 +362,8 @@ class BodeBenchApp(App[int]):
                 return
             self.tolerance_percent = float(text)
             control = self.control
-            if self.running and control is not None and control.session is not None:
-                control.session.set_tolerance(self.tolerance_percent)
+            if self.running and control is not None:
+                control.procedure.set_tolerance(self.tolerance_percent)
             self.notify(f"tolerance {self.tolerance_percent:g} % for the points not yet started")
             self._refresh_status()
 
@@ -411,10 +379,11 @@ class BodeBenchApp(App[int]):
                         group="save")
 
     def _save_thread(self, response: FrequencyResponse, directory: Path) -> None:
-        from bodebench.bench.offline import write_case
+        from bodebench.apps.plots import write_plots
 
         try:
-            files = write_case(response, directory)
+            save_response(response, directory)
+            files = write_plots(response, directory, response.case)
         except Exception as exc:  # noqa: BLE001 - reported to the user, never fatal
             self.call_from_thread(self.notify, f"saving failed: {type(exc).__name__}: {exc}", severity="error",
                                   timeout=10)
@@ -473,9 +442,16 @@ class BodeBenchApp(App[int]):
     # ------------------------------------------------------------------------------------------ the session
     def _launch(self, frequency_hz: float | None) -> None:
         """Start a sweep of every case (``frequency_hz``: re-measure that frequency of the current case)."""
+        from bodebench.apps.plots import write_plots  # matplotlib: only once a sweep starts
+
         self._runs += 1
-        control = RunControl(self._runs)
-        bridge = SessionBridge(self.post_message, control.run)
+        bridge = SessionBridge(self.post_message, self._runs)
+        procedure = SweepProcedure(self.config, self.out, listener=bridge, existing="replace",
+                                   worker_mode=self.config.cases[0].on_bench.bench.worker_mode(beside_a_ui=True),
+                                   plots=write_plots)
+        if self.tolerance_percent is not None:
+            procedure.set_tolerance(self.tolerance_percent)
+        control = RunControl(self._runs, procedure)
         self.control, self.bridge = control, bridge
         self.last_fault = self.last_ended = None
         self.state = "starting"
@@ -484,84 +460,42 @@ class BodeBenchApp(App[int]):
         self.rates.reset()
         if frequency_hz is None:
             self.case_index = 0
-        cases = [self.case] if frequency_hz is not None else list(self.config.cases)
-        first = self.case_index
-        self.run_worker(partial(self._session_thread, control, bridge, cases, first, frequency_hz), thread=True,
+        cases = [self.case_index] if frequency_hz is not None else list(range(len(self.config.cases)))
+        self.run_worker(partial(self._session_thread, control, bridge, cases, frequency_hz), thread=True,
                         exit_on_error=False, group="session", name=f"session {control.run}")
         self._sync_bindings()
         self._refresh_status()
 
-    @staticmethod
-    def worker_mode(case: CaseConfig) -> str:
-        """Where the bus worker runs: as the config says, else its own process even on the lockstep clock, so
-        that the UI's share of the interpreter never delays the lockstep exchange with the drive."""
-        worker = case.tables["bench"].worker
-        return "process" if worker == "auto" else worker
-
-    def _prepare(self, case: CaseConfig) -> CaseConfig:
-        if self.tolerance_percent is None:
-            return case
-        raw = {**case.raw, "analysis": {**case.raw.get("analysis", {}), "tolerance_percent": self.tolerance_percent}}
-        return replace(case, analysis=replace(case.analysis, tolerance_percent=self.tolerance_percent), raw=raw)
-
-    def _session_thread(self, control: RunControl, bridge: SessionBridge, cases: list[CaseConfig], first: int,
+    def _session_thread(self, control: RunControl, bridge: SessionBridge, cases: list[int],
                         frequency_hz: float | None) -> None:
-        """The worker: sweep the cases in turn (own thread; talks to the UI only through messages)."""
-        from bodebench.bench.connection import plan_link
-        from bodebench.bench.offline import write_case
-
-        completed, error, saved = False, "", ""
-        merged: FrequencyResponse | None = None
+        """The worker: the sweep procedure over the cases (own thread; talks to the UI only through messages)."""
+        completed, error, saved, aborted = False, "", "", False
+        procedure = control.procedure
+        started = time.perf_counter()
         try:
-            for offset, case in enumerate(cases):
-                if control.abort:
-                    error = "abort: aborted by the user"
-                    break
-                index = first + offset
-                case = self._prepare(case)
-                if frequency_hz is not None:
-                    case = replace(case, excitation=replace(case.excitation, frequencies_hz=(frequency_hz,)))
-                directory = case_directory(self.config, self.out, case)
-                self.post_message(SessionEvent(CaseBegins(index, frequency_hz), control.run))
-                plan = plan_link(case, self.config.path)
-                session = BenchSession(case, plan, None if frequency_hz is not None else directory, bridge,
-                                       worker_mode=self.worker_mode(case))
-                control.session = session
-                if control.paused:
-                    session.set_paused(True)
-                if self.tolerance_percent is not None:
-                    session.set_tolerance(self.tolerance_percent)
-                if control.abort:
-                    session.request_abort()
-                started = time.perf_counter()
-                try:
-                    result = session.run()
-                except SessionError as exc:
-                    error = str(exc)
-                    if session.response.points and frequency_hz is None:
-                        write_case(session.response, directory)
-                        saved = str(directory)
-                    break
-                finally:
-                    control.session_s = time.perf_counter() - started
-                    control.health = session.last_health
-                if frequency_hz is not None:
-                    base = self.results.get(index) or FrequencyResponse(config=case.raw, case=case.name)
-                    merged = _merge(base, list(result.response.points), frequency_hz)
-                    write_case(merged, directory)
-                else:
-                    merged = _latest_points(result.response)
-                    write_case(merged, directory)
-                saved = str(directory)
-                self.post_message(SessionEvent(CaseSaved(index, merged), control.run))
+            if frequency_hz is not None:
+                outcome = procedure.remeasure(cases[0], frequency_hz, self.results.get(cases[0]))
             else:
-                completed = True
+                procedure.run(cases)
+                outcome = procedure.current
+            completed, aborted = not procedure.aborted, procedure.aborted
+            if aborted:
+                error = "abort: aborted by the user"
+            saved = str(outcome.directory) if outcome is not None else ""
+        except SessionError as exc:
+            error, aborted = str(exc), exc.kind == FaultKind.ABORT
+            current = procedure.current
+            if current is not None and current.response.points and frequency_hz is None:
+                saved = str(current.directory)
         except Exception as exc:  # noqa: BLE001 - whatever happens is shown, never a traceback on screen
             error = f"{type(exc).__name__}: {exc}"
             self.worker_errors.append(traceback.format_exc())
         finally:
+            session = procedure.current.session if procedure.current is not None else None
+            control.session_s = time.perf_counter() - started
+            control.health = session.last_health if session is not None else None
             control.done.set()
-            self.post_message(WorkerReport(control.run, completed, error, saved))
+            self.post_message(WorkerReport(control.run, completed, error, saved, aborted))
 
     # ------------------------------------------------------------------------------------- session messages
     def on_session_event(self, message: SessionEvent) -> None:
@@ -608,7 +542,7 @@ class BodeBenchApp(App[int]):
             self._live_dirty = True
         elif isinstance(event, SessionFault):
             self.last_fault = event
-            if event.kind == "watchdog":
+            if event.kind == FaultKind.WATCHDOG:
                 self.watchdog = "TRIPPED"
             self.model.fail_current()
         elif isinstance(event, SessionEnded):
@@ -641,7 +575,7 @@ class BodeBenchApp(App[int]):
         if message.completed:
             self.state = "done"
             self.notify(f"sweep complete: results in {message.saved}", timeout=8)
-        elif (fault is not None and fault.kind == "abort") or message.error.startswith("abort"):
+        elif (fault is not None and fault.kind == FaultKind.ABORT) or message.aborted:
             self.state = "aborted"
             kept = fault.kept if fault is not None else 0
             drive = "" if ended is None else f"{ended.drive_state()}; "
@@ -824,9 +758,7 @@ class BodeBenchApp(App[int]):
         if control is None:
             return True
         if not control.done.is_set():
-            control.abort = True
-            if control.session is not None:
-                control.session.request_abort()
+            control.procedure.request_abort()
         return control.done.wait(timeout_s)
 
 

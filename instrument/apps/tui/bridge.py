@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from textual.message import Message
 
-from bodebench.bench.session import BusStatus, PointProgress
+from bodebench.bench.events import BusStatus, PointProgress
 from bodebench.bench.worker import Health
 from bodebench.core.autointegration import SeriesState
 
@@ -34,30 +34,16 @@ class SessionEvent(Message):
 
 
 class WorkerReport(Message):
-    """The session thread of run ``run`` has ended: ``error`` (empty when none) says what went wrong."""
+    """The sweep thread of run ``run`` has ended: ``error`` (empty when none) says what went wrong, ``aborted``
+    whether the user stopped it, ``saved`` the directory holding its points (empty: none)."""
 
-    def __init__(self, run: int, completed: bool, error: str, saved: str) -> None:
+    def __init__(self, run: int, completed: bool, error: str, saved: str, aborted: bool = False) -> None:
         super().__init__()
         self.run = run
         self.completed = completed
         self.error = error
         self.saved = saved
-
-
-@dataclass(frozen=True)
-class CaseBegins:
-    """The session thread starts case ``index`` (``frequency_hz``: re-measuring that frequency only)."""
-
-    index: int
-    frequency_hz: float | None
-
-
-@dataclass(frozen=True)
-class CaseSaved:
-    """Case ``index`` ended and ``response`` (a FrequencyResponse) is on disk."""
-
-    index: int
-    response: object
+        self.aborted = aborted
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,138 @@
+"""What a sweep tells its listeners (the command line, the terminal UI): typed, immutable events.
+
+A listener is any callable taking one event; it runs on the sweep's thread and must only record or queue
+what it is given (the terminal UI posts it to its own thread). Fault kinds are :class:`bodebench.status.FaultKind`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bodebench.bench.worker import Health
+from bodebench.core.autointegration import SeriesState
+from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.status import FaultKind
+
+
+@dataclass(frozen=True)
+class SessionStarted:
+    frequencies_hz: tuple[float, ...]
+    channels: tuple[str, ...]
+    where: str
+
+
+@dataclass(frozen=True)
+class PointStarted:
+    index: int
+    frequency_hz: float
+
+
+@dataclass(frozen=True)
+class PointProgress:
+    """The current point after the latest batch of periods; ``scope``: recent (t, setpoint, output) samples."""
+
+    index: int
+    frequency_hz: float
+    periods: int
+    states: tuple[SeriesState, ...]
+    tolerance_percent: float
+    criterion: str
+    scope: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+
+@dataclass(frozen=True)
+class PointFinished:
+    """A point done: its ``points`` (one per channel and harmonic) on disk; ``skipped`` by the user, or
+    ``refused`` (the reason: not a physical response, nothing written)."""
+
+    index: int
+    points: tuple[ResponsePoint, ...]
+    skipped: bool = False
+    refused: str = ""
+
+
+@dataclass(frozen=True)
+class BusStatus:
+    health: Health
+
+
+@dataclass(frozen=True)
+class SessionFault:
+    """The sweep stopped early; ``kept`` points are on disk."""
+
+    kind: FaultKind
+    message: str
+    kept: int
+
+
+@dataclass(frozen=True)
+class SessionEnded:
+    """How the sweep ended and what the drive was last sent: ``last_setpoint`` (NaN: unknown, the worker did not
+    report), whether a zero setpoint and the disable frame went out after every other setpoint, whether the bus
+    worker reported at all (``reported``) and how many frames it sent; ``has_disable``: the layout has a disable
+    frame; ``drive_watchdog_s``: the drive's own watchdog time (0: the layout declares none)."""
+
+    reason: str
+    completed: bool
+    last_setpoint: float
+    disabled: bool
+    zero_sent: bool = False
+    frames_out: int = 0
+    reported: bool = True
+    has_disable: bool = True
+    drive_watchdog_s: float = 0.0
+
+    def drive_state(self) -> str:
+        """What the drive was actually sent, in words (the last line of a command)."""
+        watchdog = (f"the drive's watchdog zeroes and disables it {self.drive_watchdog_s:g} s after the last frame "
+                    "it received (frames.drive_watchdog_s)" if self.drive_watchdog_s > 0 else
+                    "the layout declares no drive watchdog (frames.drive_watchdog_s): make the drive safe by hand")
+        if not self.reported:
+            return f"the bus worker ended without reporting: the drive's state is unknown; {watchdog}"
+        if self.frames_out == 0:
+            return "nothing was sent to the drive"
+        if not self.zero_sent:
+            return (f"could not send the zero setpoint: the last setpoint that went out was {self.last_setpoint:g}"
+                    f"{'' if self.disabled else ', no disable frame sent'}; {watchdog}")
+        if self.disabled:
+            return "drive left at setpoint 0, disabled"
+        if not self.has_disable:
+            return "drive left at setpoint 0 (the layout has no disable frame)"
+        return f"drive left at setpoint 0, but the disable frame could not be sent; {watchdog}"
+
+
+Listener = Callable[[object], None]
+
+
+class SessionError(RuntimeError):
+    """The sweep could not complete; the drive was left at zero. ``kind`` says why."""
+
+    def __init__(self, kind: FaultKind, message: str) -> None:
+        super().__init__(f"{kind}: {message}")
+        self.kind = kind
+
+
+
+
+@dataclass(frozen=True)
+class CaseBegins:
+    """The sweep procedure starts case ``index`` (``frequency_hz``: only that frequency, measured again)."""
+
+    index: int
+    name: str
+    directory: Path
+    frequency_hz: float | None = None
+
+
+@dataclass(frozen=True)
+class CaseSaved:
+    """Case ``index`` is on disk in ``directory``: its ``response`` and the plot ``files``."""
+
+    index: int
+    response: FrequencyResponse
+    directory: Path
+    files: tuple[Path, ...] = ()

@@ -1,0 +1,284 @@
+"""The sweep procedure: every case of a configuration, in turn, from resume to the files on disk.
+
+One procedure serves the command line and the terminal UI, on a bench (a :class:`BenchSession` per case, over a
+bus or with the simulated drive in-process) and offline (the simulated plant, frequencies on an executor). It owns
+the case loop: it refuses a results directory that already holds another sweep before anything is measured,
+continues an interrupted sweep on request, appends each point to ``response.csv`` as it is measured (the session,
+or the offline sweep through a :class:`ResultsWriter`), and writes the plots of each case at its end through the
+``plots`` callable the application gives (this floor draws nothing). Listeners receive the events of
+:mod:`bodebench.bench.events`, :class:`CaseBegins` and :class:`CaseSaved` around each case's own.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable, Sequence
+from concurrent.futures import Executor
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from bodebench.bench.events import CaseBegins, CaseSaved, Listener, PointFinished, PointStarted
+from bodebench.bench.session import BenchSession, SessionResult, completed_frequencies
+from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.io.config import CaseConfig, ExperimentConfig
+from bodebench.io.results import CSV_NAME, SIDECAR_NAME, ResultsError, ResultsWriter, load_response, save_response
+
+PlotWriter = Callable[[FrequencyResponse, Path, str], list[Path]]
+"""Draws a finished case: (response, directory, title) -> the files written."""
+
+
+def case_directory(config: ExperimentConfig, out: Path, case: CaseConfig) -> Path:
+    """Where a case's results go: ``out`` itself for a file without [cases], else ``out/<case name>``."""
+    return out / case.name if config.has_cases else out
+
+
+EXISTING = ("refuse", "resume", "replace")
+"""What to do with results already in a case's directory: refuse to start, continue that sweep, or replace it
+(the user said so)."""
+
+
+def previous_run(directory: Path, case: CaseConfig, existing: str = "refuse") -> FrequencyResponse | None:
+    """The interrupted sweep of ``case`` in ``directory`` to continue, or None when there is none (or when
+    ``existing`` is "replace").
+
+    Raises ResultsError when the directory holds results and ``existing`` is "refuse" (nothing is overwritten),
+    or when they are to be resumed but were made with another configuration."""
+    if existing not in EXISTING:
+        raise ValueError(f"existing must be one of {', '.join(EXISTING)}, got {existing!r}")
+    if existing == "replace" or not (directory / CSV_NAME).exists():
+        return None
+    if existing == "refuse":
+        raise ResultsError(f"{directory / CSV_NAME}: results already here; --resume continues that sweep, "
+                           "or choose another --out")
+    previous = load_response(directory, drop_torn_row=True)
+    wanted = FrequencyResponse(config=case.raw).config
+    if previous.config != wanted:
+        changed = sorted(k for k in set(previous.config) | set(wanted) if previous.config.get(k) != wanted.get(k))
+        raise ResultsError(f"{directory / SIDECAR_NAME}: made with another configuration (tables differ: "
+                           f"{', '.join(changed)}); cannot resume")
+    return previous
+
+
+@dataclass
+class CaseOutcome:
+    """One case as the procedure left it: where, what was measured, and the session that measured it (bench)."""
+
+    index: int
+    case: CaseConfig
+    directory: Path
+    response: FrequencyResponse
+    files: tuple[Path, ...] = ()
+    session: BenchSession | None = None
+    result: SessionResult | None = None
+
+
+class SweepProcedure:
+    """Runs the cases of ``config`` into ``out`` (see the module docstring).
+
+    direct: a bench config's simulated drive called in-process, without a bus (``bodebench simulate``);
+    existing: what to do with results already in a case's directory (:data:`EXISTING`); worker_mode: where the bus worker runs
+    (None: as the config says); executor: where offline frequencies run (None: in this thread, in order);
+    plots: draws each finished case (None: no plots).
+
+    Requests from other threads (:meth:`request_abort`, :meth:`set_paused`, :meth:`request_skip`,
+    :meth:`set_tolerance`) reach the running session and every case after it.
+    """
+
+    def __init__(self, config: ExperimentConfig, out: Path, *, listener: Listener | None = None,
+                 direct: bool = False, existing: str = "refuse", worker_mode: str | None = None,
+                 executor: Executor | None = None, plots: PlotWriter | None = None) -> None:
+        self.config = config
+        self.out = Path(out)
+        self.listener: Listener = listener or (lambda event: None)
+        self.direct = direct
+        self.existing = existing
+        self.worker_mode = worker_mode
+        self.executor = executor
+        self.plots = plots
+        self.outcomes: list[CaseOutcome] = []
+        self.current: CaseOutcome | None = None
+        self._lock = threading.Lock()
+        self._abort = False
+        self._paused = False
+        self._tolerance_percent: float | None = None
+
+    # --- requests (any thread)
+    def request_abort(self) -> None:
+        with self._lock:
+            self._abort = True
+            session = self.current.session if self.current else None
+        if session is not None:
+            session.request_abort()
+
+    def set_paused(self, paused: bool) -> None:
+        with self._lock:
+            self._paused = paused
+            session = self.current.session if self.current else None
+        if session is not None:
+            session.set_paused(paused)
+
+    def request_skip(self) -> None:
+        session = self.current.session if self.current else None
+        if session is not None:
+            session.request_skip()
+
+    def request_remeasure(self, frequency_hz: float) -> bool:
+        """Measure ``frequency_hz`` again, next, in the running session; False when no session runs yet."""
+        session = self.current.session if self.current else None
+        if session is None:
+            return False
+        session.request_remeasure(frequency_hz)
+        return True
+
+    def set_tolerance(self, tolerance_percent: float) -> None:
+        """The stopping tolerance (percent) of every point not yet started."""
+        with self._lock:
+            self._tolerance_percent = tolerance_percent
+            session = self.current.session if self.current else None
+        if session is not None:
+            session.set_tolerance(tolerance_percent)
+
+    @property
+    def aborted(self) -> bool:
+        return self._abort
+
+    # --- the procedure
+    def run(self, cases: Sequence[int] | None = None) -> list[CaseOutcome]:
+        """Sweep the cases (indices into ``config.cases``; None: all) and return their outcomes.
+
+        Every results directory is checked before the first setpoint. A case that stops early raises what
+        stopped it (SessionError, KeyboardInterrupt, ...) after its kept points' plots are drawn; ``current`` is
+        that case's outcome."""
+        indices = list(range(len(self.config.cases))) if cases is None else list(cases)
+        previous = {i: previous_run(self._directory(i), self.config.cases[i], self.existing) for i in indices}
+        for i in indices:
+            if self._abort:
+                break
+            self._run_case(i, previous[i])
+        return self.outcomes
+
+    def remeasure(self, index: int, frequency_hz: float, base: FrequencyResponse | None) -> CaseOutcome:
+        """Measure one frequency of bench case ``index`` again and save ``base`` (the case's points so far) with
+        that frequency's points replaced."""
+        case = replace(self._case(index), excitation=replace(self._case(index).excitation,
+                                                             frequencies_hz=(frequency_hz,)))
+        directory = self._directory(index)
+        self.listener(CaseBegins(index, case.name, directory, frequency_hz))
+        outcome = CaseOutcome(index, case, directory, FrequencyResponse(config=case.raw, case=case.name))
+        self.current = outcome
+        result = self._bench_case(outcome, None, write=False)
+        merged = merge_frequency(base or FrequencyResponse(config=case.raw, case=case.name),
+                                 result.response.points, frequency_hz)
+        outcome.response = merged
+        save_response(merged, directory)
+        self._finish(outcome)
+        return outcome
+
+    # --- inside
+    def _case(self, index: int) -> CaseConfig:
+        """Case ``index`` with the tolerance the user set since the start, if any (config and saved copy alike)."""
+        case = self.config.cases[index]
+        tolerance = self._tolerance_percent
+        if tolerance is None:
+            return case
+        raw = {**case.raw, "analysis": {**case.raw.get("analysis", {}), "tolerance_percent": tolerance}}
+        return replace(case, analysis=replace(case.analysis, tolerance_percent=tolerance), raw=raw)
+
+    def _directory(self, index: int) -> Path:
+        return case_directory(self.config, self.out, self.config.cases[index])
+
+    def _run_case(self, index: int, previous: FrequencyResponse | None) -> None:
+        case = self._case(index)
+        directory = self._directory(index)
+        self.listener(CaseBegins(index, case.name, directory))
+        outcome = CaseOutcome(index, case, directory, FrequencyResponse(config=case.raw, case=case.name))
+        self.current = outcome
+        self.outcomes.append(outcome)
+        if case.bench is None:
+            outcome.response = self._offline_case(case, directory, previous)
+            self._finish(outcome)
+            return
+        try:
+            result = self._bench_case(outcome, previous, write=True)
+        except BaseException:
+            outcome.response = outcome.session.response if outcome.session else outcome.response
+            if outcome.response.points:
+                try:
+                    self._draw(outcome)
+                except OSError:
+                    pass  # the plots only: the points are on disk already
+            raise
+        outcome.response = latest_points(result.response)
+        if len(outcome.response) < len(result.response):  # a frequency measured again: its first rows go
+            save_response(outcome.response, outcome.directory)
+        self._finish(outcome)
+
+    def _bench_case(self, outcome: CaseOutcome, previous: FrequencyResponse | None, *, write: bool
+                    ) -> SessionResult:
+        from bodebench.bench.connection import plan_link
+
+        plan = plan_link(outcome.case, direct=self.direct)
+        session = BenchSession(outcome.case, plan, outcome.directory if write else None, self.listener,
+                               worker_mode=self.worker_mode, resume=previous)
+        with self._lock:
+            outcome.session = session
+            if self._paused:
+                session.set_paused(True)
+            if self._abort:
+                session.request_abort()
+        outcome.result = session.run()
+        return outcome.result
+
+    def _offline_case(self, case: CaseConfig, directory: Path, previous: FrequencyResponse | None
+                      ) -> FrequencyResponse:
+        from bodebench.bench.offline import sweep
+
+        measured = (completed_frequencies(previous, tuple({p.channel for p in previous.points}),
+                                          case.analysis.harmonics) if previous else set())
+        writer = ResultsWriter(directory, case.name, case.raw, resume=previous is not None)
+        frequencies = case.excitation.frequencies_hz
+
+        def on_point(points: list[ResponsePoint]) -> None:
+            writer.append(points)
+            index = frequencies.index(points[0].frequency_hz)
+            self.listener(PointStarted(index, points[0].frequency_hz))
+            self.listener(PointFinished(index, tuple(points)))
+
+        return sweep(case, self.executor, on_point=on_point, measured=previous.points if previous else (),
+                     skip=measured)
+
+    def _draw(self, outcome: CaseOutcome) -> None:
+        if self.plots is not None:
+            title = outcome.case.name or self.config.title
+            outcome.files = tuple(self.plots(outcome.response, outcome.directory, title))
+
+    def _finish(self, outcome: CaseOutcome) -> None:
+        self._draw(outcome)
+        self.listener(CaseSaved(outcome.index, outcome.response, outcome.directory, outcome.files))
+
+
+def latest_points(response: FrequencyResponse) -> FrequencyResponse:
+    """``response`` keeping only the latest point of each (frequency, harmonic, channel), in first-seen order
+    (a frequency measured again during the sweep appears once)."""
+    latest: dict[tuple[float, int, str], ResponsePoint] = {}
+    for p in response.points:
+        latest[(p.frequency_hz, p.harmonic, p.channel)] = p
+    return FrequencyResponse(latest.values(), config=response.config, case=response.case)
+
+
+def merge_frequency(base: FrequencyResponse, new: Sequence[ResponsePoint], frequency_hz: float
+                    ) -> FrequencyResponse:
+    """``base`` with its points at ``frequency_hz`` replaced by ``new`` (in their place, else at the end)."""
+    out: list[ResponsePoint] = []
+    inserted = False
+    for p in base.points:
+        if math.isclose(p.frequency_hz, frequency_hz, rel_tol=1e-9):
+            if not inserted:
+                out.extend(new)
+                inserted = True
+        else:
+            out.append(p)
+    if not inserted:
+        out.extend(new)
+    return FrequencyResponse(out, config=base.config, case=base.case)

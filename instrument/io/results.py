@@ -1,0 +1,398 @@
+"""Results files: ``response.csv`` (one row per point) and its JSON sidecar ``response.json``.
+
+The sidecar names the case and holds the configuration that made the points and the software version. Points are
+appended to the CSV as they are measured (:class:`ResultsWriter`), each row synced before the writer returns, so a
+point is on disk the moment it is measured; a crash can at worst leave the last row unterminated: the reader
+refuses such a file by default, and a resumed sweep drops that row (never confirmed written) and goes on. :func:`save_response` writes a whole response atomically;
+:func:`load_response` reads either and checks every derived column against ``p``, ``q`` and ``amplitude``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Mapping
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from bodebench.core.response import FrequencyResponse, ResponsePoint, _is_int, _normalise_config
+
+__all__ = [
+    "CSV_COLUMNS",
+    "CSV_NAME",
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "ResultsError",
+    "ResultsWriter",
+    "SIDECAR_NAME",
+    "check_output",
+    "load_response",
+    "save_response",
+]
+
+CSV_NAME = "response.csv"
+SIDECAR_NAME = "response.json"
+FORMAT_NAME = "bodebench-response"
+FORMAT_VERSION = 2
+
+#: Columns of response.csv, in file order.
+CSV_COLUMNS: tuple[str, ...] = (
+    "frequency_hz",
+    "harmonic",
+    "channel",
+    "amplitude",
+    "gain",
+    "gain_db",
+    "phase_deg",
+    "p",
+    "q",
+    "periods",
+    "converged",
+    "status",
+    "uncertainty",
+    "gain_ci",
+    "gain_db_ci",
+    "phase_ci_deg",
+    "uncertainty_1d",
+    "within_eps",
+    "periods_needed",
+)
+#: Columns of a version-1 response.csv (read; the added columns take their defaults).
+_CSV_COLUMNS_V1 = CSV_COLUMNS[:16]
+_DERIVED_COLUMNS: tuple[str, ...] = ("gain", "gain_db", "phase_deg", "gain_ci", "gain_db_ci", "phase_ci_deg")
+_DERIVED_RTOL = 1e-9
+
+class ResultsError(ValueError):
+    """A results file or sidecar is missing, malformed or inconsistent."""
+
+
+def _software_version() -> str:
+    try:
+        return metadata.version("bodebench")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def _current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _current_umask()
+
+
+PLOTS_BYTES = 1 << 20
+"""Room the plots of a finished case take at most (four files of 50-100 KB each, with margin), bytes."""
+POINT_BYTES = 256
+"""Room one point takes in response.csv at most, bytes."""
+
+
+def check_output(directory: Path, points: int) -> bool:
+    """Before a sweep: ``directory`` exists or can be made, a file can be written in it, and its file system has
+    room for the results of ``points`` points (each save writes a new file before it replaces the old: twice the
+    CSV and sidecar) and the plots. ResultsError naming the directory otherwise; True when it made the
+    directory."""
+    made = not directory.exists()
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ResultsError(f"{directory}: cannot create the results directory: {exc.strerror or exc}") from None
+    probe = directory / ".bodebench-write-check"
+    try:
+        atomic_write_text(probe, "x" * POINT_BYTES)
+        probe.unlink()
+    except OSError as exc:
+        raise ResultsError(f"{directory}: cannot write results there: {exc.strerror or exc}") from None
+    need = 2 * (8192 + points * POINT_BYTES) + PLOTS_BYTES
+    free = shutil.disk_usage(directory).free
+    if free < need:
+        if made:
+            directory.rmdir()
+        raise ResultsError(f"{directory}: {free / 1024:.0f} KiB free, the sweep's files need about "
+                           f"{need / 1024:.0f} KiB")
+    return made
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a synced temporary file in the same directory and os.replace."""
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        os.fchmod(fd, 0o666 & ~_UMASK)  # the permissions an ordinary open() would give, not mkstemp's 0600
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp_name, path)
+    except BaseException:
+        try:
+            os.unlink(tmp_name)
+        except FileNotFoundError:
+            pass
+        raise
+    try:  # make the rename itself durable where the platform allows it
+        dir_fd = os.open(path.parent, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(dir_fd)
+    except OSError:
+        pass
+    finally:
+        os.close(dir_fd)
+
+
+def _format_float(value: float) -> str:
+    return repr(float(value))  # shortest round-tripping form; 'nan', 'inf', '-inf' for non-finite values
+
+
+def _point_row(point: ResponsePoint) -> str:
+    values: dict[str, str] = {
+        "frequency_hz": _format_float(point.frequency_hz),
+        "harmonic": str(point.harmonic),
+        "channel": point.channel,
+        "amplitude": _format_float(point.amplitude),
+        "p": _format_float(point.p),
+        "q": _format_float(point.q),
+        "periods": str(point.periods),
+        "converged": "true" if point.converged else "false",
+        "status": point.status,
+        "uncertainty": _format_float(point.uncertainty),
+        "uncertainty_1d": _format_float(point.uncertainty_1d),
+        "within_eps": "true" if point.within_eps else "false",
+        "periods_needed": str(point.periods_needed),
+    }
+    for name in _DERIVED_COLUMNS:
+        values[name] = _format_float(getattr(point, name))
+    return ",".join(values[name] for name in CSV_COLUMNS)
+
+
+def _agree(stored: float, computed: float) -> bool:
+    if math.isnan(stored) or math.isnan(computed):
+        return math.isnan(stored) and math.isnan(computed)
+    if math.isinf(stored) or math.isinf(computed):
+        return stored == computed
+    return abs(stored - computed) <= _DERIVED_RTOL * max(abs(stored), abs(computed))
+
+
+def _parse_csv(path: Path, drop_torn_row: bool = False) -> list[ResponsePoint]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ResultsError(f"{path}: results file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ResultsError(f"{path}: cannot read results file: {exc}") from None
+    lines = text.split("\n")
+    torn = len(lines) > 2 and lines[-1] != "" and _torn(path, len(lines), lines[-1], lines[0])
+    if torn and not drop_torn_row:
+        raise ResultsError(f"{path}: line {len(lines)}: unterminated row, cut short by an interrupted write "
+                           "(resuming the sweep drops it and measures that frequency again)")
+    if torn or (lines and lines[-1] == ""):
+        lines.pop()  # the final newline, or a row an interrupted append left unterminated (never written)
+    if not lines:
+        raise ResultsError(f"{path}: line 1: empty file, expected header {','.join(CSV_COLUMNS)!r}")
+    header = lines[0].rstrip("\r").split(",")
+    columns = _CSV_COLUMNS_V1 if tuple(header) == _CSV_COLUMNS_V1 else CSV_COLUMNS
+    if tuple(header) != columns:
+        for index, (got, want) in enumerate(zip(header, CSV_COLUMNS, strict=False)):
+            if got != want:
+                raise ResultsError(
+                    f"{path}: line 1: bad header, column {index + 1} is {got!r}, expected {want!r}"
+                )
+        raise ResultsError(
+            f"{path}: line 1: bad header, {len(header)} columns, expected {len(CSV_COLUMNS)}: {','.join(CSV_COLUMNS)!r}"
+        )
+    points: list[ResponsePoint] = []
+    for lineno, line in enumerate(lines[1:], start=2):
+        cells = line.rstrip("\r").split(",")
+        if len(cells) != len(columns):
+            raise ResultsError(f"{path}: line {lineno}: {len(cells)} columns, expected {len(columns)}")
+        row = dict(zip(columns, cells, strict=True))
+        points.append(_parse_row(path, lineno, row))
+    return points
+
+
+def _torn(path: Path, lineno: int, line: str, header: str) -> bool:
+    """Whether an unterminated last row is the remains of an interrupted append (it does not parse)."""
+    columns = _CSV_COLUMNS_V1 if tuple(header.rstrip("\r").split(",")) == _CSV_COLUMNS_V1 else CSV_COLUMNS
+    cells = line.rstrip("\r").split(",")
+    if len(cells) != len(columns):
+        return True
+    try:
+        _parse_row(path, lineno, dict(zip(columns, cells, strict=True)))
+    except ResultsError:
+        return True
+    return False
+
+
+def _parse_row(path: Path, lineno: int, row: dict[str, str]) -> ResponsePoint:
+    where = f"{path}: line {lineno}"
+
+    def number(name: str) -> float:
+        cell = row[name]
+        try:
+            return float(cell)
+        except ValueError:
+            raise ResultsError(f"{where}: column {name!r}: cannot parse {cell!r} as a number") from None
+
+    def integer(name: str) -> int:
+        cell = row[name]
+        try:
+            return int(cell)
+        except ValueError:
+            raise ResultsError(f"{where}: column {name!r}: cannot parse {cell!r} as an integer") from None
+
+    def boolean(name: str) -> bool:
+        cell = row.get(name, "false")
+        if cell not in ("true", "false"):
+            raise ResultsError(f"{where}: column {name!r}: expected 'true' or 'false', got {cell!r}")
+        return cell == "true"
+
+    try:
+        point = ResponsePoint(
+            frequency_hz=number("frequency_hz"),
+            harmonic=integer("harmonic"),
+            channel=row["channel"],
+            amplitude=number("amplitude"),
+            p=number("p"),
+            q=number("q"),
+            periods=integer("periods"),
+            converged=boolean("converged"),
+            status=row["status"],
+            uncertainty=number("uncertainty"),
+            uncertainty_1d=number("uncertainty_1d") if "uncertainty_1d" in row else math.nan,
+            within_eps=boolean("within_eps"),
+            periods_needed=integer("periods_needed") if "periods_needed" in row else 0,
+        )
+    except ResultsError:
+        raise
+    except ValueError as exc:
+        raise ResultsError(f"{where}: invalid point: {exc}") from None
+    for name in _DERIVED_COLUMNS:
+        stored = number(name)
+        computed = getattr(point, name)
+        if not _agree(stored, computed):
+            raise ResultsError(
+                f"{where}: column {name!r}: stored value {row[name]!r} disagrees with {computed!r} "
+                "recomputed from p, q and amplitude"
+            )
+    return point
+
+
+def read_json_file(path: Path, error: type[Exception], what: str, missing_hint: str = "") -> Any:
+    """The JSON value stored in ``path``; ``error`` naming the file (and the line) when it is missing (with
+    ``missing_hint`` appended), unreadable or not JSON. ``what`` names the file's role, e.g. "sidecar file"."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{path}: {what} not found{missing_hint}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise error(f"{path}: cannot read {what}: {exc}") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise error(f"{path}: line {exc.lineno}: {what} is not valid JSON: {exc.msg}") from None
+
+
+def _parse_sidecar(path: Path) -> tuple[str, dict[str, Any]]:
+    data = read_json_file(path, ResultsError, "sidecar file")
+    if not isinstance(data, dict):
+        raise ResultsError(f"{path}: sidecar must hold a JSON object, got {type(data).__name__}")
+    for key in ("format", "version", "case", "config"):
+        if key not in data:
+            raise ResultsError(f"{path}: key {key!r} missing from sidecar")
+    if data["format"] != FORMAT_NAME:
+        raise ResultsError(f"{path}: key 'format': unknown format {data['format']!r}, expected {FORMAT_NAME!r}")
+    if not _is_int(data["version"]) or data["version"] not in (1, FORMAT_VERSION):
+        raise ResultsError(
+            f"{path}: key 'version': unsupported version {data['version']!r}, expected {FORMAT_VERSION}"
+        )
+    if not isinstance(data["case"], str):
+        raise ResultsError(f"{path}: key 'case': expected a string, got {data['case']!r}")
+    if not isinstance(data["config"], dict):
+        raise ResultsError(f"{path}: key 'config': expected a JSON object, got {type(data['config']).__name__}")
+    return data["case"], data["config"]
+
+
+def _sidecar_text(case: str, config: Mapping[str, Any]) -> str:
+    sidecar = {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "case": case,
+        "config": _normalise_config(config),
+        "software": {"name": "bodebench", "version": _software_version()},
+    }
+    return json.dumps(sidecar, indent=2) + "\n"
+
+
+_HEADER = ",".join(CSV_COLUMNS) + "\n"
+
+
+def save_response(response: FrequencyResponse, directory: str | Path) -> None:
+    """Write ``directory/response.csv`` and ``directory/response.json`` atomically (creates the directory)."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    csv_text = _HEADER + "".join(_point_row(point) + "\n" for point in response.points)
+    atomic_write_text(directory / SIDECAR_NAME, _sidecar_text(response.case, response.config))
+    atomic_write_text(directory / CSV_NAME, csv_text)
+
+
+def load_response(directory: str | Path, *, drop_torn_row: bool = False) -> FrequencyResponse:
+    """Read the response in ``directory``; raises ResultsError for missing, malformed or tampered files.
+
+    drop_torn_row: leave out a last row cut short by an interrupted append (as a resumed sweep does, which
+    measures its frequency again) instead of refusing the file."""
+    directory = Path(directory)
+    case, config = _parse_sidecar(directory / SIDECAR_NAME)
+    points = _parse_csv(directory / CSV_NAME, drop_torn_row)
+    return FrequencyResponse(points, config=config, case=case)
+
+
+class ResultsWriter:
+    """Appends the points of a sweep to ``directory/response.csv`` as they are measured.
+
+    Opening writes the sidecar (atomically) and, for a new file, the header; ``resume=True`` continues an existing
+    file instead (an unterminated last row, left by a crash mid-append, is cut off first). Each :meth:`append`
+    writes whole rows and syncs the file before it returns.
+    """
+
+    def __init__(self, directory: str | Path, case: str, config: Mapping[str, Any], *, resume: bool = False) -> None:
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.path = self.directory / CSV_NAME
+        atomic_write_text(self.directory / SIDECAR_NAME, _sidecar_text(case, config))
+        if resume and self.path.exists():
+            _end_last_row(self.path)
+        else:
+            atomic_write_text(self.path, _HEADER)
+
+    def append(self, points: list[ResponsePoint] | tuple[ResponsePoint, ...]) -> None:
+        """Append ``points`` (one frequency's, typically) and sync them to disk."""
+        if not points:
+            return
+        with open(self.path, "a", encoding="utf-8", newline="") as handle:
+            handle.write("".join(_point_row(point) + "\n" for point in points))
+            handle.flush()
+            os.fsync(handle.fileno())
+
+
+def _end_last_row(path: Path) -> None:
+    """Make appends start on a fresh line: a last row without its newline is ended if it is whole, cut off if it
+    is the remains of an interrupted append."""
+    with open(path, "rb+") as handle:
+        data = handle.read()
+        if not data or data.endswith(b"\n"):
+            return
+        start = data.rfind(b"\n") + 1
+        header = data[: data.find(b"\n")].decode("utf-8", "replace")
+        lineno = data.count(b"\n") + 1
+        if start and not _torn(path, lineno, data[start:].decode("utf-8", "replace"), header):
+            handle.write(b"\n")
+        else:
+            handle.truncate(start)
+        handle.flush()
+        os.fsync(handle.fileno())

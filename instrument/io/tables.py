@@ -1,0 +1,320 @@
+"""The tables of a configuration file, one frozen dataclass each, validated by :mod:`bodebench.io.schema`.
+
+[plant], [excitation] and [analysis] describe a measurement (an offline one needs no more). A ``[bench]`` table
+makes it a bench session on a drive over a bus: [can] or [serial] say how to reach it, [safety] what protects it,
+[frames] (checked by the frame layout itself, :meth:`bodebench.drivers.Layout.from_mapping`) what the frames
+carry, and [simulator] stands a simulated servo controller around [plant] in for the drive.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from bodebench.core.rules import CRITERIA
+from bodebench.io.schema import FieldError
+from bodebench.sim.faults import FaultConfig
+
+__all__ = [
+    "AnalysisConfig",
+    "BenchConfig",
+    "CanConfig",
+    "ExcitationConfig",
+    "PlantConfig",
+    "SafetyConfig",
+    "SerialConfig",
+    "SimulatorConfig",
+]
+
+TRANSPORTS = ("can", "serial")
+CLOCKS = ("lockstep", "realtime")
+TIMEBASES = ("counter", "timestamp", "receive")
+MIN_SAMPLES_PER_PERIOD = 8  # of the highest harmonic measured
+MIN_FREQUENCY_HZ = 1e-3
+"""Lowest frequency a bench sweeps: a period of 1000 s, so that a point (a ramp of whole periods, then the periods
+the stopping rule needs) takes more than an hour. No drive is swept slower on a bench; a smaller value is a typing
+error (a frequency in kHz, a wrong exponent)."""
+
+
+_HYDRAULIC = ("model", ("hydraulic",))
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """The simulated plant (METHOD.md section 2); all quantities dimensionless unless stated."""
+
+    model: str = field(
+        metadata={
+            "choices": ("coulomb", "linear", "lag", "hydraulic"),
+            "doc": "plant model: coulomb, linear, lag or hydraulic (electrohydraulic position drive, SI units)",
+        }
+    )
+    mass: float = field(
+        default=1.0,
+        metadata={"min": 0, "min_exclusive": True, "only_if": ("model", ("coulomb", "linear")), "doc": "mass m"},
+    )
+    stiffness: float = field(
+        default=1.0,
+        metadata={
+            "min": 0,
+            "min_exclusive": True,
+            "only_if": ("model", ("coulomb", "linear")),
+            "doc": "position (spring) load K_p",
+        },
+    )
+    friction: float = field(
+        default=0.0,
+        metadata={"min": 0, "only_if": ("model", ("coulomb",)), "doc": "dry-friction force F_ct"},
+    )
+    damping_ratio: float = field(
+        default=0.0,
+        metadata={
+            "min": 0,
+            "only_if": ("model", ("coulomb", "linear")),
+            "doc": "viscous damping ratio zeta (dimensionless)",
+        },
+    )
+    time_constant: float = field(
+        default=1.0,
+        metadata={"min": 0, "min_exclusive": True, "only_if": ("model", ("lag",)), "doc": "lag time constant, s"},
+    )
+    gain: float = field(
+        default=1.0,
+        metadata={"nonzero": True, "only_if": ("model", ("lag",)), "doc": "lag static gain (dimensionless)"},
+    )
+
+    # The electrohydraulic position drive (sim/hydraulic.py); defaults: a ~10 kN industrial cylinder.
+    supply_pressure: float = field(
+        default=210e5,
+        metadata={"min": 0, "min_exclusive": True, "only_if": _HYDRAULIC, "doc": "supply pressure P_s, Pa"},
+    )
+    valve_gain: float = field(
+        default=1.8e-7,
+        metadata={
+            "min": 0,
+            "min_exclusive": True,
+            "only_if": _HYDRAULIC,
+            "doc": "valve flow gain K_q in Q_L = K_q x_v sqrt((P_s - sign(x_v) P_L)/2), m^3/(s*Pa^0.5)",
+        },
+    )
+    valve_natural_frequency_hz: float = field(
+        default=150.0,
+        metadata={"min": 0, "min_exclusive": True, "only_if": _HYDRAULIC, "doc": "servo valve natural frequency, Hz"},
+    )
+    valve_damping_ratio: float = field(
+        default=0.7,
+        metadata={"min": 0, "only_if": _HYDRAULIC, "doc": "servo valve damping ratio (dimensionless)"},
+    )
+    piston_area: float = field(
+        default=5e-4,
+        metadata={"min": 0, "min_exclusive": True, "only_if": _HYDRAULIC, "doc": "piston area A_p, m^2"},
+    )
+    total_volume: float = field(
+        default=1.5e-4,
+        metadata={
+            "min": 0,
+            "min_exclusive": True,
+            "only_if": _HYDRAULIC,
+            "doc": "total oil volume V_t of both chambers and lines, m^3",
+        },
+    )
+    bulk_modulus: float = field(
+        default=1.4e9,
+        metadata={"min": 0, "min_exclusive": True, "only_if": _HYDRAULIC, "doc": "effective bulk modulus, Pa"},
+    )
+    leakage: float = field(
+        default=2e-12,
+        metadata={"min": 0, "only_if": _HYDRAULIC, "doc": "cross-port leakage coefficient C_l, m^3/(s*Pa)"},
+    )
+    piston_mass: float = field(
+        default=40.0,
+        metadata={
+            "min": 0,
+            "min_exclusive": True,
+            "only_if": _HYDRAULIC,
+            "doc": "moving mass (piston, rod, load), kg",
+        },
+    )
+    load_stiffness: float = field(
+        default=0.0,
+        metadata={"min": 0, "only_if": _HYDRAULIC, "doc": "load spring stiffness K_load, N/m"},
+    )
+    viscous_damping: float = field(
+        default=2000.0,
+        metadata={"min": 0, "only_if": _HYDRAULIC, "doc": "viscous damping b, N*s/m"},
+    )
+    coulomb_friction: float = field(
+        default=150.0,
+        metadata={"min": 0, "only_if": _HYDRAULIC, "doc": "Coulomb (stick-slip) friction force F_c, N"},
+    )
+    loop_gain: float = field(
+        default=60.0,
+        metadata={
+            "min": 0,
+            "min_exclusive": True,
+            "only_if": _HYDRAULIC,
+            "doc": "position-loop gain K_loop: normalised valve current per metre of position error, 1/m",
+        },
+    )
+
+
+@dataclass(frozen=True)
+class ExcitationConfig:
+    """The sine input: amplitude and the frequencies to measure at."""
+
+    amplitude: float = field(
+        metadata={"min": 0, "min_exclusive": True, "doc": "input amplitude A_i (A_F for the friction link)"}
+    )
+    frequencies_hz: tuple[float, ...] = field(
+        metadata={
+            "min": 0,
+            "min_exclusive": True,
+            "non_empty": True,
+            "unique": True,
+            "doc": "measurement frequencies, Hz",
+        }
+    )
+
+
+@dataclass(frozen=True)
+class AnalysisConfig:
+    """Harmonic analysis and stopping rule (METHOD.md section 1)."""
+
+    harmonics: tuple[int, ...] = field(
+        default=(1,),
+        metadata={"min": 1, "non_empty": True, "unique": True, "doc": "harmonic numbers k to measure"},
+    )
+    tolerance_percent: float = field(
+        default=0.01,
+        metadata={"min": 0, "min_exclusive": True, "doc": "stopping tolerance eps, percent"},
+    )
+    skip_periods: int = field(default=1, metadata={"min": 0, "doc": "periods n_k not analysed"})
+    criterion: str = field(default="adaptive", metadata={"choices": CRITERIA, "doc": "stopping rule"})
+    window: int = field(default=5, metadata={"min": 2, "doc": "window length l, periods"})
+    max_periods: int = field(default=20000, metadata={"min": 1, "doc": "period limit per frequency"})
+    steps_per_period: int = field(default=200, metadata={"min": 8, "doc": "integration steps per period K_f"})
+    settle_periods: int = field(
+        default=50, metadata={"min": 0, "doc": 'periods discarded (criterion "fixed" only)'}
+    )
+    average_periods: int = field(
+        default=50, metadata={"min": 1, "doc": 'periods averaged (criterion "fixed" only)'}
+    )
+
+    def validate(self, where: Callable[[str], str]) -> None:
+        """Cross-field checks; raises :class:`FieldError`."""
+        if self.max_periods <= self.skip_periods:
+            raise FieldError("max_periods", f"must be > {where('skip_periods')} ({self.skip_periods})")
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """How the session drives the bench."""
+
+    TABLE_OPTIONAL = True
+
+    transport: str = field(metadata={"choices": TRANSPORTS, "doc": "bus to the drive: can or serial"})
+    rate_hz: float = field(metadata={"min": 0, "min_exclusive": True,
+                                     "doc": "setpoint and feedback sample rate of the drive controller, Hz"})
+    clock: str = field(default="lockstep", metadata={
+        "choices": CLOCKS, "doc": "lockstep: one controller period per setpoint (simulated drives); realtime"})
+    timebase: str = field(default="counter", metadata={
+        "choices": TIMEBASES,
+        "doc": "sample times from the feedback counter, the controller's timestamp, or the host's receive time"})
+    output_channels: tuple[str, ...] = field(default=("position",), metadata={
+        "non_empty": True, "unique": True, "doc": "feedback channels measured"})
+    reference_channel: str = field(default="", metadata={
+        "doc": "two-channel mode: gain and phase relative to this channel (e.g. setpoint_echo); "
+               "empty: relative to the commanded sine"})
+    ramp_in_periods: int = field(default=2, metadata={"min": 0, "doc": "amplitude ramp before analysis, periods"})
+    ramp_out_periods: int = field(default=1, metadata={"min": 0, "doc": "amplitude ramp after a point, periods"})
+    worker: str = field(default="auto", metadata={
+        "choices": ("auto", "thread", "process"),
+        "doc": "where pacing and bus I/O run: auto = own process on the realtime clock or beside the terminal UI, "
+               "else a thread"})
+    batch_ms: float = field(default=10.0, metadata={"min": 0, "min_exclusive": True,
+                                                    "doc": "samples are handed to the analysis this often, ms"})
+    reply_timeout_s: float = field(default=0.05, metadata={
+        "min": 0, "min_exclusive": True,
+        "doc": "lockstep: longest wait for a setpoint's reply (8 typical round trips, at least 2 ms, are waited), s"})
+    pacing_cpu: int | None = field(default=None, metadata={
+        "min": 0, "doc": "realtime: the CPU the bus worker keeps to itself (e.g. one isolated with isolcpus); "
+                         "default: the last CPU the process may use"})
+
+    def worker_mode(self, beside_a_ui: bool = False) -> str:
+        """Where the bus worker runs: ``worker`` as given; for "auto" its own process on the realtime clock (its
+        pacing keeps clear of this process's garbage collector) or beside a terminal UI (whose share of the
+        interpreter would delay the lockstep exchange with the drive), else a thread."""
+        if self.worker != "auto":
+            return self.worker
+        return "process" if self.clock == "realtime" or beside_a_ui else "thread"
+
+
+@dataclass(frozen=True)
+class CanConfig:
+    """python-can bus: any interface; options are passed to can.Bus as they are."""
+
+    TABLE_OPTIONAL = True
+
+    interface: str = field(metadata={"doc": "python-can interface: socketcan, pcan, kvaser, vector, slcan, "
+                                            "virtual, udp_multicast, ..."})
+    channel: str = field(default="", metadata={"doc": "interface channel; empty with [simulator]: "
+                                                      "the simulator's"})
+    bitrate: int | None = field(default=None, metadata={"min": 1, "doc": "bit/s"})
+    options: dict = field(default_factory=dict, metadata={"doc": "further can.Bus keyword arguments"})
+
+
+@dataclass(frozen=True)
+class SerialConfig:
+    """Serial line (pyserial)."""
+
+    TABLE_OPTIONAL = True
+
+    port: str = field(default="", metadata={"doc": "tty path or pyserial URL; empty with [simulator]: the "
+                                                   "simulator's pseudo-terminal"})
+    baudrate: int = field(default=1_000_000, metadata={"min": 1, "doc": "bit/s"})
+    framing: str = field(default="binary", metadata={"choices": ("binary", "ascii"),
+                                                     "doc": "binary (sync, length, CRC-16) or ASCII lines"})
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """Limits that protect the drive; any trip drives the setpoint to zero and disables the drive."""
+
+    TABLE_OPTIONAL = True
+
+    max_amplitude: float = field(metadata={"min": 0, "min_exclusive": True,
+                                           "doc": "largest |setpoint| ever sent, setpoint units"})
+    max_rate: float | None = field(default=None, metadata={"min": 0, "min_exclusive": True,
+                                                           "doc": "setpoint slew limit, setpoint units/s"})
+    feedback_limits: dict = field(default_factory=dict, metadata={
+        "doc": "channel = [low, high]: a feedback sample outside aborts the sweep"})
+    watchdog_s: float = field(default=0.5, metadata={"min": 0, "min_exclusive": True,
+                                                     "doc": "no feedback for this long aborts, s"})
+
+    def validate(self, where: Callable[[str], str]) -> None:
+        """The feedback windows; raises :class:`FieldError`."""
+        for channel, window in self.feedback_limits.items():
+            ok = (isinstance(window, list) and len(window) == 2
+                  and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                          for v in window) and window[0] < window[1])
+            if not ok:
+                raise FieldError("feedback_limits", f"{channel}: expected [low, high] with low < high, "
+                                                    f"got {window!r}")
+
+
+@dataclass(frozen=True)
+class SimulatorConfig:
+    """The simulated servo controller around [plant], standing in for the drive."""
+
+    TABLE_OPTIONAL = True
+
+    jitter: float = field(default=0.0, metadata={"min": 0, "max": 0.5, "max_exclusive": True,
+                                                 "doc": "sampling-instant jitter, fraction of a period"})
+    noise: float = field(default=0.0, metadata={"min": 0, "doc": "standard deviation of white noise added to "
+                                                                 "every feedback channel, the channel's units"})
+    quantization: float = field(default=0.0, metadata={"min": 0, "doc": "least significant bit of every feedback "
+                                                                        "channel, the channel's units (0: none)"})
+    seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of the jitter and the noise"})
+    faults: FaultConfig = field(default_factory=FaultConfig, metadata={
+        "doc": "fault injection on the wire and in the drive (drivers/PROTOCOL.md section 7)"})
