@@ -1,4 +1,4 @@
-"""Throughput of the per-period Fourier integrator (instrument/fourier.py).
+"""Throughput of the per-period Fourier integrator (instrument/core/fourier.py).
 
 Run: python benchmarks/bench_sampler.py
 

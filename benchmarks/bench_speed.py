@@ -3,7 +3,7 @@
 Run: python benchmarks/bench_speed.py
 
 1. The 2013 experiment (configs/paper2013.toml, 3 cases x 42 frequencies x harmonics 1 and 2) run the way
-   ``bodebench simulate`` runs it: ``instrument.experiment.sweep`` on every case with one
+   ``bodebench simulate`` runs it: ``bodebench.bench.offline.sweep`` on every case with one
    ``default_executor()`` process pool over all cores (no files written). A warm-up first runs one short
    frequency of every plant model in this process so that the numba kernels are compiled (or loaded from
    numba's on-disk cache) before the clock starts; the pool's workers then load the cached kernels.

@@ -10,7 +10,7 @@ frames (counter, controller timestamp, channels). Two clocks:
   the latest setpoint, whatever the host does.
 
 It is transport-agnostic: ``handle``/``tick`` turn frames into frames, and
-``serve`` runs either clock over any ``drivers.ports.FramePort``.
+``serve`` runs either clock over any ``bodebench.drivers.ports.FramePort``.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ class ControllerTiming:
     (uniform in +-jitter; the feedback timestamp reports the true instant);
     seed: random seed of the jitter;
     pacing_cpu: realtime: the CPU the instrument's pacing loop keeps to itself, which the controller keeps off
-    (None: ``drivers.realtime.pacing_cpu()``).
+    (None: ``bodebench.drivers.scheduling.pacing_cpu()``).
     """
 
     rate_hz: float

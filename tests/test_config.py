@@ -1,4 +1,4 @@
-"""Tests of the configuration loader (instrument/config.py)."""
+"""Tests of the configuration loader (instrument/io/config.py)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Tests of the per-period trapezoidal Fourier integrator (instrument/fourier.py)."""
+"""Tests of the per-period trapezoidal Fourier integrator (instrument/core/fourier.py)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Tests of instrument.response (derived values, files) and instrument.plots."""
+"""Tests of bodebench.core.response (derived values, files) and bodebench.apps.plots."""
 
 from __future__ import annotations
 

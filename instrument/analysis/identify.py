@@ -5,14 +5,14 @@ known. Two routes recover the dry friction ``F_ct`` and the mass ``m`` (``f_n = 
 
 - :func:`paper_procedure`: the 2017 paper's engineering procedure, steps 1 to 8. ``f_-90`` by linear
   interpolation, the phase read at decade ticks 1, 2, 4 and 6 below and above it, one Fbar per reading from the
-  calibration curves (:mod:`instrument.calibration`), their mean, then ``f_n = f_-90 / r_90(Fbar)``. It applies
+  calibration curves (:mod:`bodebench.analysis.calibration`), their mean, then ``f_n = f_-90 / r_90(Fbar)``. It applies
   only where the settled phase crosses -90 degrees, i.e. Fbar > pi/4, and says so otherwise.
 - :func:`fit_link`: weighted least squares of the simulated link's settled first harmonic
-  (:class:`instrument.calibration.FrictionLink`, exact) to every converged point, in log gain and phase, with
+  (:class:`bodebench.analysis.calibration.FrictionLink`, exact) to every converged point, in log gain and phase, with
   confidence intervals. Works at any Fbar and on any frequency grid; optionally frees ``K_p`` and a viscous
   damping ratio.
 
-:func:`identify` runs both on a :class:`~instrument.response.FrequencyResponse`, :func:`format_report` renders
+:func:`identify` runs both on a :class:`~bodebench.core.response.FrequencyResponse`, :func:`format_report` renders
 the report as text and :func:`plot_identification` draws the measured points against both models.
 
 Conventions: a measured point's ``uncertainty_1d`` is the 95 % half-width of (p, q) along one direction, taken

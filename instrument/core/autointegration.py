@@ -1,6 +1,6 @@
 """Monoharmonic autointegration of one frequency point: samples in, verdicts out.
 
-Joins the per-period integrator (``instrument.fourier``) with a stopping rule
+Joins the per-period integrator (``bodebench.core.fourier``) with a stopping rule
 per series (one series = one channel x one harmonic). Pure numerics: the
 caller brings timestamped samples from a simulation or a bus.
 """

@@ -1,6 +1,6 @@
 """The terminal UI of a bench session (``bodebench tui CONFIG``).
 
-The sweep runs in a Textual thread worker; its listener (:class:`~instrument.tui.bridge.SessionBridge`)
+The sweep runs in a Textual thread worker; its listener (:class:`~bodebench.apps.tui.bridge.SessionBridge`)
 queues rare events as messages and leaves the frequent ones for a refresh timer, so the measurement never
 waits on the screen. Every way out of the app (q, Ctrl+Q, an error) aborts a running sweep and joins its
 thread first: the session leaves the drive at setpoint zero, disabled.
@@ -133,7 +133,7 @@ class BodeBenchApp(App[int]):
 
     def __init__(self, config: ExperimentConfig, out: Path, refresh_hz: float = 5.0) -> None:
         super().__init__()
-        if not config.cases or config.cases[0].tables.get("bench") is None:
+        if not config.cases or not config.on_bench:
             raise ValueError(f"{config.path}: not a bench config (no [bench] table)")
         if not refresh_hz > 0:
             raise ValueError(f"refresh_hz must be > 0, got {refresh_hz!r}")
@@ -186,7 +186,7 @@ class BodeBenchApp(App[int]):
         return self.control is not None and not self.control.done.is_set()
 
     def _new_model(self, case: CaseConfig) -> SweepModel:
-        bench = case.tables["bench"]
+        bench = case.on_bench.bench
         return SweepModel(case.excitation.frequencies_hz, case.analysis.harmonics, bench.output_channels)
 
     def _display_error(self, where: str) -> None:
@@ -642,7 +642,7 @@ class BodeBenchApp(App[int]):
         bridge = self.bridge
         latest = bridge.latest_progress if bridge is not None else None
         if latest is not None and latest.index == model.current_index:
-            panel.show_scope(latest.scope, self.case.tables["bench"].output_channels[0])
+            panel.show_scope(latest.scope, self.case.on_bench.bench.output_channels[0])
         elif self._scope_index != model.current_index:
             panel.show_scope(None, "")
         self._scope_index = model.current_index
@@ -668,8 +668,7 @@ class BodeBenchApp(App[int]):
             self.bus_rates = self.rates.update(latest[0], bus.frames_in, bus.frames_out)
         elif not force:
             return
-        safety = self.case.tables["safety"]
-        watchdog_s = safety.watchdog_s if safety is not None else math.nan
+        watchdog_s = self.case.on_bench.safety.watchdog_s
         self.w_bus.show(self.where, self.health, self.bus_rates, self.watchdog, watchdog_s)
         self.w_bus_line.update(bus_summary(self.health, self.bus_rates), layout=False)
 

@@ -1,6 +1,6 @@
 """Widgets of the terminal UI: braille plots, the live convergence view, the sweep table, the Bode plot, bus health.
 
-Widgets only draw what the app hands them (plain values from :mod:`instrument.tui.model`); none of them
+Widgets only draw what the app hands them (plain values from :mod:`bodebench.apps.tui.model`); none of them
 touches the session.
 """
 
