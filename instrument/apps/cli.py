@@ -204,7 +204,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         if executor is not None:
             executor.shutdown(cancel_futures=True)
     try:
-        save_response(table, out)
+        table.save(out)
     except OSError as exc:
         print(f"bodebench: {out}: cannot write the calibration: {exc}", file=sys.stderr)
         return 1

@@ -180,7 +180,7 @@ def _build_case(
         def default_key(key: str, table: str = table) -> str:
             return _key_path(table, key)
 
-        obj = _build(cls, merged, origin, missing, default_key)
+        obj: object = _build(cls, merged, origin, missing, default_key)
         built[table] = obj
         raw[table] = _to_raw(obj)
     frames: dict[str, Any] | None = None
