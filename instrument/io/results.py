@@ -3,8 +3,9 @@
 The sidecar names the case and holds the configuration that made the points and the software version. Points are
 appended to the CSV as they are measured (:class:`ResultsWriter`), each row synced before the writer returns, so a
 point is on disk the moment it is measured; a crash can at worst leave the last row unterminated: the reader
-refuses such a file by default, and a resumed sweep drops that row (never confirmed written) and goes on. :func:`save_response` writes a whole response atomically;
-:func:`load_response` reads either and checks every derived column against ``p``, ``q`` and ``amplitude``.
+refuses such a file by default, and a resumed sweep drops that row (never confirmed written) and goes on.
+:func:`save_response` writes a whole response atomically; :func:`load_response` reads either and checks every
+derived column against ``p``, ``q`` and ``amplitude``.
 """
 
 from __future__ import annotations
@@ -206,24 +207,21 @@ def _parse_csv(path: Path, drop_torn_row: bool = False) -> list[ResponsePoint]:
         raise ResultsError(
             f"{path}: line 1: bad header, {len(header)} columns, expected {len(CSV_COLUMNS)}: {','.join(CSV_COLUMNS)!r}"
         )
-    points: list[ResponsePoint] = []
-    for lineno, line in enumerate(lines[1:], start=2):
-        cells = line.rstrip("\r").split(",")
-        if len(cells) != len(columns):
-            raise ResultsError(f"{path}: line {lineno}: {len(cells)} columns, expected {len(columns)}")
-        row = dict(zip(columns, cells, strict=True))
-        points.append(_parse_row(path, lineno, row))
-    return points
+    return [_parse_line(path, lineno, line, columns) for lineno, line in enumerate(lines[1:], start=2)]
+
+
+def _parse_line(path: Path, lineno: int, line: str, columns: tuple[str, ...]) -> ResponsePoint:
+    cells = line.rstrip("\r").split(",")
+    if len(cells) != len(columns):
+        raise ResultsError(f"{path}: line {lineno}: {len(cells)} columns, expected {len(columns)}")
+    return _parse_row(path, lineno, dict(zip(columns, cells, strict=True)))
 
 
 def _torn(path: Path, lineno: int, line: str, header: str) -> bool:
     """Whether an unterminated last row is the remains of an interrupted append (it does not parse)."""
     columns = _CSV_COLUMNS_V1 if tuple(header.rstrip("\r").split(",")) == _CSV_COLUMNS_V1 else CSV_COLUMNS
-    cells = line.rstrip("\r").split(",")
-    if len(cells) != len(columns):
-        return True
     try:
-        _parse_row(path, lineno, dict(zip(columns, cells, strict=True)))
+        _parse_line(path, lineno, line, columns)
     except ResultsError:
         return True
     return False
