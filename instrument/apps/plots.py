@@ -13,15 +13,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bodebench.core.response import FrequencyResponse
+from bodebench.status import PointStatus
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["CAPPED_STATUS", "NOISE_LIMITED_STATUS", "plot_bode", "plot_periods"]
+__all__ = ["plot_bode", "plot_periods", "write_plots"]
 
 #: Status of a point whose measurement stopped at the period cap.
-CAPPED_STATUS = "capped"
-NOISE_LIMITED_STATUS = "noise_limited"
+_NOT_WITHIN_TOLERANCE = (PointStatus.CAPPED, PointStatus.NOISE_LIMITED)
 
 _MARKER = "o"
 _MARKER_SIZE = 4.0
@@ -165,7 +165,7 @@ def plot_periods(
             periods = np.zeros(freq.size, dtype=float)
             np.maximum.at(periods, index, sel.periods.astype(float))
             capped = np.zeros(freq.size, dtype=bool)
-            np.logical_or.at(capped, index, np.array([pt.status in (CAPPED_STATUS, NOISE_LIMITED_STATUS) for pt in sel]))
+            np.logical_or.at(capped, index, np.array([pt.status in _NOT_WITHIN_TOLERANCE for pt in sel]))
             (line,) = ax.plot(
                 freq, periods, "-", marker=_MARKER, ms=_MARKER_SIZE, lw=1.0, label=_label(case_label, f"k={harmonic}")
             )

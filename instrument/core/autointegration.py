@@ -7,15 +7,37 @@ caller brings timestamped samples from a simulation or a bus.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Protocol
 
 import numpy as np
 
 from bodebench.core.fourier import PeriodIntegrator
 from bodebench.core.response import ResponsePoint
 from bodebench.core.rules import SeriesHistory, StoppingRule, Verdict, make_rule
-from bodebench.io.config import AnalysisConfig
+
+
+class AnalysisSettings(Protocol):
+    """What the sampler needs to know of the analysis (``[analysis]`` of a configuration provides it): the
+    harmonics, the stopping rule's name and parameters (tolerance in percent, periods), and the period limit."""
+
+    @property
+    def harmonics(self) -> tuple[int, ...]: ...
+    @property
+    def criterion(self) -> str: ...
+    @property
+    def tolerance_percent(self) -> float: ...
+    @property
+    def skip_periods(self) -> int: ...
+    @property
+    def window(self) -> int: ...
+    @property
+    def settle_periods(self) -> int: ...
+    @property
+    def average_periods(self) -> int: ...
+    @property
+    def max_periods(self) -> int: ...
 
 
 @dataclass(frozen=True)
@@ -50,7 +72,7 @@ class Autointegrator:
     """
 
     def __init__(self, frequency_hz: float, amplitude: float, channels: Sequence[str],
-                 analysis: AnalysisConfig, t0: float = 0.0, reference: str | None = None) -> None:
+                 analysis: AnalysisSettings, t0: float = 0.0, reference: str | None = None) -> None:
         self.frequency_hz = frequency_hz
         self.amplitude = amplitude
         self.channels = tuple(channels)

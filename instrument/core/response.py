@@ -17,10 +17,12 @@ from typing import Any
 
 import numpy as np
 
+from bodebench.status import PointStatus
+
 __all__ = ["FrequencyResponse", "PHASE_UNDEFINED_STATUSES", "ResponsePoint"]
 
 #: Statuses whose phase is not a number (the coefficient vector is below the resolution).
-PHASE_UNDEFINED_STATUSES: tuple[str, ...] = ("below_resolution",)
+PHASE_UNDEFINED_STATUSES: tuple[str, ...] = (PointStatus.BELOW_RESOLUTION,)
 
 _FORBIDDEN_TOKEN_CHARS = frozenset(',"\r\n')
 

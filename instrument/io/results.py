@@ -369,13 +369,24 @@ class ResultsWriter:
             atomic_write_text(self.path, _HEADER)
 
     def append(self, points: list[ResponsePoint] | tuple[ResponsePoint, ...]) -> None:
-        """Append ``points`` (one frequency's, typically) and sync them to disk."""
+        """Append ``points`` (one frequency's, typically) and sync them to disk. A write that fails (a full disk,
+        a file size limit) is undone before the error propagates: the file keeps its whole rows only."""
         if not points:
             return
-        with open(self.path, "a", encoding="utf-8", newline="") as handle:
-            handle.write("".join(_point_row(point) + "\n" for point in points))
-            handle.flush()
-            os.fsync(handle.fileno())
+        data = "".join(_point_row(point) + "\n" for point in points).encode("utf-8")
+        fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
+        try:
+            start = os.lseek(fd, 0, os.SEEK_END)
+            try:
+                view = memoryview(data)
+                while view:
+                    view = view[os.write(fd, view):]
+                os.fsync(fd)
+            except BaseException:
+                os.ftruncate(fd, start)
+                raise
+        finally:
+            os.close(fd)
 
 
 def _end_last_row(path: Path) -> None:

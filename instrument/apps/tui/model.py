@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bodebench.apps.plots import CAPPED_STATUS, NOISE_LIMITED_STATUS
 from bodebench.core.autointegration import SeriesState
 from bodebench.core.response import ResponsePoint
+from bodebench.status import PointStatus
 
 #: states of a row in the sweep table
 PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, NOISE_LIMITED, FAILED, SKIPPED = (
@@ -83,7 +83,7 @@ def finished_state(converged: bool, status: str) -> str:
     """converged / capped / noise-limited / failed for a finished point or series."""
     if converged:
         return CONVERGED
-    return {CAPPED_STATUS: CAPPED, NOISE_LIMITED_STATUS: NOISE_LIMITED}.get(status, FAILED)
+    return {PointStatus.CAPPED: CAPPED, PointStatus.NOISE_LIMITED: NOISE_LIMITED}.get(status, FAILED)
 
 
 def point_state(point: ResponsePoint) -> str:
