@@ -13,7 +13,7 @@ from typing import Sequence
 from bodebench.drivers.errors import DriverError
 from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
 from bodebench.io.config import ConfigError, ExperimentConfig, load_config
-from bodebench.io.results import ResultsError, load_response, save_response
+from bodebench.io.results import ResultsError, load_response
 from bodebench.sim.serve import SimulatorStartError
 
 

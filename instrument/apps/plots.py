@@ -148,7 +148,8 @@ def plot_periods(
     """Periods integrated per point against log frequency (Hz), log y axis; one curve per (case label, harmonic).
 
     Where several channels share a frequency the largest period count is shown. Points with status ``capped``
-    or ``noise_limited`` are marked with a cross. Writes ``<path_stem>.png`` and ``<path_stem>.svg`` and returns both paths.
+    or ``noise_limited`` are marked with a cross. Writes ``<path_stem>.png`` and ``<path_stem>.svg`` and returns
+    both paths.
     """
     from matplotlib.lines import Line2D
     from matplotlib.ticker import FuncFormatter

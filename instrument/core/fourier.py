@@ -59,18 +59,18 @@ class PeriodIntegrator:
         self.t0: float = start
         self.periods_done: int = 0
 
-        self._k = np.asarray(self.harmonics, dtype=np.float64)
+        self._k: np.ndarray = np.asarray(self.harmonics, dtype=np.float64)
         n_h = len(self.harmonics)
         # State carried between feed() calls: the last sample and the partial sums of its period.
-        self._has_last = False
-        self._t_last = np.empty(1)
-        self._u_last = np.empty(1)
-        self._p_last = np.empty(1, dtype=np.int64)
-        self._y_last = np.empty((1, self.n_channels))
-        self._ws_last = np.empty((1, self.n_channels, n_h))
-        self._wc_last = np.empty((1, self.n_channels, n_h))
-        self._acc_p = np.zeros((self.n_channels, n_h))
-        self._acc_q = np.zeros((self.n_channels, n_h))
+        self._has_last: bool = False
+        self._t_last: np.ndarray = np.empty(1)
+        self._u_last: np.ndarray = np.empty(1)
+        self._p_last: np.ndarray = np.empty(1, dtype=np.int64)
+        self._y_last: np.ndarray = np.empty((1, self.n_channels))
+        self._ws_last: np.ndarray = np.empty((1, self.n_channels, n_h))
+        self._wc_last: np.ndarray = np.empty((1, self.n_channels, n_h))
+        self._acc_p: np.ndarray = np.zeros((self.n_channels, n_h))
+        self._acc_q: np.ndarray = np.zeros((self.n_channels, n_h))
 
     # ------------------------------------------------------------------ input checks
 

@@ -50,7 +50,7 @@ from bodebench.bench.events import (
     SessionFault,
     SessionStarted,
 )
-from bodebench.bench.procedure import SweepProcedure, case_directory
+from bodebench.bench.procedure import CaseOutcome, SweepProcedure, case_directory
 from bodebench.bench.worker import Health
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.io.config import CaseConfig, ExperimentConfig
@@ -473,6 +473,7 @@ class BodeBenchApp(App[int]):
         procedure = control.procedure
         started = time.perf_counter()
         try:
+            outcome: CaseOutcome | None
             if frequency_hz is not None:
                 outcome = procedure.remeasure(cases[0], frequency_hz, self.results.get(cases[0]))
             else:
@@ -527,7 +528,7 @@ class BodeBenchApp(App[int]):
             self.where = event.where
             self.watchdog = "armed"
             self.model.session_started(now)
-            self.state = "paused" if self.control.paused else "running"
+            self.state = "paused" if self.control is not None and self.control.paused else "running"
         elif isinstance(event, PointStarted):
             self.model.point_started(event.index, event.frequency_hz, now)
             self._max_index = max(self._max_index, event.index)

@@ -83,7 +83,9 @@ def finished_state(converged: bool, status: str) -> str:
     """converged / capped / noise-limited / failed for a finished point or series."""
     if converged:
         return CONVERGED
-    return {PointStatus.CAPPED: CAPPED, PointStatus.NOISE_LIMITED: NOISE_LIMITED}.get(status, FAILED)
+    if status == PointStatus.CAPPED:
+        return CAPPED
+    return NOISE_LIMITED if status == PointStatus.NOISE_LIMITED else FAILED
 
 
 def point_state(point: ResponsePoint) -> str:

@@ -218,7 +218,7 @@ class SweepTable(DataTable):
             self.add_row(*self._cells(row), key=key)
 
     def update_row(self, key: str, row: Row) -> None:
-        for (column, _, _), cell in zip(COLUMNS, self._cells(row)):
+        for (column, _, _), cell in zip(COLUMNS, self._cells(row), strict=True):
             self.update_cell(key, column, cell)
 
     @staticmethod
