@@ -206,9 +206,9 @@ def test_sweep_model_follows_a_sweep_with_skip_and_remeasure() -> None:
     model = SweepModel(FREQS, (1, 3), ("position",))
     assert {r.state for r in model.rows.values()} == {PENDING}
     model.session_started(0.0)
-    model.point_started(0, 3.0, 0.0)
+    model.point_started(0, 3.0, 0.0, 0.1, "adaptive")
     assert model.rows[row_key(0, 1, "position")].state == SETTLING
-    model.progress(0, 2, (_state(1, 2, 1 + 0j, 0.01), _state(3, 2, 0.1j, 0.01)), 0.1, "adaptive")
+    model.progress(0, 2, (_state(1, 2, 1 + 0j, 0.01), _state(3, 2, 0.1j, 0.01)))
     assert model.rows[row_key(0, 1, "position")].state == INTEGRATING
     assert model.traces[0].rel_error == [pytest.approx(1.0)] and model.traces[1].rel_error == [pytest.approx(10.0)]
     model.point_finished(0, (_point(3.0, 1), _point(3.0, 3, "capped", False)), False, 1.0)

@@ -6,6 +6,7 @@ what it is given (the terminal UI posts it to its own thread). Fault kinds are :
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,8 +28,13 @@ class SessionStarted:
 
 @dataclass(frozen=True)
 class PointStarted:
+    """Point ``index`` (the index-th point of the session) starts at ``frequency_hz`` (Hz), judged by the rule
+    ``criterion`` at ``tolerance_percent`` (percent)."""
+
     index: int
     frequency_hz: float
+    tolerance_percent: float = math.nan
+    criterion: str = ""
 
 
 @dataclass(frozen=True)
@@ -39,8 +45,6 @@ class PointProgress:
     frequency_hz: float
     periods: int
     states: tuple[SeriesState, ...]
-    tolerance_percent: float
-    criterion: str
     scope: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 

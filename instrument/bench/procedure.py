@@ -77,8 +77,8 @@ class SweepProcedure:
     """Runs the cases of ``config`` into ``out`` (see the module docstring).
 
     direct: a bench config's simulated drive called in-process, without a bus (``bodebench simulate``);
-    existing: what to do with results already in a case's directory (:data:`EXISTING`); worker_mode: where the bus worker runs
-    (None: as the config says); executor: where offline frequencies run (None: in this thread, in order);
+    existing: what to do with results already in a case's directory (:data:`EXISTING`); worker_mode: where the
+    bus worker runs (None: as the config says); executor: where offline frequencies run (None: in this thread, in order);
     plots: draws each finished case (None: no plots).
 
     Requests from other threads (:meth:`request_abort`, :meth:`set_paused`, :meth:`request_skip`,
@@ -242,7 +242,8 @@ class SweepProcedure:
         def on_point(points: list[ResponsePoint]) -> None:
             writer.append(points)
             index = frequencies.index(points[0].frequency_hz)
-            self.listener(PointStarted(index, points[0].frequency_hz))
+            self.listener(PointStarted(index, points[0].frequency_hz, case.analysis.tolerance_percent,
+                                       case.analysis.criterion))
             self.listener(PointFinished(index, tuple(points)))
 
         return sweep(case, self.executor, on_point=on_point, measured=previous.points if previous else (),

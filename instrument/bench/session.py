@@ -273,7 +273,7 @@ class BenchSession:
         reference = bench.reference_channel
         columns = [self.channels.index(n) for n in outputs + ((reference,) if reference else ())]
         self._conn.send(StartSine(f, amplitude, bench.ramp_in_periods, bench.ramp_out_periods))
-        self.listener(PointStarted(index, f))
+        self.listener(PointStarted(index, f, analysis.tolerance_percent, analysis.criterion))
         started = self._expect(SineStarted, timeout=60.0)
         t0 = started.tick * self.period + bench.ramp_in_periods / f
         sampler = Autointegrator(f, amplitude, outputs, analysis, t0=t0, reference=reference or None)
@@ -313,8 +313,7 @@ class BenchSession:
                 sampler.feed(t, values)
             if bench.clock == "lockstep" and not sampler.done:
                 self._conn.send(Credit(message.last_tick + ticks_per_period))
-            self.listener(PointProgress(index, f, sampler.periods, tuple(sampler.states()), analysis.tolerance_percent,
-                                        analysis.criterion, _scope(scope, f)))
+            self.listener(PointProgress(index, f, sampler.periods, tuple(sampler.states()), _scope(scope, f)))
         try:
             with np.errstate(all="ignore"):
                 points = sampler.points()

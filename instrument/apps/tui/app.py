@@ -530,7 +530,7 @@ class BodeBenchApp(App[int]):
             self.model.session_started(now)
             self.state = "paused" if self.control is not None and self.control.paused else "running"
         elif isinstance(event, PointStarted):
-            self.model.point_started(event.index, event.frequency_hz, now)
+            self.model.point_started(event.index, event.frequency_hz, now, event.tolerance_percent, event.criterion)
             self._max_index = max(self._max_index, event.index)
             self._live_dirty = True
         elif isinstance(event, PointFinished):
@@ -613,7 +613,7 @@ class BodeBenchApp(App[int]):
                 break  # its PointStarted is not handled yet
             queue.popleft()
             if item.index == model.current_index:
-                model.progress(item.index, item.periods, item.states, item.tolerance_percent, item.criterion)
+                model.progress(item.index, item.periods, item.states)
                 applied = True
         if applied:
             self._live_dirty = True

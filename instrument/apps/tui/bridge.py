@@ -53,8 +53,6 @@ class ProgressSummary:
     index: int
     periods: int
     states: tuple[SeriesState, ...]
-    tolerance_percent: float
-    criterion: str
 
 
 class SessionBridge:
@@ -71,8 +69,7 @@ class SessionBridge:
     def __call__(self, event: object) -> None:
         self.calls += 1
         if isinstance(event, PointProgress):
-            self.progress.append(ProgressSummary(event.index, event.periods, event.states,
-                                                 event.tolerance_percent, event.criterion))
+            self.progress.append(ProgressSummary(event.index, event.periods, event.states))
             self.latest_progress = event
         elif isinstance(event, BusStatus):
             self.latest_health = (time.monotonic(), event.health)

@@ -184,7 +184,10 @@ class SweepModel:
     def session_started(self, now: float) -> None:
         self.started_at, self.ended_at = now, None
 
-    def point_started(self, index: int, frequency_hz: float, now: float) -> None:
+    def point_started(self, index: int, frequency_hz: float, now: float, tolerance_percent: float = math.nan,
+                      criterion: str = "") -> None:
+        """Point ``index`` starts at ``frequency_hz`` (Hz), judged by ``criterion`` at ``tolerance_percent`` (%)."""
+        self.tolerance_percent, self.criterion = tolerance_percent, criterion
         position = self.position(frequency_hz)
         self.current, self.current_index = position, index
         self.traces = [SeriesTrace(c, k) for c in self.channels for k in self.harmonics]
@@ -193,12 +196,10 @@ class SweepModel:
         for key in self.keys_at(position):
             self._set(key, state=SETTLING, gain_db=math.nan, phase_deg=math.nan, periods=0)
 
-    def progress(self, index: int, periods: int, states: Sequence[SeriesState], tolerance_percent: float,
-                 criterion: str) -> None:
+    def progress(self, index: int, periods: int, states: Sequence[SeriesState]) -> None:
         if index != self.current_index or self.current is None:
             return
         self.periods = periods
-        self.tolerance_percent, self.criterion = tolerance_percent, criterion
         by_series = {(t.channel, t.harmonic): t for t in self.traces}
         for s in states:
             trace = by_series.get((s.channel, s.harmonic))
