@@ -10,9 +10,10 @@ import dataclasses
 import time
 from dataclasses import dataclass
 
+from .codec import COUNTER, SETPOINT, TIMESTAMP, Codec
 from .e2e import crc_byte, intact
 from .errors import LayoutError
-from .layout import COUNTER, SETPOINT, TIMESTAMP, Codec, Layout
+from .layout import Layout
 from .ports import Frame, FramePort
 
 __all__ = ["REJECT_CAUSES", "BusHealth", "Driver", "FeedbackSample", "Unwrapper"]

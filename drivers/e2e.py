@@ -8,8 +8,8 @@ receiver reject plausible garbage (another node on the bus, a corrupted frame) b
 
 from __future__ import annotations
 
+from .codec import CRC, Codec
 from .errors import LayoutError
-from .layout import CRC, Codec
 from .serial_framing import crc_table
 
 __all__ = ["crc8_sae_j1850", "crc_byte", "intact", "seal"]

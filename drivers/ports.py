@@ -20,8 +20,9 @@ from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, ClassVar
 
+from .codec import Codec
 from .errors import DriverError, DriverInitError, DriverOperationError, DriverTimeoutError, LayoutError
-from .layout import Codec, Layout
+from .layout import Layout
 from .serial_framing import (
     AsciiDeframer,
     BinaryDeframer,

@@ -21,8 +21,8 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
+from .codec import Codec
 from .errors import LayoutError
-from .layout import Codec
 
 __all__ = [
     "ASCII_MAX_ID",

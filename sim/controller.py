@@ -24,9 +24,10 @@ from typing import Callable
 
 import numpy as np
 
+from bodebench.drivers.codec import CRC, SETPOINT_ECHO, Message
 from bodebench.drivers.e2e import crc_byte, seal
 from bodebench.drivers.errors import DriverTimeoutError, LayoutError
-from bodebench.drivers.layout import CRC, SETPOINT_ECHO, Layout, Message
+from bodebench.drivers.layout import Layout
 from bodebench.drivers.ports import Frame, FramePort
 from bodebench.drivers.scheduling import keep_to, lower_timer_slack, pacing_cpu, request_fifo
 from bodebench.sim.faults import ValueFaults
