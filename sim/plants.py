@@ -24,8 +24,7 @@ import numpy as np
 
 from bodebench.sim import _kernels
 
-__all__ = ["Plant", "PlantState", "CoulombOscillator", "LinearPlant", "LinearOscillator", "FirstOrderLag",
-           "plant_from_config"]
+__all__ = ["Plant", "PlantState", "CoulombOscillator", "LinearPlant", "LinearOscillator", "FirstOrderLag"]
 
 _EMPTY = np.empty(0)
 
@@ -241,27 +240,3 @@ class CoulombOscillator(Plant):
     def run_held(self, state: PlantState, setpoints: np.ndarray, h: float) -> np.ndarray:
         setpoints = np.ascontiguousarray(setpoints, dtype=float)
         return self._run(state, 1.0, 0.0, h, (0.0, 0.0), setpoints, len(setpoints))
-
-
-def plant_from_config(model: str, *, mass: float = 1.0, stiffness: float = 1.0, friction: float = 0.0,
-                      damping_ratio: float = 0.0, time_constant: float = 1.0, gain: float = 1.0,
-                      **hydraulic: float) -> Plant:
-    """Build the plant a ``[plant]`` table describes (model: coulomb, linear, lag or hydraulic).
-
-    ``hydraulic``: the keyword parameters of :class:`sim.hydraulic.ElectrohydraulicDrive` (SI units); accepted by
-    every model (a ``[plant]`` table carries them all) and used by "hydraulic" only.
-    """
-    if model == "coulomb":
-        return CoulombOscillator(mass, stiffness, friction, damping_ratio)
-    if model == "linear":
-        return LinearOscillator(mass, stiffness, damping_ratio)
-    if model == "lag":
-        return FirstOrderLag(time_constant, gain)
-    if model == "hydraulic":
-        from bodebench.sim.hydraulic import HYDRAULIC_DEFAULTS, ElectrohydraulicDrive
-
-        unknown = sorted(set(hydraulic) - set(HYDRAULIC_DEFAULTS))
-        if unknown:
-            raise ValueError(f"unknown hydraulic plant parameters {unknown}")
-        return ElectrohydraulicDrive(**hydraulic)
-    raise ValueError(f"unknown plant model {model!r}")

@@ -18,7 +18,7 @@ from bodebench.drivers.layout import Layout
 from bodebench.drivers.ports import CanPort, Frame, FramePort, SerialPort
 from bodebench.sim.controller import ControllerTiming, FeedbackSensing, SimulatedController
 from bodebench.sim.faults import FaultConfig, FaultyPort, ValueFaults
-from bodebench.sim.plants import plant_from_config
+from bodebench.sim.models import plant_from_config
 from bodebench.sim.pty_link import FdStream, Pty, SlcanAdapterPort
 
 PTY_TRANSPORTS = ("serial", "slcan")
