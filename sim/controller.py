@@ -47,7 +47,7 @@ class ControllerTiming:
     (uniform in +-jitter; the feedback timestamp reports the true instant);
     seed: random seed of the jitter;
     pacing_cpu: realtime: the CPU the instrument's pacing loop keeps to itself, which the controller keeps off
-    (None: ``drivers.realtime.pacing_cpu()``).
+    (None: ``drivers.scheduling.pacing_cpu()``).
     """
 
     rate_hz: float
