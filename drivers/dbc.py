@@ -141,8 +141,11 @@ def _raw_limits(sig: Any) -> tuple[int, int]:
 
 def _default_value(sig: Any) -> float:
     """Physical value sent for an unmapped DBC signal: its initial value, else 0 moved into [minimum, maximum]."""
-    if sig.initial is not None:
-        return float(sig.initial)
+    if sig.raw_initial is not None:
+        # the number, also for a signal with value names (whose ``initial`` is the name of the value)
+        initial = sig.conversion.raw_to_scaled(sig.raw_initial, decode_choices=False)
+        if isinstance(initial, (int, float)):
+            return float(initial)
     value = 0.0
     if sig.minimum is not None and value < sig.minimum:
         value = float(sig.minimum)
