@@ -159,7 +159,8 @@ class Signal:
         return ("<" if self.endian == "little" else ">") + _TYPES[self.type][0]
 
     def encode_into(self, buffer: bytearray, value: float, message: str) -> None:
-        """Write the physical ``value`` into ``buffer``; LayoutError (naming ``message`` and signal) if it does not fit."""
+        """Write the physical ``value`` into ``buffer``; LayoutError (naming ``message`` and signal) if it does not
+        fit."""
         def where() -> str:  # only built for an error message
             return f"message {show(message)} signal {show(self.name)}"
 

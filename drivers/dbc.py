@@ -11,11 +11,15 @@ import math
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from .codec import Message, is_number, show
 from .errors import LayoutError
 from .tables import FRAMES_KEYS, Roles, TableReader
+
+if TYPE_CHECKING:  # cantools is imported where a DBC file is read
+    from cantools.database.can import Message as DbcDefinition
+    from cantools.database.can import Signal as DbcSignal
 
 __all__ = ["DbcMessage", "read_dbc_frames"]
 
@@ -26,7 +30,7 @@ _SIGNAL_LINE = re.compile(r"\s*SG_\s+(?P<name>\w+)\s*[^:]*:\s*\d+\|\d+@(?P<order
 class DbcMessage:
     """A DBC message seen through a mapping ``our name -> DBC signal name`` (physical values in both directions)."""
 
-    def __init__(self, db_message: Any, signals: Mapping[str, str] | None = None) -> None:
+    def __init__(self, db_message: DbcDefinition, signals: Mapping[str, str] | None = None) -> None:
         """``db_message`` is a ``cantools.database.can.Message``; ``signals`` maps our names to its signal names
         (default: every DBC signal under its own name, in DBC order)."""
         self._msg = db_message
@@ -120,7 +124,15 @@ class DbcMessage:
             decoded = self._msg.decode(bytes(payload[: self.length]), decode_choices=False, scaling=True)
         except Exception as exc:  # cantools DecodeError and friends
             raise LayoutError(f"message {show(self.name)}: {exc}") from exc
-        return {ours: float(decoded[sig.name]) for ours, sig in self._sig.items()}
+        if not isinstance(decoded, dict):  # a container message (DBC files define none)
+            raise LayoutError(f"message {show(self.name)}: not a message of signals")
+        values: dict[str, float] = {}
+        for ours, sig in self._sig.items():
+            value = decoded[sig.name]
+            if not isinstance(value, (int, float)):  # a value name (decode_choices=False gives none)
+                raise LayoutError(f"message {show(self.name)} signal {show(ours)}: {value!r} is not a number")
+            values[ours] = float(value)
+        return values
 
     def integer_modulus(self, name: str) -> int | None:
         """``2**bits`` when our signal ``name`` is an unsigned integer with unit scale and zero offset, else None."""
@@ -132,14 +144,14 @@ class DbcMessage:
         return 1 << int(sig.length)
 
 
-def _raw_limits(sig: Any) -> tuple[int, int]:
+def _raw_limits(sig: DbcSignal) -> tuple[int, int]:
     bits = int(sig.length)
     if sig.is_signed:
         return -(1 << (bits - 1)), (1 << (bits - 1)) - 1
     return 0, (1 << bits) - 1
 
 
-def _default_value(sig: Any) -> float:
+def _default_value(sig: DbcSignal) -> float:
     """Physical value sent for an unmapped DBC signal: its initial value, else 0 moved into [minimum, maximum]."""
     if sig.raw_initial is not None:
         # the number, also for a signal with value names (whose ``initial`` is the name of the value)
@@ -169,6 +181,8 @@ def read_dbc_frames(reader: TableReader, path: Path, mapping: Mapping[str, objec
     except Exception as exc:  # missing file, parse errors
         prefix = f"{reader.source}: " if reader.source else ""
         raise LayoutError(f"{prefix}frames.dbc: cannot load {str(path)!r}: {' '.join(str(exc).split())}") from exc
+    if not isinstance(db, cantools.database.can.Database):  # what database_format="dbc" loads
+        reader.fail("frames.dbc", f"{path.name} is not a CAN database")
     for number, line in enumerate(text.splitlines(), 1):  # what the DBC parser lets through
         found = _SIGNAL_LINE.match(line)
         if found and (found["order"] not in "01" or found["sign"] not in "+-"):
@@ -176,7 +190,7 @@ def read_dbc_frames(reader: TableReader, path: Path, mapping: Mapping[str, objec
                                       f"@{found['order']}{found['sign']} is not a byte order (@0 big-endian, @1 "
                                       "little-endian) and sign (+ unsigned, - signed)")
 
-    def find(sub: Mapping[str, object], where: str) -> Any:
+    def find(sub: Mapping[str, object], where: str) -> DbcDefinition:
         name = reader.require(sub, where, "message")
         if not isinstance(name, str):
             reader.fail(f"{where}.message", f"a DBC message name, got {show(name)}")
