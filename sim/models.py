@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from bodebench.sim.hydraulic import HYDRAULIC_DEFAULTS, ElectrohydraulicDrive
+from bodebench.sim.hydraulic import HYDRAULIC_DEFAULTS, SUBSTEPS_PER_PERIOD, ElectrohydraulicDrive
 from bodebench.sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant
 
 __all__ = ["plant_from_config"]
@@ -26,5 +26,5 @@ def plant_from_config(model: str, *, mass: float = 1.0, stiffness: float = 1.0, 
         unknown = sorted(set(hydraulic) - set(HYDRAULIC_DEFAULTS))
         if unknown:
             raise ValueError(f"unknown hydraulic plant parameters {unknown}")
-        return ElectrohydraulicDrive(**hydraulic)
+        return ElectrohydraulicDrive(**hydraulic, substeps_per_period=SUBSTEPS_PER_PERIOD)
     raise ValueError(f"unknown plant model {model!r}")

@@ -21,6 +21,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from bodebench.sim import _kernels
 
@@ -36,7 +37,8 @@ class PlantState:
     x: np.ndarray
     mode: float = 0.0
 
-    def copy(self) -> "PlantState":
+    def copy(self) -> PlantState:
+        """An independent copy."""
         return PlantState(self.x.copy(), self.mode)
 
 
@@ -96,7 +98,7 @@ def _exosystem_matrix(a: np.ndarray, b: np.ndarray, amplitude: float, omega: flo
 class LinearPlant(Plant):
     """Linear state-space plant ``x' = A x + B u``, outputs ``y = C x`` (exact discretisation)."""
 
-    def __init__(self, a: np.ndarray, b: np.ndarray, c: np.ndarray, output_names: tuple[str, ...]) -> None:
+    def __init__(self, a: ArrayLike, b: ArrayLike, c: ArrayLike, output_names: tuple[str, ...]) -> None:
         self.a = np.atleast_2d(np.asarray(a, dtype=float))
         self.b = np.asarray(b, dtype=float).reshape(-1)
         self.c = np.atleast_2d(np.asarray(c, dtype=float))
@@ -173,6 +175,10 @@ class FirstOrderLag(LinearPlant):
         super().__init__([[-1.0 / time_constant]], [gain / time_constant], [[1.0]], ("position",))
 
 
+_CoulombMatrices = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]
+"""Augmented matrices sliding forward and backward, their one-sub-step transitions, and the sub-steps per step."""
+
+
 class CoulombOscillator(Plant):
     """Second-order link with classical dry (Coulomb) friction (METHOD.md section 2).
 
@@ -192,7 +198,7 @@ class CoulombOscillator(Plant):
         self._a = np.array([[0.0, 1.0], [-stiffness / mass, -self._damping / mass]])
         self._b = np.array([0.0, 1.0 / mass])
         self.events = 0  # stick, break-away and reversal events handled so far
-        self._cache: dict[tuple[float, float, float], tuple] = {}
+        self._cache: dict[tuple[float, float, float], _CoulombMatrices] = {}
 
     @property
     def natural_frequency_hz(self) -> float:
@@ -201,7 +207,7 @@ class CoulombOscillator(Plant):
     def initial_state(self) -> PlantState:
         return PlantState(np.zeros(2), 0.0)
 
-    def _matrices(self, amplitude: float, omega: float, h: float) -> tuple:
+    def _matrices(self, amplitude: float, omega: float, h: float) -> _CoulombMatrices:
         """Augmented matrices and one-sub-step transitions for sliding forward/backward, cached per step."""
         key = (amplitude, omega, h)
         found = self._cache.get(key)
