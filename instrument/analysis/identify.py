@@ -622,13 +622,16 @@ def fit_link(curve: MeasuredCurve, stiffness: float, amplitude: float, *, fit_st
         if best is None or cost < best[0]:
             best = (cost, fbar0, fn0)
     assert best is not None
+    names = ["Fbar", "ln f_n"]  # of the parameters, in order
     x0 = [best[1], math.log(best[2])]
     lower, upper = [0.0, -np.inf], [0.9999, np.inf]
     if fit_stiffness:
+        names.append("ln K_p")
         x0.append(0.0)
         lower.append(-np.inf)
         upper.append(np.inf)
     if fit_damping:
+        names.append("zeta")
         x0.append(0.02)
         lower.append(0.0)
         upper.append(2.0)
@@ -662,8 +665,7 @@ def fit_link(curve: MeasuredCurve, stiffness: float, amplitude: float, *, fit_st
     if model.failures:
         notes.append(f"the model had no settled motion at {model.failures} point evaluations (Fbar < pi/4 at "
                      "f = f_n); they were penalised")
-    at_bound = [name for name, v, lo, hi in zip(("Fbar", "ln f_n", "ln K_p", "zeta"), sol.x, lower, upper)
-                if v <= lo or v >= hi]
+    at_bound = [name for name, v, lo, hi in zip(names, sol.x, lower, upper, strict=True) if v <= lo or v >= hi]
     if at_bound:
         notes.append(f"{', '.join(at_bound)} at a bound: its interval is not reliable")
     method = (f"least squares (trust region reflective) in log gain and phase weighted by each point's "
