@@ -65,8 +65,8 @@ __all__ = [
 #: Samples per period of the simulated motion (and of the trapezoidal first harmonic).
 STEPS_PER_PERIOD = 400
 
-#: Where the shipped calibration table lives.
-DATA_FILE = Path(__file__).resolve().parent / "data" / "friction_calibration.json"
+#: Where the shipped calibration table lives: the package data folder, bodebench/data.
+DATA_FILE = Path(__file__).resolve().parent.parent / "data" / "friction_calibration.json"
 FORMAT_NAME = "bodebench-friction-calibration"
 FORMAT_VERSION = 1
 
