@@ -7,7 +7,7 @@ messages come from a DBC file). Both give ``Roles``, from which ``drivers.layout
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from typing import Any, NamedTuple, NoReturn, TypeVar
 
 from .codec import Codec, Message, Signal, is_finite, is_int, show, signal_problem
@@ -53,7 +53,7 @@ class TableReader:
             self.fail(path, f"a table, got {show(value)}")
         return value
 
-    def known(self, table: Mapping[str, object], path: str, allowed: frozenset[str] | set[str]) -> None:
+    def known(self, table: Mapping[str, object], path: str, allowed: Collection[str]) -> None:
         """Refuse keys of ``table`` outside ``allowed``."""
         unknown = sorted(str(k) for k in table if k not in allowed)
         if unknown:
