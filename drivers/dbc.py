@@ -1,4 +1,4 @@
-"""Messages defined by a DBC file (via cantools), adapted to the ``Codec`` protocol of drivers.layout.
+"""Messages defined by a DBC file (via cantools), adapted to the ``Codec`` protocol of drivers.codec.
 
 ``DbcMessage`` maps our signal names (setpoint, counter, channel names) to DBC signal names; values are physical
 (cantools applies each signal's scale and offset). DBC signals that are not mapped are sent with their initial value
@@ -9,14 +9,19 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
+from .codec import Message, is_number, show
 from .errors import LayoutError
-from .layout import Layout, Message, _Ctx, _is_number, _show
+from .tables import FRAMES_KEYS, Roles, TableReader
 
-__all__ = ["DbcMessage", "layout_from_dbc"]
+if TYPE_CHECKING:  # cantools is imported where a DBC file is read
+    from cantools.database.can import Message as DbcDefinition
+    from cantools.database.can import Signal as DbcSignal
+
+__all__ = ["DbcMessage", "read_dbc_frames"]
 
 _SIGNAL_LINE = re.compile(r"\s*SG_\s+(?P<name>\w+)\s*[^:]*:\s*\d+\|\d+@(?P<order>.)(?P<sign>.)")
 """A DBC signal line up to its byte order and sign (``SG_ Name : start|length@1-``)."""
@@ -25,11 +30,11 @@ _SIGNAL_LINE = re.compile(r"\s*SG_\s+(?P<name>\w+)\s*[^:]*:\s*\d+\|\d+@(?P<order
 class DbcMessage:
     """A DBC message seen through a mapping ``our name -> DBC signal name`` (physical values in both directions)."""
 
-    def __init__(self, db_message: Any, signals: Mapping[str, str] | None = None) -> None:
+    def __init__(self, db_message: DbcDefinition, signals: Mapping[str, str] | None = None) -> None:
         """``db_message`` is a ``cantools.database.can.Message``; ``signals`` maps our names to its signal names
         (default: every DBC signal under its own name, in DBC order)."""
         self._msg = db_message
-        where = f"DBC message {_show(db_message.name)}"
+        where = f"DBC message {show(db_message.name)}"
         if db_message.is_multiplexed():
             raise LayoutError(f"{where}: multiplexed messages are not supported")
         by_name = {sig.name: sig for sig in db_message.signals}
@@ -40,14 +45,14 @@ class DbcMessage:
         for ours, theirs in mapping.items():
             if theirs not in by_name:
                 raise LayoutError(
-                    f"{where}: has no signal {_show(theirs)} (for {_show(ours)}); it has {', '.join(by_name)}"
+                    f"{where}: has no signal {show(theirs)} (for {show(ours)}); it has {', '.join(by_name)}"
                 )
             if theirs in targets:
-                raise LayoutError(f"{where}: signal {_show(theirs)} is mapped twice")
+                raise LayoutError(f"{where}: signal {show(theirs)} is mapped twice")
             targets.add(theirs)
         for sig in db_message.signals:
             if not sig.is_float and (not math.isfinite(float(sig.scale)) or sig.scale == 0):
-                raise LayoutError(f"{where}: signal {_show(sig.name)} has scale {sig.scale!r}: every raw value "
+                raise LayoutError(f"{where}: signal {show(sig.name)} has scale {sig.scale!r}: every raw value "
                                   "would read the same (a finite non-zero scale is needed)")
         self._map = mapping
         self._sig = {ours: by_name[theirs] for ours, theirs in mapping.items()}
@@ -90,12 +95,12 @@ class DbcMessage:
         """Payload for the physical ``values``; LayoutError naming message and signal when missing or out of range."""
         dbc_values: dict[str, float] = dict(self._defaults)
         for ours, sig in self._sig.items():
-            where = f"message {_show(self.name)} signal {_show(ours)} ({_show(sig.name)})"
+            where = f"message {show(self.name)} signal {show(ours)} ({show(sig.name)})"
             if ours not in values:
-                raise LayoutError(f"message {_show(self.name)}: missing value for signal {_show(ours)}")
+                raise LayoutError(f"message {show(self.name)}: missing value for signal {show(ours)}")
             value = values[ours]
-            if not _is_number(value):
-                raise LayoutError(f"{where}: value must be a number, got {_show(value)}")
+            if not is_number(value):
+                raise LayoutError(f"{where}: value must be a number, got {show(value)}")
             if not sig.is_float:
                 if not math.isfinite(value):
                     raise LayoutError(f"{where}: cannot encode non-finite value {value!r} as an integer")
@@ -107,41 +112,52 @@ class DbcMessage:
         try:
             return bytes(self._msg.encode(dbc_values, scaling=True, strict=True))
         except Exception as exc:  # cantools raises EncodeError, OverflowError, ValueError
-            raise LayoutError(f"message {_show(self.name)}: {exc}") from exc
+            raise LayoutError(f"message {show(self.name)}: {exc}") from exc
 
     def decode(self, payload: bytes) -> dict[str, float]:
         """Physical value of every mapped signal; LayoutError naming the message on a short payload."""
         if len(payload) < self.length:
             raise LayoutError(
-                f"message {_show(self.name)} (id 0x{self.id:X}): payload is {len(payload)} bytes, needs {self.length}"
+                f"message {show(self.name)} (id 0x{self.id:X}): payload is {len(payload)} bytes, needs {self.length}"
             )
         try:
             decoded = self._msg.decode(bytes(payload[: self.length]), decode_choices=False, scaling=True)
         except Exception as exc:  # cantools DecodeError and friends
-            raise LayoutError(f"message {_show(self.name)}: {exc}") from exc
-        return {ours: float(decoded[sig.name]) for ours, sig in self._sig.items()}
+            raise LayoutError(f"message {show(self.name)}: {exc}") from exc
+        if not isinstance(decoded, dict):  # a container message (DBC files define none)
+            raise LayoutError(f"message {show(self.name)}: not a message of signals")
+        values: dict[str, float] = {}
+        for ours, sig in self._sig.items():
+            value = decoded[sig.name]
+            if not isinstance(value, (int, float)):  # a value name (decode_choices=False gives none)
+                raise LayoutError(f"message {show(self.name)} signal {show(ours)}: {value!r} is not a number")
+            values[ours] = float(value)
+        return values
 
     def integer_modulus(self, name: str) -> int | None:
         """``2**bits`` when our signal ``name`` is an unsigned integer with unit scale and zero offset, else None."""
         if name not in self._sig:
-            raise LayoutError(f"message {_show(self.name)} has no signal {_show(name)}")
+            raise LayoutError(f"message {show(self.name)} has no signal {show(name)}")
         sig = self._sig[name]
         if sig.is_float or sig.is_signed or sig.scale != 1 or sig.offset != 0:
             return None
         return 1 << int(sig.length)
 
 
-def _raw_limits(sig: Any) -> tuple[int, int]:
+def _raw_limits(sig: DbcSignal) -> tuple[int, int]:
     bits = int(sig.length)
     if sig.is_signed:
         return -(1 << (bits - 1)), (1 << (bits - 1)) - 1
     return 0, (1 << bits) - 1
 
 
-def _default_value(sig: Any) -> float:
+def _default_value(sig: DbcSignal) -> float:
     """Physical value sent for an unmapped DBC signal: its initial value, else 0 moved into [minimum, maximum]."""
-    if sig.initial is not None:
-        return float(sig.initial)
+    if sig.raw_initial is not None:
+        # the number, also for a signal with value names (whose ``initial`` is the name of the value)
+        initial = sig.conversion.raw_to_scaled(sig.raw_initial, decode_choices=False)
+        if isinstance(initial, (int, float)):
+            return float(initial)
     value = 0.0
     if sig.minimum is not None and value < sig.minimum:
         value = float(sig.minimum)
@@ -150,83 +166,83 @@ def _default_value(sig: Any) -> float:
     return value
 
 
-def layout_from_dbc(cls: type[Layout], path: Path, mapping: Mapping[str, Any], source: str) -> Layout:
-    """Build ``cls`` from DBC file ``path`` and the ``[frames]`` table ``mapping`` (see ``Layout.from_dbc``)."""
+def read_dbc_frames(reader: TableReader, path: Path, mapping: Mapping[str, object]) -> Roles:
+    """The messages of DBC file ``path`` that the ``[frames]`` table ``mapping`` (without ``dbc``) names, by role
+    (see ``Layout.from_dbc``); ``reader`` reports the faults."""
     import cantools
 
-    ctx = _Ctx(source)
-    table = ctx.table(mapping, "frames")
-    ctx.known(table, "frames", {"setpoint", "feedback", "enable", "disable", "heartbeat", "drive_watchdog_s"})
-    watchdog = ctx.number(table["drive_watchdog_s"], "frames.drive_watchdog_s") if "drive_watchdog_s" in table \
+    table = reader.table(mapping, "frames")
+    reader.known(table, "frames", FRAMES_KEYS)
+    watchdog = reader.number(table["drive_watchdog_s"], "frames.drive_watchdog_s") if "drive_watchdog_s" in table \
         else 0.0
     try:
         db = cantools.database.load_file(str(path), database_format="dbc")
         text = path.read_text(encoding="latin-1")
     except Exception as exc:  # missing file, parse errors
-        prefix = f"{source}: " if source else ""
+        prefix = f"{reader.source}: " if reader.source else ""
         raise LayoutError(f"{prefix}frames.dbc: cannot load {str(path)!r}: {' '.join(str(exc).split())}") from exc
+    if not isinstance(db, cantools.database.can.Database):  # what database_format="dbc" loads
+        reader.fail("frames.dbc", f"{path.name} is not a CAN database")
     for number, line in enumerate(text.splitlines(), 1):  # what the DBC parser lets through
         found = _SIGNAL_LINE.match(line)
         if found and (found["order"] not in "01" or found["sign"] not in "+-"):
-            ctx.fail("frames.dbc", f"{path.name} line {number}: signal {_show(found['name'])}: "
-                                   f"@{found['order']}{found['sign']} is not a byte order (@0 big-endian, @1 "
-                                   "little-endian) and sign (+ unsigned, - signed)")
+            reader.fail("frames.dbc", f"{path.name} line {number}: signal {show(found['name'])}: "
+                                      f"@{found['order']}{found['sign']} is not a byte order (@0 big-endian, @1 "
+                                      "little-endian) and sign (+ unsigned, - signed)")
 
-    def find(sub: Mapping[str, Any], where: str) -> Any:
-        name = ctx.require(sub, where, "message")
+    def find(sub: Mapping[str, object], where: str) -> DbcDefinition:
+        name = reader.require(sub, where, "message")
         if not isinstance(name, str):
-            ctx.fail(f"{where}.message", f"a DBC message name, got {_show(name)}")
+            reader.fail(f"{where}.message", f"a DBC message name, got {show(name)}")
         try:
             return db.get_message_by_name(name)
         except KeyError:
             names = ", ".join(m.name for m in db.messages)
-            ctx.fail(f"{where}.message", f"no message {_show(name)} in {path.name} (it has {names})")
+            reader.fail(f"{where}.message", f"no message {show(name)} in {path.name} (it has {names})")
 
     def signal_message(value: object, where: str) -> DbcMessage:
-        sub = ctx.table(value, where)
-        ctx.known(sub, where, {"message", "signals"})
+        sub = reader.table(value, where)
+        reader.known(sub, where, {"message", "signals"})
         db_msg = find(sub, where)
-        signals = sub.get("signals")
-        if signals is not None:
-            signals = ctx.table(signals, f"{where}.signals")
-            for ours, theirs in signals.items():
+        signals: dict[str, str] | None = None
+        given = sub.get("signals")
+        if given is not None:
+            signals = {}
+            for ours, theirs in reader.table(given, f"{where}.signals").items():
                 if not isinstance(theirs, str):
-                    ctx.fail(f"{where}.signals.{ours}", f"a DBC signal name, got {_show(theirs)}")
+                    reader.fail(f"{where}.signals.{ours}", f"a DBC signal name, got {show(theirs)}")
+                signals[ours] = theirs
         try:
             return DbcMessage(db_msg, signals)
         except LayoutError as exc:
-            ctx.fail(where, str(exc))
+            reader.fail(where, str(exc))
 
     def fixed_message(value: object, where: str, role: str) -> tuple[Message, float]:
-        sub = ctx.table(value, where)
+        sub = reader.table(value, where)
         allowed = {"message", "values", "period_s"} if role == "heartbeat" else {"message", "values"}
-        ctx.known(sub, where, allowed)
+        reader.known(sub, where, allowed)
         db_msg = find(sub, where)
-        values = ctx.table(sub.get("values", {}), f"{where}.values")
+        values = reader.table(sub.get("values", {}), f"{where}.values")
         by_name = {sig.name: sig for sig in db_msg.signals}
         full: dict[str, float] = {name: _default_value(sig) for name, sig in by_name.items()}
         for key, val in values.items():
             if key not in by_name:
-                ctx.fail(f"{where}.values.{key}", f"no signal {_show(key)} in DBC message {_show(db_msg.name)}")
-            full[key] = ctx.number(val, f"{where}.values.{key}")
+                reader.fail(f"{where}.values.{key}", f"no signal {show(key)} in DBC message {show(db_msg.name)}")
+            full[key] = reader.number(val, f"{where}.values.{key}")
         try:
             payload = bytes(db_msg.encode(full, scaling=True, strict=True))
         except Exception as exc:
-            ctx.fail(f"{where}.values", f"cannot encode: {exc}")
-        period = ctx.number(sub["period_s"], f"{where}.period_s") if "period_s" in sub else 0.0
+            reader.fail(f"{where}.values", f"cannot encode: {exc}")
+        period = reader.number(sub["period_s"], f"{where}.period_s") if "period_s" in sub else 0.0
         try:
             msg = Message(str(db_msg.name), int(db_msg.frame_id), bool(db_msg.is_extended_frame), data=payload)
         except LayoutError as exc:
-            ctx.fail(where, str(exc))
+            reader.fail(where, str(exc))
         return msg, period
 
-    setpoint = signal_message(ctx.require(table, "frames", "setpoint"), "frames.setpoint")
-    fb_raw = ctx.require(table, "frames", "feedback")
-    if isinstance(fb_raw, Mapping):
-        fb_raw = [fb_raw]
-    if not isinstance(fb_raw, Sequence) or isinstance(fb_raw, (str, bytes)) or not fb_raw:
-        ctx.fail("frames.feedback", f"a non-empty list of tables, got {_show(fb_raw)}")
-    feedback = tuple(signal_message(item, f"frames.feedback[{i}]") for i, item in enumerate(fb_raw))
+    setpoint = signal_message(reader.require(table, "frames", "setpoint"), "frames.setpoint")
+    feedback = tuple(signal_message(item, f"frames.feedback[{i}]")
+                     for i, item in enumerate(reader.feedback_tables(table)))
     optional: dict[str, Message | None] = {"enable": None, "disable": None, "heartbeat": None}
     period = 0.0
     for role in optional:
@@ -234,8 +250,5 @@ def layout_from_dbc(cls: type[Layout], path: Path, mapping: Mapping[str, Any], s
             optional[role], p = fixed_message(table[role], f"frames.{role}", role)
             if role == "heartbeat":
                 period = p
-    result: Layout = ctx.build(
-        lambda: cls(setpoint, feedback, optional["enable"], optional["disable"], optional["heartbeat"], period,
-                    watchdog)
-    )
-    return result
+    return Roles(setpoint, feedback, optional["enable"], optional["disable"], optional["heartbeat"], period,
+                 watchdog)

@@ -10,9 +10,10 @@ import dataclasses
 import time
 from dataclasses import dataclass
 
+from .codec import COUNTER, SETPOINT, TIMESTAMP, Codec
 from .e2e import crc_byte, intact
 from .errors import LayoutError
-from .layout import COUNTER, SETPOINT, TIMESTAMP, Codec, Layout
+from .layout import Layout
 from .ports import Frame, FramePort
 
 __all__ = ["REJECT_CAUSES", "BusHealth", "Driver", "FeedbackSample", "Unwrapper"]
@@ -93,13 +94,14 @@ class FeedbackSample:
 @dataclass
 class BusHealth:
     """Link statistics (plain data). ``errors`` = port errors (error frames, CRC failures, malformed input) plus
-    feedback frames that failed to decode or were rejected; ``lost_samples``: counter values never seen; ``duplicates``: repeated or
-    stale counter values (dropped); ``incomplete_samples``: counters with some but not all feedback frames (dropped);
-    ``bus_state``: "active", "passive", "bus-off" or "unknown"; ``last_error``: description of the latest error;
-    ``counter_restarts``: times the feedback counter jumped back by more than 64 samples (assembly restarted there);
-    ``resyncs``: serial lines only, runs of bytes discarded between frames (line noise, garbage); ``rejected``:
-    feedback frames refused before assembly, by cause (``REJECT_CAUSES``): never part of a sample;
-    ``broken_frames``: serial lines only, frames cut short (the line went quiet inside one), dropped at once."""
+    feedback frames that failed to decode or were rejected; ``lost_samples``: counter values never seen;
+    ``duplicates``: repeated or stale counter values (dropped); ``incomplete_samples``: counters with some but not
+    all feedback frames (dropped); ``bus_state``: "active", "passive", "bus-off" or "unknown"; ``last_error``:
+    description of the latest error; ``counter_restarts``: times the feedback counter jumped back by more than 64
+    samples (assembly restarted there); ``resyncs``: serial lines only, runs of bytes discarded between frames (line
+    noise, garbage); ``rejected``: feedback frames refused before assembly, by cause (``REJECT_CAUSES``): never part
+    of a sample; ``broken_frames``: serial lines only, frames cut short (the line went quiet inside one), dropped at
+    once."""
 
     frames_in: int = 0
     frames_out: int = 0
@@ -256,10 +258,12 @@ class Driver:
         msg = self.layout.feedback[index]
         data = frame.data
         if len(data) != msg.length:
-            return self._reject("length", frame, f"payload of {len(data)} bytes, the message has {msg.length}")
+            self._reject("length", frame, f"payload of {len(data)} bytes, the message has {msg.length}")
+            return None
         at = self._crc_at.get(index)
         if at is not None and not intact(data, at):
-            return self._reject("crc", frame, "CRC-8 does not match")
+            self._reject("crc", frame, "CRC-8 does not match")
+            return None
         try:
             values = msg.decode(data)
             raw = self._raw_counter(values) if self._counter is not None else None
@@ -275,7 +279,8 @@ class Driver:
         if last is not None:
             ahead = counter - last  # continuity: from the latest frame accepted
             if (ahead >= _FAR or ahead < -_RESTART_BEHIND) and not self._confirmed(raw):
-                return self._reject("counter", frame, f"counter {raw} is {ahead:+d} from the expected one")
+                self._reject("counter", frame, f"counter {raw} is {ahead:+d} from the expected one")
+                return None
         self._far_raw, self._far_run = None, 0
         counter = self._counter.unwrap(raw)
         if self._next is None:

@@ -8,8 +8,8 @@ receiver reject plausible garbage (another node on the bus, a corrupted frame) b
 
 from __future__ import annotations
 
+from .codec import CRC, Codec
 from .errors import LayoutError
-from .layout import CRC, Codec
 from .serial_framing import crc_table
 
 __all__ = ["crc8_sae_j1850", "crc_byte", "intact", "seal"]
@@ -37,7 +37,7 @@ def crc_byte(message: Codec) -> int | None:
     values = message.decode(bytes(message.length))
     low = message.encode({**values, CRC: 0})
     high = message.encode({**values, CRC: 0xFF})
-    changed = [i for i, (a, b) in enumerate(zip(low, high)) if a != b]
+    changed = [i for i, (a, b) in enumerate(zip(low, high, strict=True)) if a != b]
     if len(changed) != 1 or low[changed[0]] != 0 or high[changed[0]] != 0xFF:
         raise LayoutError(f"message {message.name!r} signal \"crc\": must fill exactly one byte")
     return changed[0]

@@ -18,10 +18,11 @@ from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
+from .codec import Codec
 from .errors import DriverError, DriverInitError, DriverOperationError, DriverTimeoutError, LayoutError
-from .layout import Codec, Layout
+from .layout import Layout
 from .serial_framing import (
     AsciiDeframer,
     BinaryDeframer,
@@ -35,7 +36,11 @@ if os.name == "posix":
     import fcntl
     import termios
 
-__all__ = ["MAX_BATCH", "CanPort", "Frame", "FramePort", "SerialPort"]
+if TYPE_CHECKING:  # python-can is imported where a CAN port is made
+    import can
+    from can.typechecking import Channel
+
+__all__ = ["MAX_BATCH", "CanPort", "Frame", "FramePort", "SerialLine", "SerialPort"]
 
 MAX_BATCH = 256
 """Most frames one ``recv`` call returns; the rest wait for the next call."""
@@ -212,7 +217,7 @@ class CanPort(FramePort):
 
     _vendor_errors, _timeout_errors = _can_errors()
 
-    def __init__(self, bus: Any, *, name: str | None = None, send_timeout: float | None = 1.0,
+    def __init__(self, bus: can.BusABC, *, name: str | None = None, send_timeout: float | None = 1.0,
                  owns_bus: bool = True) -> None:
         """Wrap the open ``can.BusABC`` ``bus``. ``send_timeout`` (s) bounds each send where the interface supports
         it; with ``owns_bus`` the bus is shut down by ``close()``."""
@@ -220,13 +225,14 @@ class CanPort(FramePort):
         self._bus = bus
         self._send_timeout = send_timeout
         self._owns_bus = owns_bus
-        self._periodic: list[Any] = []
+        self._periodic: list[can.broadcastmanager.CyclicSendTaskABC] = []
 
     @classmethod
-    def open(cls, interface: str, channel: Any, bitrate: int | None = None,
+    def open(cls, interface: str, channel: Channel | None, bitrate: int | None = None,
              options: Mapping[str, Any] | None = None) -> CanPort:
         """Open ``can.Bus(interface=..., channel=..., bitrate=..., **options)``; DriverInitError naming interface and
-        channel when that fails (``bitrate`` None leaves it to the interface)."""
+        channel when that fails (``bitrate`` None leaves it to the interface). ``options`` are the interface's own
+        keyword arguments, as python-can takes them (untyped)."""
         import can
 
         kwargs = dict(options or {})
@@ -240,12 +246,12 @@ class CanPort(FramePort):
         return cls(bus, name=name)
 
     @property
-    def bus(self) -> Any:
+    def bus(self) -> can.BusABC:
         """The wrapped python-can bus."""
         return self._bus
 
     @staticmethod
-    def _message(frame: Frame) -> Any:
+    def _message(frame: Frame) -> can.Message:
         import can
 
         return can.Message(arbitration_id=frame.id, data=frame.data, is_extended_id=frame.extended,
@@ -270,7 +276,7 @@ class CanPort(FramePort):
         return out
 
     @staticmethod
-    def _to_frame(msg: Any) -> Frame:
+    def _to_frame(msg: can.Message) -> Frame:
         stamp = float(msg.timestamp) if msg.timestamp else time.time()
         return Frame(int(msg.arbitration_id), bytes(msg.data), bool(msg.is_extended_id), stamp,
                      bool(msg.is_error_frame))
@@ -301,6 +307,29 @@ def _serial_errors() -> tuple[tuple[type[BaseException], ...], tuple[type[BaseEx
 _FRAMINGS = ("binary", "ascii")
 
 
+class SerialLine(Protocol):
+    """What ``SerialPort`` needs of a serial line: a pyserial ``Serial`` opened with ``timeout=0``, or any object
+    that reads what is there without waiting. A ``fileno()`` method, where there is one, gives the descriptor that
+    ``SerialPort`` reads and writes directly (POSIX); ``port`` and ``baudrate`` attributes are used where present."""
+
+    @property
+    def in_waiting(self) -> int:
+        """Bytes ready to be read."""
+        ...
+
+    def read(self, size: int, /) -> bytes:
+        """At most ``size`` bytes, those there now (b"" when none)."""
+        ...
+
+    def write(self, data: bytes, /) -> int | None:
+        """Send ``data``."""
+        ...
+
+    def close(self) -> None:
+        """Release the line."""
+        ...
+
+
 class SerialPort(FramePort):
     """Frames on a serial line, binary or ASCII-line framed (drivers/PROTOCOL.md).
 
@@ -316,7 +345,7 @@ class SerialPort(FramePort):
     _CHUNK = 4096  # bytes read per call at most
     _MAX_READS = 16  # reads per poll at most
 
-    def __init__(self, ser: Any, framing: str, layout: Layout, *, name: str | None = None,
+    def __init__(self, ser: SerialLine, framing: str, layout: Layout, *, name: str | None = None,
                  send_timeout: float = 1.0, frame_gap_s: float | None = None) -> None:
         """Wrap the open serial object ``ser``; ``framing`` "binary" or "ascii"; ``layout`` is validated for it.
         ``send_timeout`` (s) bounds each send on a line that does not take the bytes; ``frame_gap_s`` (s): silence
@@ -502,8 +531,11 @@ class SerialPort(FramePort):
 
     def _fileno(self) -> int | None:
         """The line's file descriptor where select() can wait on it (POSIX), else None."""
+        fileno = getattr(self._ser, "fileno", None)
+        if fileno is None:
+            return None
         try:
-            fd = self._ser.fileno()
+            fd = fileno()
         except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
             return None
         return fd if isinstance(fd, int) and os.name == "posix" else None

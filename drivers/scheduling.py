@@ -1,8 +1,9 @@
-"""Timely wake-ups on Linux for loops paced on the wall clock: 1 ns timer slack, SCHED_FIFO where permitted, and
-a CPU of their own.
+"""OS scheduling of loops paced on the wall clock (Linux): SCHED_FIFO priority where permitted, 1 ns timer slack,
+and CPU pinning (the pacing loop keeps a CPU to itself, and every other thread keeps off it).
 
-All but ``pacing_cpu_left_alone`` act on the calling thread only. On other systems they do nothing (and report
-False where they report).
+The paced sleeps themselves are in the loops that use these: the bus worker's pacing loop (bench.worker) and the
+simulated drive's realtime clock (sim.controller). All but ``pacing_cpu_left_alone`` act on the calling thread only.
+On other systems they do nothing (and report False where they report).
 """
 
 from __future__ import annotations

@@ -21,8 +21,8 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
+from .codec import Codec
 from .errors import LayoutError
-from .layout import Codec
 
 __all__ = [
     "ASCII_MAX_ID",
@@ -104,6 +104,7 @@ class _Counters:
         self.resyncs = 0
         """Times frame alignment was lost: runs of discarded bytes between two accepted frames."""
         self._in_gap = False
+        self._buf = bytearray()  # the bytes of a frame not yet complete
 
     def _discard(self, count: int) -> None:
         if count > 0:
@@ -118,7 +119,7 @@ class _Counters:
 
     def drop_pending(self) -> int:
         """Discard the bytes held for an unfinished frame (one that will never be finished); returns how many."""
-        buf: bytearray = self._buf
+        buf = self._buf
         count = len(buf)
         self._discard(count)
         buf.clear()
@@ -132,10 +133,6 @@ class BinaryDeframer(_Counters):
     from the next byte, so a good frame that a bad frame's claimed length covered is still found. A sync pattern
     followed by a length above 64 is not a frame start and is skipped the same way.
     """
-
-    def __init__(self) -> None:
-        super().__init__()
-        self._buf = bytearray()
 
     @property
     def pending(self) -> int:
@@ -245,7 +242,7 @@ def ascii_payload(message: Codec, fields: Sequence[str]) -> bytes:
     if len(fields) != len(names):
         raise LayoutError(f"message {message.name!r}: expected {len(names)} fields, got {len(fields)}")
     values: dict[str, float] = {}
-    for name, text in zip(names, fields):
+    for name, text in zip(names, fields, strict=True):
         try:
             values[name] = float(text)
         except ValueError as exc:
@@ -268,7 +265,6 @@ class AsciiDeframer(_Counters):
     def __init__(self) -> None:
         super().__init__()
         self.format_errors = 0
-        self._buf = bytearray()
 
     @property
     def pending(self) -> int:

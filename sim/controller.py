@@ -19,14 +19,15 @@ import math
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
+from bodebench.drivers.codec import CRC, SETPOINT_ECHO, Codec, Message
 from bodebench.drivers.e2e import crc_byte, seal
 from bodebench.drivers.errors import DriverTimeoutError, LayoutError
-from bodebench.drivers.layout import CRC, SETPOINT_ECHO, Layout, Message
+from bodebench.drivers.layout import Layout
 from bodebench.drivers.ports import Frame, FramePort
 from bodebench.drivers.scheduling import keep_to, lower_timer_slack, pacing_cpu, request_fifo
 from bodebench.sim.faults import ValueFaults
@@ -85,9 +86,11 @@ class FeedbackSensing:
 
     @property
     def any(self) -> bool:
+        """True when the sensors corrupt anything."""
         return self.noise > 0.0 or self.quantization > 0.0
 
     def rng(self) -> np.random.Generator:
+        """A new generator of the noise, from ``seed`` (a stream apart from the jitter's)."""
         return np.random.default_rng([self.seed, 1])
 
     def apply(self, value: float, rng: np.random.Generator) -> float:
@@ -154,7 +157,7 @@ class SimulatedController:
         return self.plant.output_names.index(name) if name in self.plant.output_names else -1
 
     @staticmethod
-    def _matches(message: Message | None, frame: Frame) -> bool:
+    def _matches(message: Codec | None, frame: Frame) -> bool:
         return (message is not None and frame.id == message.id and frame.extended == message.extended
                 and (message.data is None or bytes(frame.data) == bytes(message.data)))
 
@@ -241,6 +244,7 @@ class SimulatedController:
         frames = []
         timestamp_us = int(round(self.time * 1e6)) % self._timestamp_modulus
         faults = self.faults
+        sensing, sensing_rng = self.sensing, self._sensing_rng  # both set when the sensors corrupt values
         counter = self.tick_count if faults is None else faults.counter(self.tick_count)
         for message, sources, crc_at in self._sources:
             values: dict[str, float] = {}
@@ -253,8 +257,8 @@ class SimulatedController:
                     values[name] = 0
                 else:
                     value = float(y[index]) if index >= 0 else self.applied
-                    if self.sensing is not None:
-                        value = self.sensing.apply(value, self._sensing_rng)
+                    if sensing is not None and sensing_rng is not None:
+                        value = sensing.apply(value, sensing_rng)
                     values[name] = value if faults is None else faults.value(name, value, self.time)
             try:
                 payload = message.encode(values)
@@ -274,7 +278,8 @@ class SimulatedController:
             self.unsent += 1
 
     def serve(self, port: FramePort, stop: threading.Event, poll_s: float = 0.05) -> None:
-        """Answer on ``port`` until ``stop`` is set: lockstep answers each setpoint; realtime ticks on the wall clock."""
+        """Answer on ``port`` until ``stop`` is set: lockstep answers each setpoint; realtime ticks on the wall
+        clock."""
         if self.layout.drive_watchdog_s:
             poll_s = min(poll_s, self.layout.drive_watchdog_s / 20)
         if self.timing.clock == "lockstep":
@@ -306,11 +311,12 @@ class SimulatedController:
                 next_tick = time.perf_counter() + self.period
 
 
-def _saturate(message: Message, name: str, value: float) -> float:
-    """The nearest value an integer signal can carry (NaN reads 0), as a drive's firmware would clamp it."""
-    signal = message.signal(name) if hasattr(message, "signal") else None
+def _saturate(message: Codec, name: str, value: float) -> float:
+    """The nearest value an integer signal of a ``Message`` can carry (NaN reads 0), as a drive's firmware would
+    clamp it; other values and codecs are left as they are."""
+    signal = message.signal(name) if isinstance(message, Message) else None
     limits = signal.raw_range if signal is not None else None
-    if limits is None:
+    if signal is None or limits is None:
         return value
     if math.isnan(value):
         return 0.0

@@ -13,8 +13,8 @@ from __future__ import annotations
 import heapq
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -66,6 +66,7 @@ class FaultConfig:
 
     @property
     def any(self) -> bool:
+        """True when anything goes wrong (any setting but the seed differs from the default)."""
         return self != FaultConfig(seed=self.seed)
 
 
@@ -82,10 +83,12 @@ class ValueFaults:
         return 0 <= c.stop_after_s <= time_s
 
     def bus_off(self, time_s: float) -> bool:
+        """The drive sends only error frames (bus-off) at controller time ``time_s``."""
         c = self.config
         return 0 <= c.bus_off_after_s <= time_s
 
     def counter(self, tick: int) -> int:
+        """The feedback counter the drive sends at ``tick`` (stuck or jumped ahead as configured)."""
         c = self.config
         if 0 <= c.counter_stuck_after <= tick:
             tick = c.counter_stuck_after
@@ -94,6 +97,7 @@ class ValueFaults:
         return tick
 
     def value(self, name: str, value: float, time_s: float) -> float:
+        """Channel ``name``'s ``value`` as the drive reports it at controller time ``time_s``."""
         c = self.config
         if name == "position" and 0 <= c.out_of_range_after_s <= time_s:
             return 1e6
@@ -110,7 +114,8 @@ class FaultyPort(FramePort):
     """
 
     def __init__(self, inner: FramePort, config: FaultConfig, feedback_ids: set[int],
-                 raw_write: Any = None, encode: Any = None) -> None:
+                 raw_write: Callable[[bytes], object] | None = None,
+                 encode: Callable[[Frame], bytes] | None = None) -> None:
         """raw_write: writes bytes straight onto a serial line; encode: a frame's bytes on that line (both None on a
         bus)."""
         super().__init__(f"{inner.name} (faults)", inner.transport)

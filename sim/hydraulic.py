@@ -52,6 +52,8 @@ HYDRAULIC_DEFAULTS: dict[str, float] = {
 """Default parameters: a ~10 kN industrial cylinder with a 150 Hz servo valve. The hydraulic natural frequency is
 77 Hz, the velocity gain K_v = K_loop K_q sqrt(P_s/2)/A_p = 70 1/s, the closed-loop -3 dB bandwidth 13 Hz."""
 
+SUBSTEPS_PER_PERIOD = 40
+"""Default RK4 sub-steps per period of the fastest linearised mode."""
 MAX_EVENTS_PER_SUBSTEP = 64
 
 # indices of the state vector z = [y, v, P_L, x_v, x_v']
@@ -394,7 +396,7 @@ class ElectrohydraulicDrive(Plant):
                  viscous_damping: float = HYDRAULIC_DEFAULTS["viscous_damping"],
                  coulomb_friction: float = HYDRAULIC_DEFAULTS["coulomb_friction"],
                  loop_gain: float = HYDRAULIC_DEFAULTS["loop_gain"],
-                 substeps_per_period: int = 40) -> None:
+                 substeps_per_period: int = SUBSTEPS_PER_PERIOD) -> None:
         self.supply_pressure = _check_positive("supply_pressure", supply_pressure)
         self.valve_gain = _check_positive("valve_gain", valve_gain)
         self.valve_natural_frequency_hz = _check_positive("valve_natural_frequency_hz", valve_natural_frequency_hz)

@@ -21,11 +21,11 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from bodebench.sim import _kernels
 
-__all__ = ["Plant", "PlantState", "CoulombOscillator", "LinearPlant", "LinearOscillator", "FirstOrderLag",
-           "plant_from_config"]
+__all__ = ["Plant", "PlantState", "CoulombOscillator", "LinearPlant", "LinearOscillator", "FirstOrderLag"]
 
 _EMPTY = np.empty(0)
 
@@ -37,7 +37,8 @@ class PlantState:
     x: np.ndarray
     mode: float = 0.0
 
-    def copy(self) -> "PlantState":
+    def copy(self) -> PlantState:
+        """An independent copy."""
         return PlantState(self.x.copy(), self.mode)
 
 
@@ -97,7 +98,7 @@ def _exosystem_matrix(a: np.ndarray, b: np.ndarray, amplitude: float, omega: flo
 class LinearPlant(Plant):
     """Linear state-space plant ``x' = A x + B u``, outputs ``y = C x`` (exact discretisation)."""
 
-    def __init__(self, a: np.ndarray, b: np.ndarray, c: np.ndarray, output_names: tuple[str, ...]) -> None:
+    def __init__(self, a: ArrayLike, b: ArrayLike, c: ArrayLike, output_names: tuple[str, ...]) -> None:
         self.a = np.atleast_2d(np.asarray(a, dtype=float))
         self.b = np.asarray(b, dtype=float).reshape(-1)
         self.c = np.atleast_2d(np.asarray(c, dtype=float))
@@ -174,6 +175,10 @@ class FirstOrderLag(LinearPlant):
         super().__init__([[-1.0 / time_constant]], [gain / time_constant], [[1.0]], ("position",))
 
 
+_CoulombMatrices = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]
+"""Augmented matrices sliding forward and backward, their one-sub-step transitions, and the sub-steps per step."""
+
+
 class CoulombOscillator(Plant):
     """Second-order link with classical dry (Coulomb) friction (METHOD.md section 2).
 
@@ -193,7 +198,7 @@ class CoulombOscillator(Plant):
         self._a = np.array([[0.0, 1.0], [-stiffness / mass, -self._damping / mass]])
         self._b = np.array([0.0, 1.0 / mass])
         self.events = 0  # stick, break-away and reversal events handled so far
-        self._cache: dict[tuple[float, float, float], tuple] = {}
+        self._cache: dict[tuple[float, float, float], _CoulombMatrices] = {}
 
     @property
     def natural_frequency_hz(self) -> float:
@@ -202,7 +207,7 @@ class CoulombOscillator(Plant):
     def initial_state(self) -> PlantState:
         return PlantState(np.zeros(2), 0.0)
 
-    def _matrices(self, amplitude: float, omega: float, h: float) -> tuple:
+    def _matrices(self, amplitude: float, omega: float, h: float) -> _CoulombMatrices:
         """Augmented matrices and one-sub-step transitions for sliding forward/backward, cached per step."""
         key = (amplitude, omega, h)
         found = self._cache.get(key)
@@ -241,27 +246,3 @@ class CoulombOscillator(Plant):
     def run_held(self, state: PlantState, setpoints: np.ndarray, h: float) -> np.ndarray:
         setpoints = np.ascontiguousarray(setpoints, dtype=float)
         return self._run(state, 1.0, 0.0, h, (0.0, 0.0), setpoints, len(setpoints))
-
-
-def plant_from_config(model: str, *, mass: float = 1.0, stiffness: float = 1.0, friction: float = 0.0,
-                      damping_ratio: float = 0.0, time_constant: float = 1.0, gain: float = 1.0,
-                      **hydraulic: float) -> Plant:
-    """Build the plant a ``[plant]`` table describes (model: coulomb, linear, lag or hydraulic).
-
-    ``hydraulic``: the keyword parameters of :class:`sim.hydraulic.ElectrohydraulicDrive` (SI units); accepted by
-    every model (a ``[plant]`` table carries them all) and used by "hydraulic" only.
-    """
-    if model == "coulomb":
-        return CoulombOscillator(mass, stiffness, friction, damping_ratio)
-    if model == "linear":
-        return LinearOscillator(mass, stiffness, damping_ratio)
-    if model == "lag":
-        return FirstOrderLag(time_constant, gain)
-    if model == "hydraulic":
-        from bodebench.sim.hydraulic import HYDRAULIC_DEFAULTS, ElectrohydraulicDrive
-
-        unknown = sorted(set(hydraulic) - set(HYDRAULIC_DEFAULTS))
-        if unknown:
-            raise ValueError(f"unknown hydraulic plant parameters {unknown}")
-        return ElectrohydraulicDrive(**hydraulic)
-    raise ValueError(f"unknown plant model {model!r}")

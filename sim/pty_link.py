@@ -36,6 +36,7 @@ class Pty:
         self.path = os.ttyname(self.slave)
 
     def close(self) -> None:
+        """Close both sides."""
         for fd in (self.master, self.slave):
             try:
                 os.close(fd)
@@ -51,14 +52,17 @@ class FdStream:
         self.timeout = timeout
 
     def fileno(self) -> int:
+        """The descriptor."""
         return self.fd
 
     @property
     def in_waiting(self) -> int:
+        """4096 when bytes are ready to be read, else 0 (the count itself is unknown)."""
         ready, _, _ = select.select([self.fd], [], [], 0)
         return 4096 if ready else 0
 
     def read(self, n: int = 4096) -> bytes:
+        """At most ``n`` bytes, waiting up to ``timeout`` s for the first (b"" when none came)."""
         ready, _, _ = select.select([self.fd], [], [], self.timeout)
         if not ready:
             return b""
@@ -70,6 +74,7 @@ class FdStream:
             raise
 
     def write(self, data: bytes) -> int:
+        """Write all of ``data``, waiting while the descriptor takes no more; returns its length."""
         view = memoryview(data)
         while view:
             try:

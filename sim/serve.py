@@ -11,22 +11,35 @@ from __future__ import annotations
 
 import collections
 import threading
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Protocol
 
 from bodebench.drivers.layout import Layout
 from bodebench.drivers.ports import CanPort, Frame, FramePort, SerialPort
 from bodebench.sim.controller import ControllerTiming, FeedbackSensing, SimulatedController
 from bodebench.sim.faults import FaultConfig, FaultyPort, ValueFaults
-from bodebench.sim.plants import plant_from_config
+from bodebench.sim.models import plant_from_config
 from bodebench.sim.pty_link import FdStream, Pty, SlcanAdapterPort
+
+if TYPE_CHECKING:
+    from multiprocessing.connection import Connection
 
 PTY_TRANSPORTS = ("serial", "slcan")
 
 
+class _Closable(Protocol):
+    """Anything with a ``close()``."""
+
+    def close(self) -> None:
+        """Release what it holds."""
+        ...
+
+
 @dataclass(frozen=True)
 class SimulatorSpec:
-    """A picklable recipe for a simulated controller: plant parameters (``model`` plus its keys), layout, timing."""
+    """A picklable recipe for a simulated controller: plant parameters (``model`` plus its keys, as
+    ``sim.models.plant_from_config`` takes them), layout, timing."""
 
     plant: Mapping[str, Any]
     layout: Layout
@@ -37,13 +50,15 @@ class SimulatorSpec:
     sensing: FeedbackSensing | None = None
 
     def controller(self) -> SimulatedController:
+        """A new controller around a new plant."""
         params = dict(self.plant)
         return SimulatedController(plant_from_config(params.pop("model"), **params), self.layout, self.timing,
                                    ValueFaults(self.faults) if self.faults is not None else None,
                                    sensing=self.sensing)
 
-    def wire(self, port: FramePort, raw_write: Any = None) -> FramePort:
-        """The port the controller serves on, with the configured frame faults."""
+    def wire(self, port: FramePort, raw_write: Callable[[bytes], object] | None = None) -> FramePort:
+        """The port the controller serves on, with the configured frame faults (``raw_write`` writes bytes straight
+        onto a serial line)."""
         if self.faults is None:
             return port
         encode = port.wire_bytes if isinstance(port, SerialPort) else None
@@ -74,7 +89,9 @@ class ControllerPort(FramePort):
 class Serving:
     """A controller serving in a background thread; ``close`` stops it and releases the transport."""
 
-    def __init__(self, controller: SimulatedController, port: FramePort, extra: list[Any] | None = None) -> None:
+    def __init__(self, controller: SimulatedController, port: FramePort,
+                 extra: list[_Closable] | None = None) -> None:
+        """Serve ``controller`` on ``port`` now; ``extra``: also closed by ``close`` (the pty of the link)."""
         self.controller = controller
         self.port = port
         self.stop = threading.Event()
@@ -90,6 +107,7 @@ class Serving:
             self.error = exc
 
     def close(self) -> None:
+        """Stop serving, then close the port and ``extra``."""
         self.stop.set()
         self.thread.join(timeout=5)
         try:
@@ -124,7 +142,8 @@ class SimulatorStartError(RuntimeError):
     """The simulated controller could not be started (the message says why)."""
 
 
-def _process_main(spec: SimulatorSpec, transport: str, conn: Any) -> None:
+def _process_main(spec: SimulatorSpec, transport: str, conn: Connection) -> None:
+    """The simulator process: serve, report the tty path (or the error) on ``conn``, stop when ``conn`` says so."""
     try:
         serving, path = (serve_slcan_pty if transport == "slcan" else serve_serial_pty)(spec)
     except Exception as exc:  # noqa: BLE001 - reported to the parent as text
@@ -168,6 +187,7 @@ class SimulatorProcess:
         self.path: str = text
 
     def close(self) -> None:
+        """Stop the simulator process (terminated when it has not ended 5 s later)."""
         try:
             self._conn.send("stop")
         except (OSError, BrokenPipeError):

@@ -15,7 +15,7 @@ from bodebench.bench.offline import build_plant
 from bodebench.core.fourier import PeriodIntegrator
 from bodebench.io.config import ConfigError, PlantConfig, parse_config
 from bodebench.sim.hydraulic import HYDRAULIC_DEFAULTS, ElectrohydraulicDrive
-from bodebench.sim.plants import plant_from_config
+from bodebench.sim.models import plant_from_config
 
 D = HYDRAULIC_DEFAULTS
 POSITION, VELOCITY, SPOOL, PRESSURE = range(4)

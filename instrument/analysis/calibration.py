@@ -31,6 +31,7 @@ from collections.abc import Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from importlib import metadata
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -275,7 +276,7 @@ def crossing_ratio(fbar: float, lo: float = 0.005, hi: float = 1.0, damping_rati
     link = FrictionLink(fbar, damping_ratio)
     grid = np.geomspace(lo, hi, 25)
     values = [_phase_of(link, r) + 90.0 for r in grid]
-    for a, b, va, vb in zip(grid, grid[1:], values, values[1:]):
+    for (a, b), (va, vb) in zip(pairwise(grid), pairwise(values), strict=True):
         if va == 0.0:
             return float(a)
         if va > 0.0 > vb:
@@ -424,7 +425,7 @@ class CalibrationTable:
         atomic_write_text(path, self.to_text())
 
     @classmethod
-    def from_json(cls, data: Any, source: str = "<calibration>") -> CalibrationTable:
+    def from_json(cls, data: object, source: str = "<calibration>") -> CalibrationTable:
         """Build a table from :meth:`to_json` output; raises CalibrationError naming ``source``."""
         if not isinstance(data, dict):
             raise CalibrationError(f"{source}: expected a JSON object")

@@ -190,10 +190,11 @@ def link_parameters(response: FrequencyResponse, stiffness: float | None = None,
     Raises IdentificationError naming what is missing or invalid.
     """
     config = response.config if isinstance(response.config, dict) else {}
-    plant = config.get("plant") if isinstance(config.get("plant"), dict) else {}
-    excitation = config.get("excitation") if isinstance(config.get("excitation"), dict) else {}
+    plant_table, excitation_table = config.get("plant"), config.get("excitation")
+    plant = plant_table if isinstance(plant_table, dict) else {}
+    excitation = excitation_table if isinstance(excitation_table, dict) else {}
 
-    def positive(name: str, value: Any) -> float | None:
+    def positive(name: str, value: object) -> float | None:
         if value is None:
             return None
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
@@ -426,7 +427,7 @@ def paper_procedure(curve: MeasuredCurve, stiffness: float, amplitude: float,
     below, above = tick_frequencies(f90, offsets)
     readings = []
     for side, ticks in (("below", below), ("above", above)):
-        for k, ft in zip(offsets, ticks):
+        for k, ft in zip(offsets, ticks, strict=True):
             phase = _interp_phase_log(curve, ft)
             if phase is None:
                 readings.append(TickReading(side, int(k), ft, None, None, "tick outside the measured span"))
@@ -447,8 +448,8 @@ def paper_procedure(curve: MeasuredCurve, stiffness: float, amplitude: float,
 
     mean = float(np.mean(values))
     right_mean = float(np.mean(right)) if right else None
-    if len(right) >= 2:
-        fbar, rule = float(right_mean), f"mean of the {len(right)} readings above f_-90 (they spread less)"
+    if right_mean is not None and len(right) >= 2:
+        fbar, rule = right_mean, f"mean of the {len(right)} readings above f_-90 (they spread less)"
     else:
         fbar, rule = mean, f"mean of all {len(values)} readings (fewer than two above f_-90)"
     r90 = table.crossing_ratio(fbar)
@@ -622,13 +623,16 @@ def fit_link(curve: MeasuredCurve, stiffness: float, amplitude: float, *, fit_st
         if best is None or cost < best[0]:
             best = (cost, fbar0, fn0)
     assert best is not None
+    names = ["Fbar", "ln f_n"]  # of the parameters, in order
     x0 = [best[1], math.log(best[2])]
     lower, upper = [0.0, -np.inf], [0.9999, np.inf]
     if fit_stiffness:
+        names.append("ln K_p")
         x0.append(0.0)
         lower.append(-np.inf)
         upper.append(np.inf)
     if fit_damping:
+        names.append("zeta")
         x0.append(0.02)
         lower.append(0.0)
         upper.append(2.0)
@@ -662,8 +666,7 @@ def fit_link(curve: MeasuredCurve, stiffness: float, amplitude: float, *, fit_st
     if model.failures:
         notes.append(f"the model had no settled motion at {model.failures} point evaluations (Fbar < pi/4 at "
                      "f = f_n); they were penalised")
-    at_bound = [name for name, v, lo, hi in zip(("Fbar", "ln f_n", "ln K_p", "zeta"), sol.x, lower, upper)
-                if v <= lo or v >= hi]
+    at_bound = [name for name, v, lo, hi in zip(names, sol.x, lower, upper, strict=True) if v <= lo or v >= hi]
     if at_bound:
         notes.append(f"{', '.join(at_bound)} at a bound: its interval is not reliable")
     method = (f"least squares (trust region reflective) in log gain and phase weighted by each point's "
@@ -702,7 +705,7 @@ class IdentificationReport:
 
     def to_json(self) -> dict[str, Any]:
         """The report as JSON types (non-finite numbers become null)."""
-        return _finite({
+        report: dict[str, object] = {
             "case": self.case,
             "harmonic": self.harmonic,
             "channel": self.channel,
@@ -716,10 +719,11 @@ class IdentificationReport:
             "methods": {"procedure": self.procedure.to_json(), "fit": self.fit.to_json()},
             "reference": self.reference,
             "plots": list(self.plots),
-        })
+        }
+        return {key: _finite(value) for key, value in report.items()}
 
 
-def _finite(value: Any) -> Any:
+def _finite(value: object) -> object:
     """``value`` with every non-finite float replaced by None (strict JSON)."""
     if isinstance(value, dict):
         return {k: _finite(v) for k, v in value.items()}
@@ -776,7 +780,7 @@ def format_report(report: IdentificationReport) -> str:
     if report.excluded:
         lines.append(f"excluded ({len(report.excluded)}): "
                      + "; ".join(f"{e.frequency_hz:g} Hz {e.reason}" for e in report.excluded))
-    rows = [
+    rows: list[tuple[str, ...]] = [
         ("Fbar = F_ct/A_F", _g(p.fbar), _pm(fit.fbar, fit.fbar_ci)),
         ("F_ct", _g(p.friction), _pm(fit.friction, fit.friction_ci)),
         ("f_n, Hz", _g(p.f_n_hz), _pm(fit.f_n_hz, fit.f_n_ci_hz)),
@@ -786,7 +790,7 @@ def format_report(report: IdentificationReport) -> str:
     if fit.damping_ratio is not None:
         rows.append(("damping ratio", "0", _pm(fit.damping_ratio, fit.damping_ratio_ci)))
     ref = report.reference
-    header = ("quantity", "paper procedure", f"fit ({100 * fit.confidence:g} % CI)")
+    header: tuple[str, ...] = ("quantity", "paper procedure", f"fit ({100 * fit.confidence:g} % CI)")
     if ref is not None:
         header += ("configured",)
         values = {"Fbar = F_ct/A_F": ref["fbar"], "F_ct": ref["friction"], "f_n, Hz": ref["f_n_hz"],
@@ -794,13 +798,13 @@ def format_report(report: IdentificationReport) -> str:
         rows = [row + (_g(values[row[0]]),) for row in rows]
     widths = [max(len(r[c]) for r in [header, *rows]) for c in range(len(header))]
     lines.append("")
-    for r in [header, *rows]:
-        lines.append("  ".join(cell.ljust(w) for cell, w in zip(r, widths)).rstrip())
+    for cells in [header, *rows]:
+        lines.append("  ".join(cell.ljust(w) for cell, w in zip(cells, widths, strict=True)).rstrip())
     lines.append("")
-    if not p.applicable:
+    if not p.applicable or p.bracket is None:  # an applicable procedure always has its bracket
         lines.append(f"procedure: {p.reason}")
     else:
-        (fa, pa), (fb, pb) = p.bracket  # type: ignore[misc]
+        (fa, pa), (fb, pb) = p.bracket
         lines.append(f"procedure: f_-90 = {p.f90_hz:.5g} Hz (between {fa:g} Hz at {pa:.2f} deg and {fb:g} Hz at "
                      f"{pb:.2f} deg)")
         for r in p.readings:

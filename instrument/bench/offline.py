@@ -17,7 +17,8 @@ import numpy as np
 from bodebench.core.autointegration import Autointegrator
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.io.config import CaseConfig, PlantConfig
-from bodebench.sim.plants import Plant, plant_from_config
+from bodebench.sim.models import plant_from_config
+from bodebench.sim.plants import Plant
 
 OUTPUT_CHANNEL = "position"
 FIRST_BATCH_PERIODS = 8

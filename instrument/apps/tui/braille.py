@@ -52,8 +52,8 @@ class Axis:
         if self.log:
             first, last = math.ceil(math.log10(self.lo) - 1e-9), math.floor(math.log10(self.hi) + 1e-9)
             decades = [10.0 ** e for e in range(first, last + 1)]
-            step = max(1, math.ceil(len(decades) / max_ticks))
-            ticks = decades[::step]
+            stride = max(1, math.ceil(len(decades) / max_ticks))
+            ticks = decades[::stride]
             if len(decades) < 2:
                 extra = [m * 10.0 ** e for e in range(first - 1, last + 1) for m in (2.0, 5.0)]
                 ticks = sorted({*ticks, *(t for t in extra if self.lo <= t <= self.hi)})
@@ -140,7 +140,7 @@ class BrailleCanvas:
 
     def lines(self) -> list[Text]:
         """The canvas as one styled text line per row of cells (one span per run of equally styled cells)."""
-        out = []
+        out: list[Text] = []
         for r in range(self.rows):
             chars = "".join(chr(BRAILLE_BLANK + int(b)) for b in self.bits[r])
             text = Text(chars)
@@ -148,8 +148,9 @@ class BrailleCanvas:
             start = 0
             for c in range(1, self.cols + 1):
                 if c == self.cols or styles[c] != styles[start]:
-                    if styles[start]:
-                        text.stylize(styles[start], start, c)
+                    style = styles[start]
+                    if style:
+                        text.stylize(style, start, c)
                     start = c
             out.append(text)
         return out
@@ -220,15 +221,15 @@ def render_plot(traces: Sequence[Trace], width: int, height: int, x_axis: Axis, 
         _draw_trace(canvas, trace, x_axis, y_axis)
     body = canvas.lines()
     tick_rows: dict[int, str] = {}
-    for value, label in zip(y_ticks, labels):
+    for value, label in zip(y_ticks, labels, strict=True):
         fy = float(y_axis.fraction(np.array([value]))[0])
         if math.isfinite(fy):
             tick_rows.setdefault(round((1.0 - fy) * (canvas.height - 1)) // 4, label)
-    out = []
+    out: list[Text] = []
     for r, line in enumerate(body):
-        label = tick_rows.get(r)
-        text = Text(label.rjust(margin) if label else " " * margin, style=axis_style)
-        text.append("┤" if label else "│", style=axis_style)
+        tick = tick_rows.get(r)
+        text = Text(tick.rjust(margin) if tick else " " * margin, style=axis_style)
+        text.append("┤" if tick else "│", style=axis_style)
         text.append_text(line)
         out.append(text)
     out.append(_x_labels(x_axis, cols, margin, axis_style))
@@ -236,6 +237,7 @@ def render_plot(traces: Sequence[Trace], width: int, height: int, x_axis: Axis, 
 
 
 def _draw_trace(canvas: BrailleCanvas, trace: Trace, x_axis: Axis, y_axis: Axis) -> None:
+    """Draw ``trace`` on ``canvas`` (thinned to twice the dots across when it has more points)."""
     x, y = trace.x, trace.y
     limit = 2 * canvas.width
     if x.size > limit:  # more points than the canvas can show: every step-th, and the last

@@ -1,0 +1,30 @@
+"""The plant a ``[plant]`` table describes: ``plant_from_config`` builds any model of sim.plants and sim.hydraulic."""
+
+from __future__ import annotations
+
+from bodebench.sim.hydraulic import HYDRAULIC_DEFAULTS, SUBSTEPS_PER_PERIOD, ElectrohydraulicDrive
+from bodebench.sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant
+
+__all__ = ["plant_from_config"]
+
+
+def plant_from_config(model: str, *, mass: float = 1.0, stiffness: float = 1.0, friction: float = 0.0,
+                      damping_ratio: float = 0.0, time_constant: float = 1.0, gain: float = 1.0,
+                      **hydraulic: float) -> Plant:
+    """Build the plant a ``[plant]`` table describes (model: coulomb, linear, lag or hydraulic).
+
+    ``hydraulic``: the keyword parameters of :class:`sim.hydraulic.ElectrohydraulicDrive` (SI units); accepted by
+    every model (a ``[plant]`` table carries them all) and used by "hydraulic" only.
+    """
+    if model == "coulomb":
+        return CoulombOscillator(mass, stiffness, friction, damping_ratio)
+    if model == "linear":
+        return LinearOscillator(mass, stiffness, damping_ratio)
+    if model == "lag":
+        return FirstOrderLag(time_constant, gain)
+    if model == "hydraulic":
+        unknown = sorted(set(hydraulic) - set(HYDRAULIC_DEFAULTS))
+        if unknown:
+            raise ValueError(f"unknown hydraulic plant parameters {unknown}")
+        return ElectrohydraulicDrive(**hydraulic, substeps_per_period=SUBSTEPS_PER_PERIOD)
+    raise ValueError(f"unknown plant model {model!r}")
