@@ -98,8 +98,8 @@ def battery() -> list[Case]:
     for fbar in FBARS:
         for r in FRICTION_RATIOS:
             fn, k, a = 10 ** rng.uniform(-0.3, 1.3), 10 ** rng.uniform(-1, 1), 10 ** rng.uniform(-2, 0)
-            cases.append(Case(f"friction Fbar={fbar:g} f/fn={r:g}", "friction", (k / (2 * math.pi * fn) ** 2, k, fbar * a),
-                              r * fn, a))
+            cases.append(Case(f"friction Fbar={fbar:g} f/fn={r:g}", "friction",
+                              (k / (2 * math.pi * fn) ** 2, k, fbar * a), r * fn, a))
     return cases
 
 
@@ -240,7 +240,8 @@ def report_noise(rows: list[Row]) -> None:
     for level in NOISE_LEVELS:
         sel = [r for r in rows if r.noise == level]
         conv = [r for r in sel if r.status == "converged"]
-        print(f"  noise {level:.1%}: disc {np.mean([r.disc for r in sel]):.3f}, gain {np.mean([r.gain for r in sel]):.3f}, "
+        print(f"  noise {level:.1%}: disc {np.mean([r.disc for r in sel]):.3f}, "
+              f"gain {np.mean([r.gain for r in sel]):.3f}, "
               f"phase {np.mean([r.phase for r in sel]):.3f}; statuses {dict(Counter(r.status for r in sel))}; "
               f"converged beyond eps {sum(r.error > 1 for r in conv)} of {len(conv)}; "
               f"mean periods {np.mean([r.periods for r in sel]):.0f}")

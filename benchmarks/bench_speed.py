@@ -25,13 +25,12 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from bodebench.bench import offline as experiment  # noqa: E402
+from bodebench.bench import offline as experiment
 from bodebench.core.response import FrequencyResponse
-from bodebench.io.config import load_config  # noqa: E402
-from bodebench.sim.plants import CoulombOscillator, LinearOscillator  # noqa: E402
+from bodebench.io.config import load_config
+from bodebench.sim.plants import CoulombOscillator, LinearOscillator
+
+ROOT = Path(__file__).resolve().parent.parent
 
 CONFIG = ROOT / "configs" / "paper2013.toml"
 KERNEL_FRICTION = 0.008  # F_ct for Fbar 0.8 at A_F = 0.01

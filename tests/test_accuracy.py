@@ -43,7 +43,7 @@ def test_default_rule_meets_0_01_db_and_0_05_deg_on_the_paper_grid(exact: np.nda
     assert gain_err.max() <= 0.01
     assert phase_err.max() <= 0.05
     # and it delivers the requested eps itself, with a stated uncertainty that covers the error
-    rel = np.array([abs((p.p + 1j * p.q) / p.amplitude - g) for p, g in zip(response.points, exact)])
+    rel = np.array([abs((p.p + 1j * p.q) / p.amplitude - g) for p, g in zip(response.points, exact, strict=False)])
     assert np.all(rel / np.abs(exact) <= 2e-4)
 
 

@@ -142,7 +142,7 @@ def run_can_scenario(driver: Driver, send: PeerSend, send_raw: Callable[[int, bo
     expected_raw = [65533, 65534, 65535, 0, 1, 2, 4, 6]
     samples = collect(driver, len(expected_raw))
     assert [s.counter for s in samples] == [65533, 65534, 65535, 65536, 65537, 65538, 65540, 65542]
-    for s, c in zip(samples, expected_raw):
+    for s, c in zip(samples, expected_raw, strict=False):
         assert s.values == pytest.approx((quantize(0, value(0, c)), quantize(1, value(1, c))), rel=0, abs=1e-9)
         assert s.receive_time > 0
     h = driver.health.snapshot()
@@ -430,7 +430,8 @@ def test_serial_over_pty(pty_pair: tuple[int, str], framing: str) -> None:
             if i == corrupt and k == 1:
                 wire[-4] ^= 0x01
             chunks.append(bytes(wire))
-            chunks.append(bytes(rng.choice([b for b in range(256) if b != forbidden]) for _ in range(rng.randint(0, 9))))
+            filler = [b for b in range(256) if b != forbidden]
+            chunks.append(bytes(rng.choice(filler) for _ in range(rng.randint(0, 9))))
     stream = b"".join(chunks)
 
     def writer() -> None:
@@ -449,7 +450,7 @@ def test_serial_over_pty(pty_pair: tuple[int, str], framing: str) -> None:
         thread.join()
     expected = [i for i in range(n) if i not in (corrupt, skipped)]
     assert [s.counter for s in samples] == [200 + i for i in expected]
-    for s, i in zip(samples, expected):
+    for s, i in zip(samples, expected, strict=False):
         assert s.values == (f32((i - 10) * 1.25), round((i - 10) * 2.5 / 0.5) * 0.5)
     h = driver.health
     assert h.lost_samples == 1 and h.incomplete_samples == 1 and h.duplicates == 0

@@ -66,7 +66,7 @@ def reference(
             ye = y[j] + frac * (y[j + 1] - y[j])
             knots.append((te, *values(te, ye, True)))
         knots.append((tb, *values(tb, y[j + 1], False)))
-        for (tl, sl, cl), (tr, sr, cr) in zip(knots[:-1], knots[1:]):
+        for (tl, sl, cl), (tr, sr, cr) in zip(knots[:-1], knots[1:], strict=False):
             period = math.floor((0.5 * (tl + tr) - t0) * f) + 1  # 1-based period holding the piece
             if period < 1:
                 continue
@@ -178,7 +178,7 @@ def test_edges_between_samples_converge(samples_per_period: float, offset: float
         assert p.shape[0] == 6
         errors.append(_max_error(p, q))
     assert errors[0] < 1e-3
-    for coarse, fine in zip(errors[:-1], errors[1:]):
+    for coarse, fine in zip(errors[:-1], errors[1:], strict=False):
         assert 6.0 < coarse / fine < 10.0
 
 

@@ -260,8 +260,8 @@ def test_step_refinement_converges_at_a_sticking_point() -> None:
         (point,) = measure_frequency(case, 3.0)
         assert point.status == "fixed"
         z.append(complex(point.p, point.q))
-    diffs = [abs(b - a) / abs(b) for a, b in zip(z, z[1:])]
-    for coarse, fine in zip(diffs, diffs[1:]):
+    diffs = [abs(b - a) / abs(b) for a, b in zip(z, z[1:], strict=False)]
+    for coarse, fine in zip(diffs, diffs[1:], strict=False):
         assert fine <= coarse / 3.5, f"differences {diffs} do not shrink like h^2"
     assert diffs[-1] < 1e-6
     gain = [abs(x) / AMPLITUDE for x in z]

@@ -162,7 +162,7 @@ def triangle_setpoints(rate: float, leg: float, legs: int, h: float) -> tuple[np
 def runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """[start, stop) index ranges where mask is True."""
     edges = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
-    return list(zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]))
+    return list(zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0], strict=False))
 
 
 def test_slow_ramp_sticks_while_force_inside_friction_band() -> None:
@@ -181,7 +181,7 @@ def test_slow_ramp_sticks_while_force_inside_friction_band() -> None:
         assert np.all(out[a:b, POSITION] == out[a, POSITION])  # the piston does not creep
         assert np.all(np.abs(f[a:b]) <= fc * (1 + 1e-12))
         assert abs(abs(f[b]) - fc) < 0.01 * fc  # it breaks away as the force leaves the band
-    for (a, b), leg_end in zip(stuck_runs[1:], (6000, 12000)):
+    for (a, b), leg_end in zip(stuck_runs[1:], (6000, 12000), strict=False):
         assert leg_end - 200 < a < leg_end + 500 and b < leg_end + 6000
         # during the stick at a reversal the force has crossed from one edge of the band to the other
         assert f[a] * f[b] < 0

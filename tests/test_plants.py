@@ -193,7 +193,7 @@ def test_sticking_is_exact_and_does_not_chatter(fbar: float, ratio: float) -> No
     # one stop at each end of the stroke: two stuck phases per period
     assert 2 * analysed - 2 <= starts.size <= 2 * analysed
     slack = 1e-12 * AMPLITUDE
-    for i0, i1 in zip(starts, ends):
+    for i0, i1 in zip(starts, ends, strict=False):
         ys = y[i0]
         assert np.all(y[i0:i1 + 1] == ys), "position must not move while stuck"
         assert np.all(np.abs(u[i0:i1 + 1] - STIFFNESS * ys) <= friction + slack)
@@ -285,7 +285,7 @@ def test_run_sine_does_not_depend_on_chunking(plant: Plant) -> None:
     cuts = np.sort(rng.choice(np.arange(1, n), size=40, replace=False))
     state = plant.initial_state()
     parts = []
-    for a, b in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [n]])):
+    for a, b in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [n]]), strict=False):
         parts.append(plant.run_sine(state, a * h, h, int(b - a), AMPLITUDE, f))
     chunked = np.concatenate(parts)
     assert_columns_close(chunked, whole, 1e-12)

@@ -201,7 +201,7 @@ def test_unwrap_across_the_fold_boundary() -> None:
     freqs = np.geomspace(1.0, 100.0, 13)
     pts = [
         point(math.cos(math.radians(ph)), math.sin(math.radians(ph)), f=float(f))
-        for f, ph in zip(freqs, true_phase)
+        for f, ph in zip(freqs, true_phase, strict=False)
     ]
     fr = FrequencyResponse(pts)
     folded = fr.phase_deg
@@ -216,7 +216,7 @@ def test_unwrap_downward_lag_keeps_nan_and_input_order() -> None:
     status[3] = "below_resolution"
     pts = [
         point(math.cos(math.radians(ph)), math.sin(math.radians(ph)), f=float(f), status=s)
-        for f, ph, s in zip(freqs, true_phase, status)
+        for f, ph, s in zip(freqs, true_phase, status, strict=False)
     ]
     order = [5, 2, 7, 0, 3, 1, 6, 4]
     fr = FrequencyResponse([pts[i] for i in order])
@@ -258,7 +258,7 @@ def test_save_load_round_trip_is_exact(tmp_path: Path) -> None:
     save_response(fr, tmp_path / "run")
     back = load_response(tmp_path / "run")
     assert len(back) == len(fr)
-    assert all(same_point(a, b) for a, b in zip(fr, back))
+    assert all(same_point(a, b) for a, b in zip(fr, back, strict=False))
     assert back.case == fr.case
     assert back.config == {
         "frequencies_hz": [1.0, 1.3, 2.0],
@@ -287,7 +287,7 @@ def test_round_trip_property(tmp_path_factory: pytest.TempPathFactory, rows: lis
     fr = FrequencyResponse(point(p, q, f=f, amplitude=a, k=k) for f, p, q, a, k in rows)
     save_response(fr, directory)
     back = load_response(directory)
-    assert all(same_point(a, b) for a, b in zip(fr, back)) and len(back) == len(fr)
+    assert all(same_point(a, b) for a, b in zip(fr, back, strict=False)) and len(back) == len(fr)
 
 
 def test_csv_layout(tmp_path: Path) -> None:
@@ -295,7 +295,7 @@ def test_csv_layout(tmp_path: Path) -> None:
     save_response(fr, tmp_path)
     lines = (tmp_path / "response.csv").read_text().splitlines()
     assert lines[0] == HEADER
-    cells = dict(zip(HEADER.split(","), lines[1].split(",")))
+    cells = dict(zip(HEADER.split(","), lines[1].split(","), strict=False))
     assert float(cells["gain"]) == pytest.approx(2.5)
     assert cells["converged"] == "false" and cells["status"] == "capped" and cells["periods"] == "7"
     assert cells["uncertainty"] == "nan"

@@ -289,7 +289,7 @@ def test_ascii_recovers_lines_between_garbage_without_dollar(
     deframer = AsciiDeframer()
     got = feed_all(deframer, split(stream, random.Random(seed)))
     assert [fid for fid, _ in got] == [msg.id for msg, _ in items]
-    for (msg, values), (_, fields) in zip(items, got):
+    for (msg, values), (_, fields) in zip(items, got, strict=False):
         payload = ascii_payload(msg, fields)
         assert payload == msg.encode(values)  # the line carries exactly what the binary payload holds
     assert deframer.frames == len(items)
@@ -311,7 +311,8 @@ def test_ascii_rejects_and_recovers() -> None:
     good = ascii_line(0x21, ["1.5", "3"])
     bad_checksum = good.replace(b"1.5", b"1.6")
     deframer = AsciiDeframer()
-    stream = b"$$garbage" + bad_checksum + b"$12,x" + good + b"no-star\n" + b"$21,1.5,3*3G\r\n" + good.replace(b"\r", b"")
+    stream = (b"$$garbage" + bad_checksum + b"$12,x" + good + b"no-star\n" + b"$21,1.5,3*3G\r\n"
+              + good.replace(b"\r", b""))
     assert deframer.feed(stream) == [(0x21, ["1.5", "3"]), (0x21, ["1.5", "3"])]
     assert deframer.crc_errors == 1
     assert deframer.format_errors == 1  # the "*3G" line; "no-star" had no '$' and is plain garbage
@@ -361,14 +362,14 @@ def test_a_write_that_stalls_is_retried_until_the_line_takes_it() -> None:
                     except BlockingIOError:
                         break
             drained = bytearray()
+            frame_bytes = encode_binary(0x21, frame.data)
             if reader:
-                def drain() -> None:
+                def drain(frame_bytes: bytes = frame_bytes, drained: bytearray = drained, pty: Pty = pty) -> None:
                     while frame_bytes not in drained:
                         try:
                             drained.extend(os.read(pty.master, 65536))
                         except BlockingIOError:
                             threading.Event().wait(0.01)
-                frame_bytes = encode_binary(0x21, frame.data)
                 timer = threading.Timer(0.3, drain)
                 timer.start()
                 port.send(frame)

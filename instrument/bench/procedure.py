@@ -78,8 +78,8 @@ class SweepProcedure:
 
     direct: a bench config's simulated drive called in-process, without a bus (``bodebench simulate``);
     existing: what to do with results already in a case's directory (:data:`EXISTING`); worker_mode: where the
-    bus worker runs (None: as the config says); executor: where offline frequencies run (None: in this thread, in order);
-    plots: draws each finished case (None: no plots).
+    bus worker runs (None: as the config says); executor: where offline frequencies run (None: in this thread,
+    in order); plots: draws each finished case (None: no plots).
 
     Requests from other threads (:meth:`request_abort`, :meth:`set_paused`, :meth:`request_skip`,
     :meth:`set_tolerance`) reach the running session and every case after it.
