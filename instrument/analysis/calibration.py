@@ -7,7 +7,8 @@ frequency ratio ``r = f / f_n`` and the viscous damping ratio ``zeta``; in units
 
 :class:`FrictionLink` computes ``z`` with the project's exact simulator
 (:class:`bodebench.sim.plants.CoulombOscillator`, ``m = 1/(2 pi)^2``, ``K_p = 1``, ``A_F = 1``, hence
-``f_n = 1`` Hz and ``f = r`` Hz). It does not wait for the start-up transient to die out (near resonance that takes thousands of periods) but solves for the periodic
+``f_n = 1`` Hz and ``f = r`` Hz). It does not wait for the start-up transient to die out (near resonance that takes
+thousands of periods) but solves for the periodic
 motion directly: the settled motion is half-wave symmetric, ``x(t + T/2) = -x(t)`` for the state
 ``x = (Y, V)``, so its state at phase zero is a root of ``Phi(x) + x`` where ``Phi`` is the exact half-period
 map of the simulator. Newton's method with a finite-difference Jacobian and a backtracking line search finds
