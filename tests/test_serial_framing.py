@@ -355,12 +355,20 @@ def test_a_write_that_stalls_is_retried_until_the_line_takes_it() -> None:
         fd = port._fd
         assert fd is not None
         try:
-            for chunk in (512, 1):  # fill the line until it takes not one byte more
-                while True:
-                    try:
-                        os.write(fd, b"\0" * chunk)
-                    except BlockingIOError:
-                        break
+            # fill the line until it takes not one byte more, also after the kernel has had time to move what
+            # it holds on to the far side's buffer (late on a busy machine): three quiet rounds in a row
+            quiet = 0
+            while quiet < 3:
+                took = False
+                for chunk in (512, 1):
+                    while True:
+                        try:
+                            os.write(fd, b"\0" * chunk)
+                        except BlockingIOError:
+                            break
+                        took = True
+                quiet = 0 if took else quiet + 1
+                threading.Event().wait(0.05)
             drained = bytearray()
             frame_bytes = encode_binary(0x21, frame.data)
             if reader:
