@@ -8,17 +8,24 @@ frequency), simulated from rest the way measure_frequency does it (step 1/(K_f f
 the scale handed to the rules is the channel's largest coefficient):
   linear    LinearOscillator(m, K_p, damping ratio 0.05)
   friction  CoulombOscillator(m, K_p, F_ct = 0.008), Fbar 0.8
-each clean and with white noise of 1 % of the steady output amplitude on every sample (seeded). Every criterion
-is replayed period by period on its own SeriesHistory with a fresh rule, as the Autointegrator calls it (check,
-then the capped verdict at max_periods); the CPU time (time.process_time) of those calls, stop included, over the
-periods checked is the figure. Each replay is repeated ``--repeat`` times on the same coefficients; the median
-is printed. A warm-up replay of every criterion comes first, so that imports done on first use are not counted.
+each clean and with white noise on every sample (seeded) of 1 % of the linear oscillator's steady output
+amplitude at that frequency. Every criterion is replayed period by period on its own SeriesHistory with a fresh
+rule, as the Autointegrator calls it (check, then the capped verdict at max_periods), the history growing 256
+periods at a time as in an offline sweep; the CPU time (time.process_time) of those calls, stop included, over
+the periods checked is the figure. Each replay is repeated ``--repeat`` times on the same coefficients; the
+median is printed. A warm-up replay of every criterion comes first, so that imports done on first use are not
+counted.
+
+Then the whole call path: Autointegrator.feed on the linear oscillator at 2 f_n with 1 % noise (harmonics 1
+and 2, the default rule) against its PeriodIntegrator alone on the same samples, fed one period at a time (a
+bench) and 256 at a time (a sweep): what the Autointegrator adds per period per series (least of ``--repeat``
+runs of each).
 
 Then one long series that no rule can close, the friction link at Fbar 0.6 at its natural frequency (a beat that
 never dies: capped at max_periods): the default rule's cost per period over periods 1..1000, 1000..5000 and
 5000..20000, to show that it does not grow with the record.
 
-Target: at most 5 us per period per series for every rule. Prints figures only.
+Target: at most 5 us per period per series. Prints figures only.
 """
 
 from __future__ import annotations
@@ -40,6 +47,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bodebench.bench.offline import OUTPUT_CHANNEL  # noqa: E402
+from bodebench.core.autointegration import Autointegrator  # noqa: E402
 from bodebench.core.fourier import PeriodIntegrator  # noqa: E402
 from bodebench.core.rules import CRITERIA, AdaptiveRule, SeriesHistory, StoppingRule, make_rule  # noqa: E402
 from bodebench.io.config import AnalysisConfig, load_config  # noqa: E402
@@ -159,6 +167,40 @@ def long_run(analysis: AnalysisConfig, pc_mass: float, pc_stiffness: float, ampl
     return [statistics.median(v) for v in per_band]
 
 
+def sampler_overhead(plant: Plant, frequency_hz: float, amplitude: float, analysis: AnalysisConfig,
+                     noise_std: float, chunk_periods: int, repeat: int) -> tuple[float, int, int]:
+    """(us per period per series, periods, series) the Autointegrator adds to its integrator: the least CPU time
+    of feed() over ``repeat`` runs less the least of PeriodIntegrator.feed() alone on the same samples, fed in
+    chunks of ``chunk_periods`` periods until every series has its verdict."""
+    steps = analysis.steps_per_period
+    h = 1.0 / (steps * frequency_hz)
+    n = analysis.max_periods * steps
+    y = plant.run_sine(plant.initial_state(), 0.0, h, n, amplitude, frequency_hz)[:, :1]
+    y = y + np.random.default_rng(11).normal(0.0, noise_std, y.shape)
+    t = (1 + np.arange(n)) * h
+    cut = chunk_periods * steps
+    with_rules, alone = [], []
+    periods = fed = 0
+    for _ in range(repeat):
+        sampler = Autointegrator(frequency_hz, amplitude, (OUTPUT_CHANNEL,), analysis)
+        sampler.feed(np.array([0.0]), np.zeros((1, 1)))
+        started = time.process_time()
+        fed = 0
+        while not sampler.done:
+            sampler.feed(t[fed:fed + cut], y[fed:fed + cut])
+            fed += cut
+        with_rules.append(time.process_time() - started)
+        periods = sampler.periods
+        integ = PeriodIntegrator(frequency_hz, analysis.harmonics, 1)
+        integ.feed(np.array([0.0]), np.zeros((1, 1)))
+        started = time.process_time()
+        for i in range(0, fed, cut):
+            integ.feed(t[i:i + cut], y[i:i + cut])
+        alone.append(time.process_time() - started)
+    series = len(analysis.harmonics)
+    return (min(with_rules) - min(alone)) / (periods * series) * 1e6, periods, series
+
+
 def warm_up(plant: Plant, frequency_hz: float, amplitude: float, analysis: AnalysisConfig) -> None:
     """Every criterion once on a short noisy series, untimed: the imports rules make on first use happen here."""
     sim = Simulation(plant, frequency_hz, amplitude, analysis.steps_per_period, 1e-3 * amplitude, 0)
@@ -199,6 +241,13 @@ def main() -> None:
             worst = max(worst, us)
             cells.append(f"{us:>10.2f} ({periods:>8})")
         print(f"{c:<14}" + "".join(f"{cell:>22}" for cell in cells))
+    fn = linear.natural_frequency_hz
+    noise = NOISE_RELATIVE * float(np.abs(linear.frequency_response(np.array([2.0 * fn]))[0, 0])) * amplitude
+    for chunk in (1, CHUNK_PERIODS):
+        us, periods, series = sampler_overhead(linear, 2.0 * fn, amplitude, analysis, noise, chunk, args.repeat)
+        worst = max(worst, us)
+        print(f"Autointegrator.feed beyond its integrator, linear 1% noise at 2 f_n, {series} series, chunks of "
+              f"{chunk} period(s): {us:.2f} us per period per series over {periods} periods")
     bands = long_run(analysis, pc.mass, pc.stiffness, amplitude, args.repeat)
     print(f"adaptive on the friction link at Fbar {LONG_FBAR:g}, f = f_n (capped at {analysis.max_periods}): "
           + ", ".join(f"periods {a + 1}..{b}: {us:.2f} us/period" for (a, b), us in zip(BANDS, bands, strict=True)))

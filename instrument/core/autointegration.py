@@ -17,6 +17,8 @@ from bodebench.core.response import ResponsePoint
 from bodebench.core.rules import SeriesHistory, StoppingRule, Verdict, make_rule
 from bodebench.io.config import AnalysisConfig
 
+_FEW_PERIODS = 4  # periods up to which feed() works on Python scalars (cheaper than numpy's per-call cost)
+
 
 @dataclass(frozen=True)
 class SeriesState:
@@ -95,11 +97,19 @@ class Autointegrator:
             powers = np.array(self.harmonics)
             z = z[:, :-1, : len(self.harmonics)] * (self.amplitude / np.abs(z_ref))[:, None, None] \
                 * rotation[:, None, None] ** powers[None, None, :]
-        for c, row in enumerate(self._histories):
-            for k, hist in enumerate(row):
-                hist.extend(z[:, c, k])
         # each channel's scale: its largest coefficient of the period (output units)
-        references: list[list[float]] = np.max(np.abs(z), axis=2).tolist()
+        if m <= _FEW_PERIODS:
+            values = z.tolist()
+            for period in values:
+                for c, row in enumerate(self._histories):
+                    for k, hist in enumerate(row):
+                        hist.append(period[c][k])
+            references = [[max(abs(v) for v in row) for row in period] for period in values]
+        else:
+            for c, row in enumerate(self._histories):
+                for k, hist in enumerate(row):
+                    hist.extend(z[:, c, k])
+            references = np.max(np.abs(z), axis=2).tolist()
         primary, order, max_periods = self._primary, self._order, self.max_periods
         for i in range(m):
             n = self.periods + i + 1

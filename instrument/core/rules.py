@@ -105,59 +105,67 @@ class SeriesHistory:
         z = np.asarray(z, dtype=complex).reshape(-1)
         if z.size == 0:
             return
+        if z.size <= _SMALL_EXTEND:
+            for v in z.tolist():
+                self.append(v)
+            return
         n, need = self.n, self.n + z.size
+        self._reserve(need)
+        self._z[n:need] = z
+        if n == 0:
+            self._first = complex(z[0])
+        z0 = self._first
+        self._cum[n + 1:need + 1] = self._cum[n] + np.cumsum(z)
+        lo = max(n - 2, 0)
+        centred = self._z[lo:need] - z0  # Z(lo+1..need) - Z(1)
+        self._cum2[n + 1:need + 1] = self._cum2[n] + np.cumsum(np.abs(centred[n - lo:]) ** 2)
+        for sums, k in ((self._lag, 1), (self._lag2, 2)):
+            # (Z(j) - Z(1)) conj(Z(j-k) - Z(1)) for j = max(n, k)+1..need; the sums up to period k are zero
+            count = need - max(n, k)
+            if count > 0:
+                products = centred[centred.size - count:] * np.conj(centred[centred.size - count - k:-k])
+                sums[need - count + 1:need + 1] = sums[need - count] + np.cumsum(products)
+        self._z_list.extend(z.tolist())
+        self._cum_list.extend(self._cum[n + 1:need + 1].tolist())
+        self._cum2_list.extend(self._cum2[n + 1:need + 1].tolist())
+        self._lag_list.extend(self._lag[n + 1:need + 1].tolist())
+        self._lag2_list.extend(self._lag2[n + 1:need + 1].tolist())
+        self.n = need
+
+    def append(self, v: complex) -> None:
+        """Append the coefficient of the next period."""
+        n = self.n
+        v = complex(v)
+        if n == 0:
+            self._first = v
+        self._reserve(n + 1)
+        z0 = self._first
+        d = v - z0
+        c = self._cum_list[n] + v
+        c2 = self._cum2_list[n] + abs(d) ** 2
+        zs = self._z_list
+        lag = self._lag_list[n] + d * (zs[n - 1] - z0).conjugate() if n >= 1 else 0j
+        lag2 = self._lag2_list[n] + d * (zs[n - 2] - z0).conjugate() if n >= 2 else 0j
+        self._z[n] = v
+        n += 1
+        self._cum[n], self._cum2[n], self._lag[n], self._lag2[n] = c, c2, lag, lag2
+        zs.append(v)
+        self._cum_list.append(c)
+        self._cum2_list.append(c2)
+        self._lag_list.append(lag)
+        self._lag2_list.append(lag2)
+        self.n = n
+
+    def _reserve(self, need: int) -> None:
+        """Room for ``need`` periods in the arrays."""
         if need > self._z.size:
             size = max(need, 2 * self._z.size)
             self._z = np.resize(self._z, size)
             for name in ("_cum", "_cum2", "_lag", "_lag2"):
                 old = getattr(self, name)
                 new = np.zeros(size + 1, dtype=old.dtype)
-                new[: n + 1] = old[: n + 1]
+                new[: self.n + 1] = old[: self.n + 1]
                 setattr(self, name, new)
-        self._z[n:need] = z
-        if n == 0:
-            self._first = complex(z[0])
-        z0 = self._first
-        if z.size <= _SMALL_EXTEND:
-            c, c2 = self._cum_list[-1], self._cum2_list[-1]
-            lag, lag2 = self._lag_list[-1], self._lag2_list[-1]
-            d1 = self._z_list[-1] - z0 if n >= 1 else None  # Z(j-1) - Z(1)
-            d2 = self._z_list[-2] - z0 if n >= 2 else None  # Z(j-2) - Z(1)
-            for v in z.tolist():
-                d = v - z0
-                c += v
-                c2 += abs(d) ** 2
-                if d1 is not None:
-                    lag += d * d1.conjugate()
-                if d2 is not None:
-                    lag2 += d * d2.conjugate()
-                d2, d1 = d1, d
-                self._z_list.append(v)
-                self._cum_list.append(c)
-                self._cum2_list.append(c2)
-                self._lag_list.append(lag)
-                self._lag2_list.append(lag2)
-            self._cum[n + 1:need + 1] = self._cum_list[n + 1:]
-            self._cum2[n + 1:need + 1] = self._cum2_list[n + 1:]
-            self._lag[n + 1:need + 1] = self._lag_list[n + 1:]
-            self._lag2[n + 1:need + 1] = self._lag2_list[n + 1:]
-        else:
-            self._cum[n + 1:need + 1] = self._cum[n] + np.cumsum(z)
-            lo = max(n - 2, 0)
-            centred = self._z[lo:need] - z0  # Z(lo+1..need) - Z(1)
-            self._cum2[n + 1:need + 1] = self._cum2[n] + np.cumsum(np.abs(centred[n - lo:]) ** 2)
-            for sums, k in ((self._lag, 1), (self._lag2, 2)):
-                # (Z(j) - Z(1)) conj(Z(j-k) - Z(1)) for j = max(n, k)+1..need; the sums up to period k are zero
-                count = need - max(n, k)
-                if count > 0:
-                    products = centred[centred.size - count:] * np.conj(centred[centred.size - count - k:-k])
-                    sums[need - count + 1:need + 1] = sums[need - count] + np.cumsum(products)
-            self._z_list.extend(z.tolist())
-            self._cum_list.extend(self._cum[n + 1:need + 1].tolist())
-            self._cum2_list.extend(self._cum2[n + 1:need + 1].tolist())
-            self._lag_list.extend(self._lag[n + 1:need + 1].tolist())
-            self._lag2_list.extend(self._lag2[n + 1:need + 1].tolist())
-        self.n = need
 
     @property
     def values(self) -> np.ndarray:
