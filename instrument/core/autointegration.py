@@ -39,6 +39,8 @@ class AnalysisSettings(Protocol):
     @property
     def max_periods(self) -> int: ...
 
+_FEW_PERIODS = 4  # periods up to which feed() works on Python scalars (cheaper than numpy's per-call cost)
+
 
 @dataclass(frozen=True)
 class SeriesState:
@@ -91,6 +93,7 @@ class Autointegrator:
                        max_periods=analysis.max_periods)
              for _ in self.harmonics] for _ in self.channels]
         self._verdicts: list[list[Verdict | None]] = [[None] * len(self.harmonics) for _ in self.channels]
+        self._pending = len(self.channels) * len(self.harmonics)  # series still without a verdict
         self.periods = 0
         # the first harmonic (else the first listed) leads: the others are judged only once it has settled,
         # so a small harmonic cannot stop on the calm before the transient of its channel has died out
@@ -100,7 +103,7 @@ class Autointegrator:
     @property
     def done(self) -> bool:
         """True once every series has a verdict."""
-        return all(v is not None for row in self._verdicts for v in row)
+        return self._pending == 0
 
     def feed(self, t: np.ndarray, y: np.ndarray) -> int:
         """Take samples (t in s, increasing; y shaped (n, channels)); returns the periods completed."""
@@ -113,26 +116,38 @@ class Autointegrator:
         if self.reference is not None:
             z_ref = z[:, -1, self._ref_index]
             rotation = np.conj(z_ref) / np.abs(z_ref)
-            k = np.array(self.harmonics)
+            powers = np.array(self.harmonics)
             z = z[:, :-1, : len(self.harmonics)] * (self.amplitude / np.abs(z_ref))[:, None, None] \
-                * rotation[:, None, None] ** k[None, None, :]
-        for c, row in enumerate(self._histories):
-            for k, hist in enumerate(row):
-                hist.extend(z[:, c, k])
+                * rotation[:, None, None] ** powers[None, None, :]
+        # each channel's scale: its largest coefficient of the period (output units)
+        if m <= _FEW_PERIODS:
+            values = z.tolist()
+            for period in values:
+                for c, row in enumerate(self._histories):
+                    for k, hist in enumerate(row):
+                        hist.append(period[c][k])
+            references = [[max(abs(v) for v in row) for row in period] for period in values]
+        else:
+            for c, row in enumerate(self._histories):
+                for k, hist in enumerate(row):
+                    hist.extend(z[:, c, k])
+            references = np.max(np.abs(z), axis=2).tolist()
+        primary, order, max_periods = self._primary, self._order, self.max_periods
         for i in range(m):
             n = self.periods + i + 1
-            for c in range(len(self.channels)):
-                reference = float(np.max(np.abs(z[i, c, :])))
-                for k in self._order:
-                    if self._verdicts[c][k] is not None:
+            for c, verdicts in enumerate(self._verdicts):
+                reference = references[i][c]
+                rules, histories = self._rules[c], self._histories[c]
+                for k in order:
+                    if verdicts[k] is not None or (k != primary and verdicts[primary] is None):
                         continue
-                    if k != self._primary and self._verdicts[c][self._primary] is None:
-                        continue
-                    verdict = self._rules[c][k].check(self._histories[c][k], n, reference)
-                    if verdict is None and n >= self.max_periods:
-                        verdict = self._rules[c][k].capped(self._histories[c][k], n, reference)
-                    self._verdicts[c][k] = verdict
-            if self.done:
+                    verdict = rules[k].check(histories[k], n, reference)
+                    if verdict is None and n >= max_periods:
+                        verdict = rules[k].capped(histories[k], n, reference)
+                    if verdict is not None:
+                        verdicts[k] = verdict
+                        self._pending -= 1
+            if self._pending == 0:
                 break
         self.periods += m
         return m

@@ -73,11 +73,17 @@ class Verdict:
         return self.status in (CONVERGED, BELOW_RESOLUTION, FIXED)
 
 
+_SMALL_EXTEND = 8  # periods up to which extend() works on Python scalars (cheaper than numpy's per-call cost)
+
+
 class SeriesHistory:
     """Per-period coefficients Z(i) = P(i) + jQ(i), i = 1..n, of one series, with running sums.
 
-    Running sums of Z and of |Z - Z(1)|^2 (taken about the first value, so that the sums of squares of a
-    steady series do not cancel catastrophically) make every window mean and spread O(1).
+    Running sums of Z, of |Z - Z(1)|^2 and of (Z(j) - Z(1)) conj(Z(j-k) - Z(1)), k = 1, 2 (taken about the first
+    value, so that the sums of squares of a steady series do not cancel catastrophically) make every window
+    mean, spread and lag correlation O(1). Each is kept as a numpy array, for work on many periods at once,
+    and as a Python list with the same values, for the single entries a rule reads every period (a list
+    serves those several times faster).
     """
 
     def __init__(self) -> None:
@@ -85,27 +91,81 @@ class SeriesHistory:
         self._cum = np.zeros(257, dtype=complex)  # _cum[i] = Z(1) + ... + Z(i)
         self._cum2 = np.zeros(257)  # _cum2[i] = |Z(1) - Z(1)|^2 + ... + |Z(i) - Z(1)|^2
         self._lag = np.zeros(257, dtype=complex)  # _lag[i] = sum over j = 2..i of (Z(j) - Z(1)) conj(Z(j-1) - Z(1))
+        self._lag2 = np.zeros(257, dtype=complex)  # _lag2[i] = sum over j = 3..i of (Z(j) - Z(1)) conj(Z(j-2) - Z(1))
+        self._first = 0j  # Z(1)
+        self._z_list: list[complex] = []
+        self._cum_list: list[complex] = [0j]
+        self._cum2_list: list[float] = [0.0]
+        self._lag_list: list[complex] = [0j]
+        self._lag2_list: list[complex] = [0j]
         self.n = 0
 
     def extend(self, z: np.ndarray) -> None:
         """Append the coefficients of the next periods (complex array)."""
         z = np.asarray(z, dtype=complex).reshape(-1)
-        need = self.n + z.size
+        if z.size == 0:
+            return
+        if z.size <= _SMALL_EXTEND:
+            for v in z.tolist():
+                self.append(v)
+            return
+        n, need = self.n, self.n + z.size
+        self._reserve(need)
+        self._z[n:need] = z
+        if n == 0:
+            self._first = complex(z[0])
+        z0 = self._first
+        self._cum[n + 1:need + 1] = self._cum[n] + np.cumsum(z)
+        lo = max(n - 2, 0)
+        centred = self._z[lo:need] - z0  # Z(lo+1..need) - Z(1)
+        self._cum2[n + 1:need + 1] = self._cum2[n] + np.cumsum(np.abs(centred[n - lo:]) ** 2)
+        for sums, k in ((self._lag, 1), (self._lag2, 2)):
+            # (Z(j) - Z(1)) conj(Z(j-k) - Z(1)) for j = max(n, k)+1..need; the sums up to period k are zero
+            count = need - max(n, k)
+            if count > 0:
+                products = centred[centred.size - count:] * np.conj(centred[centred.size - count - k:-k])
+                sums[need - count + 1:need + 1] = sums[need - count] + np.cumsum(products)
+        self._z_list.extend(z.tolist())
+        self._cum_list.extend(self._cum[n + 1:need + 1].tolist())
+        self._cum2_list.extend(self._cum2[n + 1:need + 1].tolist())
+        self._lag_list.extend(self._lag[n + 1:need + 1].tolist())
+        self._lag2_list.extend(self._lag2[n + 1:need + 1].tolist())
+        self.n = need
+
+    def append(self, v: complex) -> None:
+        """Append the coefficient of the next period."""
+        n = self.n
+        v = complex(v)
+        if n == 0:
+            self._first = v
+        self._reserve(n + 1)
+        z0 = self._first
+        d = v - z0
+        c = self._cum_list[n] + v
+        c2 = self._cum2_list[n] + abs(d) ** 2
+        zs = self._z_list
+        lag = self._lag_list[n] + d * (zs[n - 1] - z0).conjugate() if n >= 1 else 0j
+        lag2 = self._lag2_list[n] + d * (zs[n - 2] - z0).conjugate() if n >= 2 else 0j
+        self._z[n] = v
+        n += 1
+        self._cum[n], self._cum2[n], self._lag[n], self._lag2[n] = c, c2, lag, lag2
+        zs.append(v)
+        self._cum_list.append(c)
+        self._cum2_list.append(c2)
+        self._lag_list.append(lag)
+        self._lag2_list.append(lag2)
+        self.n = n
+
+    def _reserve(self, need: int) -> None:
+        """Room for ``need`` periods in the arrays."""
         if need > self._z.size:
             size = max(need, 2 * self._z.size)
             self._z = np.resize(self._z, size)
-            for name in ("_cum", "_cum2", "_lag"):
+            for name in ("_cum", "_cum2", "_lag", "_lag2"):
                 old = getattr(self, name)
                 new = np.zeros(size + 1, dtype=old.dtype)
                 new[: self.n + 1] = old[: self.n + 1]
                 setattr(self, name, new)
-        self._z[self.n:need] = z
-        self._cum[self.n + 1:need + 1] = self._cum[self.n] + np.cumsum(z)
-        centred = self._z[max(self.n - 1, 0):need] - self._z[0]
-        self._cum2[self.n + 1:need + 1] = self._cum2[self.n] + np.cumsum(np.abs(centred[-z.size:]) ** 2)
-        products = centred[1:] * np.conj(centred[:-1])  # (Z(j) - Z(1)) conj(Z(j-1) - Z(1)), j = max(n, 1)+1..need
-        self._lag[need - products.size + 1:need + 1] = self._lag[need - products.size] + np.cumsum(products)
-        self.n = need
 
     @property
     def values(self) -> np.ndarray:
@@ -123,30 +183,36 @@ class SeriesHistory:
 
     def at(self, i: int) -> complex:
         """Z(i), periods counted from 1."""
-        return complex(self._z[i - 1])
+        return self._z_list[i - 1]
 
     def mean(self, a: int, b: int) -> complex:
         """Mean of Z over periods a+1..b."""
-        return complex((self._cum[b] - self._cum[a]) / (b - a))
+        cum = self._cum_list
+        return (cum[b] - cum[a]) / (b - a)
 
     def lag_correlation(self, a: int, b: int) -> float:
-        """|lag-1 autocorrelation| of Z over periods a+1..b (0: independent periods; near 1: a smooth or turning signal)."""
+        """|lag-1 autocorrelation| of Z over periods a+1..b (0: independent periods; near 1: smooth or turning)."""
         length = b - a
         if length < 3:
             return math.nan
-        shift = (self._cum[b] - self._cum[a]) / length - self._z[0]
+        cum, z0 = self._cum_list, self._first
+        shift = (cum[b] - cum[a]) / length - z0
         # sum of (Z(j) - m) conj(Z(j-1) - m) over j = a+2..b, expanded about Z(1)
-        inner = self._cum[b] - self._cum[a + 1] - self._z[0] * (length - 1)
-        outer = self._cum[b - 1] - self._cum[a] - self._z[0] * (length - 1)
-        cov = (self._lag[b] - self._lag[a + 1]) - inner * np.conj(shift) - shift * np.conj(outer) \
+        inner = cum[b] - cum[a + 1] - z0 * (length - 1)
+        outer = cum[b - 1] - cum[a] - z0 * (length - 1)
+        cov = (self._lag_list[b] - self._lag_list[a + 1]) - inner * shift.conjugate() - shift * outer.conjugate() \
             + (length - 1) * abs(shift) ** 2
-        var = self.scatter(a, b)
-        return abs(complex(cov)) / var if var > 0.0 else math.nan
+        var = max(0.0, self._cum2_list[b] - self._cum2_list[a] - length * abs(shift) ** 2)
+        return abs(cov) / var if var > 0.0 else math.nan
 
     def scatter(self, a: int, b: int) -> float:
         """Sum of |Z(i) - mean|^2 over periods a+1..b (output units squared)."""
-        shift = (self._cum[b] - self._cum[a]) / (b - a) - self._z[0]
-        return max(0.0, float(self._cum2[b] - self._cum2[a]) - (b - a) * abs(shift) ** 2)
+        cum = self._cum_list
+        shift = (cum[b] - cum[a]) / (b - a) - self._first
+        return max(0.0, self._cum2_list[b] - self._cum2_list[a] - (b - a) * abs(shift) ** 2)
+
+
+_DISC: dict[int, float] = {}
 
 
 def _disc_factor(dof: int, confidence: float = CONFIDENCE) -> float:
@@ -155,8 +221,17 @@ def _disc_factor(dof: int, confidence: float = CONFIDENCE) -> float:
     The variance is estimated with ``dof`` degrees of freedom, so |error|^2 / (2 s^2) follows F(2, dof);
     F(2, d) has the closed-form quantile d/2 ((1 - c)^(-2/d) - 1).
     """
+    if confidence == CONFIDENCE:
+        found = _DISC.get(dof)
+        if found is not None:
+            return found
     f = dof / 2.0 * ((1.0 - confidence) ** (-2.0 / dof) - 1.0)
-    return math.sqrt(2.0 * f)
+    factor = math.sqrt(2.0 * f)
+    if confidence == CONFIDENCE:
+        if len(_DISC) > 4096:
+            _DISC.clear()
+        _DISC[dof] = factor
+    return factor
 
 
 @functools.lru_cache(maxsize=256)
@@ -176,6 +251,9 @@ _HOPELESS = 2.0       # a point whose projected periods exceed this many budgets
 _MIN_NOISE_EVIDENCE = 128  # analysed periods before the noise is judged hopeless
 _WHITE_RATIO = 2.0    # batch-mean variance over per-period variance still taken for independent periods
 _WHITE_LAG = 0.2      # |lag-1 autocorrelation| still taken for independent periods
+_SLACK = 1.0 + 1e-9   # margin of a screen's inequalities over the round-off of the bounds they compare
+_SLACK2 = _SLACK * _SLACK
+_EPS = float(np.finfo(float).eps)
 
 
 @dataclass(frozen=True)
@@ -200,45 +278,108 @@ class Estimate:
         return self.uncertainty - self.statistical
 
 
-def settled_estimate(hist: SeriesHistory, skip: int, n: int) -> Estimate:
-    """The mean of the settled part of periods skip+1..n, with its 95 % bounds (output units).
+_QuarterStats = tuple[int, int, int, complex, complex, complex, float]
+"""The analysed periods skip+1..n cut into four equal blocks, what the running sums give in O(1):
+(n, length, start, m2, m3, m4, within). length: periods per block; start: the periods before the first block;
+m2..m4: the means of blocks 2-4 (output units); within: the scatter of the periods about their own block's
+mean, summed over blocks 2-4 (output units squared)."""
 
-    The analysed record is cut into four equal blocks, each into up to eight batches. Noise: the
-    pooled spread of the batch means about their own block's mean in the last three blocks (between-block
-    drift excluded), with 3 blocks x (batches - 1) x 2 degrees of freedom. Drift: the changes d2, d3 between the means of
-    blocks 2-3 and 3-4. A drift the noise cannot explain must shrink geometrically, |d3| <= |d2| / 2,
-    before the transient is bounded (and so must d2 against d1); the transient left in the mean of
-    blocks 3-4 is then at most 1.5 |d3| (the tail of a geometric sequence of ratio <= 1/2). Only where
-    the periods scatter like independent noise (``white``: a smooth or turning transient inflates the
-    spread and would hide a drift) and no drift is seen over blocks 2-4 is their mean the estimate, the
-    bias term zero and the interval purely statistical.
-    """
+
+def _quarters(hist: SeriesHistory, skip: int, n: int) -> _QuarterStats:
+    """The quarter-block statistics of periods skip+1..n (at least one period a block)."""
     length = (n - skip) // _BLOCKS
-    if length < 2:
-        z = hist.at(n)
-        return Estimate(z, math.nan, math.nan, math.nan, False, False)
     start = n - _BLOCKS * length
+    cum, cum2, z0 = hist._cum_list, hist._cum2_list, hist._first
+    e1 = start + length
+    e2 = e1 + length
+    e3 = e2 + length
+    c2, c3 = cum[e2], cum[e3]
+    m2 = (c2 - cum[e1]) / length
+    m3 = (c3 - c2) / length
+    m4 = (cum[n] - c3) / length
+    a = abs(m2 - z0)
+    s2 = cum2[e2] - cum2[e1] - length * (a * a)
+    a = abs(m3 - z0)
+    s3 = cum2[e3] - cum2[e2] - length * (a * a)
+    a = abs(m4 - z0)
+    s4 = cum2[n] - cum2[e3] - length * (a * a)
+    within = (s2 if s2 > 0.0 else 0.0) + (s3 if s3 > 0.0 else 0.0) + (s4 if s4 > 0.0 else 0.0)
+    return n, length, start, m2, m3, m4, within
+
+
+_DISC_BATCHES = _disc_factor(2 * (_BLOCKS - 1) * (_SUB_BATCHES - 1))  # the disc factor of eight batches a block
+_OFFSETS: dict[tuple[int, int], tuple[int, ...]] = {}
+
+
+def _batch_offsets(length: int, batches: int) -> tuple[int, ...]:
+    """Batch edges in a block of ``length`` periods cut into ``batches``: (j * length) // batches, j = 0..batches."""
+    key = (length, batches)
+    found = _OFFSETS.get(key)
+    if found is None:
+        if len(_OFFSETS) > 4096:
+            _OFFSETS.clear()
+        found = _OFFSETS[key] = tuple((j * length) // batches for j in range(batches + 1))
+    return found
+
+
+class _Settled:
+    """The settled estimate before its one-direction half-width, which costs a quantile, is worked out.
+
+    value (output units); statistical: 95 % disc radius from the noise; bias: bound on the transient left
+    (both output units); bounded, white: as :class:`Estimate`; dof: degrees of freedom of the noise estimate;
+    sigma_mean: standard deviation per component of the estimate (output units).
+    """
+
+    __slots__ = ("value", "statistical", "bias", "bounded", "white", "dof", "sigma_mean")
+
+    def __init__(self, value: complex, statistical: float, bias: float, bounded: bool, white: bool, dof: int,
+                 sigma_mean: float) -> None:
+        self.value, self.statistical, self.bias = value, statistical, bias
+        self.bounded, self.white, self.dof, self.sigma_mean = bounded, white, dof, sigma_mean
+
+    @property
+    def uncertainty(self) -> float:
+        return self.statistical + self.bias
+
+    def estimate(self) -> Estimate:
+        line = _line_factor(self.dof) * self.sigma_mean
+        return Estimate(self.value, self.statistical + self.bias, line + self.bias, self.statistical, self.bounded,
+                        self.white)
+
+
+def _settle(hist: SeriesHistory, q: _QuarterStats, lag: float | None = None) -> _Settled:
+    """The settled estimate of :func:`settled_estimate` from its quarter-blocks (at least two periods each).
+
+    lag: the |lag-1 autocorrelation| over blocks 2-4 where already worked out (None: worked out here).
+    """
+    n, length, start, m2, m3, m4, within = q
+    block = ((hist._cum_list[start + length] - hist._cum_list[start]) / length, m2, m3, m4)
     batches = min(_SUB_BATCHES, length)
-    cum = hist.cumulative
-    edges = start + (np.arange(_BLOCKS * batches + 1) * length) // batches
-    sums = cum[edges[1:]] - cum[edges[:-1]]
-    sizes = np.diff(edges)
-    means = (sums / sizes).reshape(_BLOCKS, batches)
-    block = (cum[start + length * np.arange(1, _BLOCKS + 1)] - cum[start + length * np.arange(_BLOCKS)]) / length
+    offsets = _batch_offsets(length, batches)
+    cum = hist._cum_list
     # per-period variance per component, pooled within blocks 2-4; the first block, where the start-up
     # transient lives, takes part only in the drift test. Two estimates: from the batch means (absorbs
     # correlation between neighbouring periods) and from the periods themselves (many more degrees of
     # freedom, so that stopping on a low spread is rare); the larger one is taken.
-    dev = (np.abs(means - block[:, None]) ** 2 * sizes.reshape(_BLOCKS, batches))[1:]
+    dev = 0.0
+    for k in range(1, _BLOCKS):
+        base = start + k * length
+        mean = block[k]
+        lo = cum[base]
+        for j in range(1, batches + 1):
+            size = offsets[j] - offsets[j - 1]
+            hi = cum[base + offsets[j]]
+            dev += abs((hi - lo) / size - mean) ** 2 * size
+            lo = hi
     dof = 2 * (_BLOCKS - 1) * (batches - 1)
-    var1 = float(np.sum(dev)) / dof
+    var1 = dev / dof
     period_dof = 2 * (_BLOCKS - 1) * (length - 1)
-    var_periods = sum(hist.scatter(start + k * length, start + (k + 1) * length) for k in range(1, _BLOCKS))
-    var_periods /= period_dof
+    var_periods = within / period_dof
     # white: the batch means scatter no more than independent periods would, and neighbouring periods are not
     # alike (a slow transient or coloured noise, e.g. a resonance excited by jitter, makes them so)
-    lag = hist.lag_correlation(start + length, n)
-    white = bool(var1 <= _WHITE_RATIO * var_periods and lag <= _WHITE_LAG)
+    if lag is None:
+        lag = hist.lag_correlation(start + length, n)
+    white = var1 <= _WHITE_RATIO * var_periods and lag <= _WHITE_LAG
     # correlation longer than a batch: the variance of a mean of AR(1)-like periods grows by (1 + r)/(1 - r),
     # r the lag-1 correlation beyond what its own sampling error (about 2/sqrt(periods)) explains
     r = min(max(0.0, lag - 2.0 / math.sqrt(3 * length)), 0.99) if not math.isnan(lag) else 0.0
@@ -246,22 +387,41 @@ def settled_estimate(hist: SeriesHistory, skip: int, n: int) -> Estimate:
     if var_periods >= var1:
         var1, dof = var_periods, period_dof
     sigma_diff = math.sqrt(2.0 * var1 / length)  # per component, difference of two block means
-    d1 = float(abs(block[1] - block[0]))
-    d2, d3 = float(abs(block[2] - block[1])), float(abs(block[3] - block[2]))
+    d1, d2, d3 = abs(block[1] - block[0]), abs(block[2] - block[1]), abs(block[3] - block[2])
     # a drift is visible above the noise, and above the round-off of the block sums
-    visible = max(_DRIFT_SIGMAS * sigma_diff, _ROUND_OFF * float(np.max(np.abs(block))))
+    visible = max(_DRIFT_SIGMAS * sigma_diff, _ROUND_OFF * max(abs(b) for b in block))
     if white and d2 <= visible and d3 <= visible:  # noise and no drift over the last three blocks: average them
         used, bias, bounded = 3, 0.0, True
+        value = (block[1] + block[2] + block[3]) / 3
     else:
         used, bias = 2, 1.5 * d3
         bounded = d3 <= max(_MAX_RATIO * d2, visible) and d2 <= max(_MAX_RATIO * d1, visible)
-    value = complex(block[_BLOCKS - used:].mean())
+        value = (block[2] + block[3]) / 2
     sigma_mean = math.sqrt(var1 / (used * length))  # per component
     statistical = _disc_factor(dof) * sigma_mean
-    line = _line_factor(dof) * sigma_mean
     # with fewer batches than _SUB_BATCHES a smooth drift looks like noise: no bound from so short a record
     bounded = bounded and batches == _SUB_BATCHES
-    return Estimate(value, statistical + bias, line + bias, statistical, bounded, white)
+    return _Settled(value, statistical, bias, bounded, white, dof, sigma_mean)
+
+
+def settled_estimate(hist: SeriesHistory, skip: int, n: int) -> Estimate:
+    """The mean of the settled part of periods skip+1..n, with its 95 % bounds (output units).
+
+    The analysed record is cut into four equal blocks, each into up to eight batches. Noise: the
+    pooled spread of the batch means about their own block's mean in the last three blocks (between-block
+    drift excluded), with 3 blocks x (batches - 1) x 2 degrees of freedom. Drift: the changes d2, d3 between
+    the means of blocks 2-3 and 3-4. A drift the noise cannot explain must shrink geometrically, |d3| <= |d2| / 2,
+    before the transient is bounded (and so must d2 against d1); the transient left in the mean of
+    blocks 3-4 is then at most 1.5 |d3| (the tail of a geometric sequence of ratio <= 1/2). Only where
+    the periods scatter like independent noise (``white``: a smooth or turning transient inflates the
+    spread and would hide a drift) and no drift is seen over blocks 2-4 is their mean the estimate, the
+    bias term zero and the interval purely statistical. Block means and spreads come from the running sums,
+    the batch means from eight lookups a block: the cost does not grow with n.
+    """
+    if (n - skip) // _BLOCKS < 2:
+        z = hist.at(n)
+        return Estimate(z, math.nan, math.nan, math.nan, False, False)
+    return _settle(hist, _quarters(hist, skip, n)).estimate()
 
 
 def relative_change_percent(current: float, previous: float) -> float:
@@ -492,40 +652,256 @@ def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = 0.5, predict
     rows = n - modes
     if rows < modes + 3:
         return None
-    mean = complex(np.mean(z))
-    if float(np.max(np.abs(z - mean))) <= _ROUND_OFF * abs(mean):  # settled to round-off: no mode to fit
+    mean = complex(z.sum() / n)
+    if float(np.abs(z - mean).max()) <= _ROUND_OFF * abs(mean):  # settled to round-off: no mode to fit
         return ModalFit(mean, 0.0, np.full(predict, mean))
-    x = np.zeros((2 * rows, modes + 2))
+    template, lagged = _design(n, modes)
+    parts = np.concatenate((z.real, z.imag))  # P(1..n), then Q(1..n)
+    x = template.copy()  # rows: P then Q of Z(modes+1..n); columns: Z lagged by 1..modes, the two intercepts
     for r in range(1, modes + 1):
-        col = z[modes - r:n - r]
-        x[:rows, r - 1] = col.real
-        x[rows:, r - 1] = col.imag
-    x[:rows, modes] = 1.0
-    x[rows:, modes + 1] = 1.0
-    y = np.concatenate([z[modes:].real, z[modes:].imag])
-    sol, *_ = np.linalg.lstsq(x, y, rcond=None)
+        x[:, r - 1] = parts[lagged[r]]
+    y = parts[lagged[0]]
+    sol = _least_squares(x, y)
     alpha = sol[:modes]
-    lambdas = np.roots(np.concatenate([[1.0], -alpha]))
     # a mode must have decayed over the window, unless it is damped and turns far enough from 1 that the
     # limit does not hang on its decay rate (a rotating mode's mean is its limit)
-    slow = np.abs(lambdas) ** n > max_decay
-    if np.any(slow & ((np.abs(lambdas) >= 1.0) | (np.abs(1.0 - lambdas) < _MIN_TURN))):
-        return None
-    den = 1.0 - float(np.sum(alpha))
+    for lam in _mode_roots(alpha):
+        size = abs(lam)
+        if size ** n > max_decay and (size >= 1.0 or abs(1.0 - lam) < _MIN_TURN):
+            return None
+    den = 1.0 - float(alpha.sum())
     resid = y - x @ sol
     limit = complex(sol[modes], sol[modes + 1]) / den
-    return ModalFit(limit, float(np.sqrt(np.mean(resid ** 2))) / abs(den), _forecast(z[n - modes:], alpha, limit, predict))
+    residual = math.sqrt(float((resid * resid).sum()) / resid.size) / abs(den)
+    return ModalFit(limit, residual, _forecast(z[n - modes:], alpha, limit, predict))
+
+
+_DESIGNS: dict[tuple[int, int], tuple[np.ndarray, list[np.ndarray]]] = {}
+
+
+def _design(n: int, modes: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """For a window of n values: the design matrix with its intercept columns set, and the indices into
+    (P(1..n), Q(1..n)) of the values lagged by 0..modes periods that the fit's rows take (cached per shape)."""
+    key = (n, modes)
+    found = _DESIGNS.get(key)
+    if found is None:
+        rows = n - modes
+        template = np.zeros((2 * rows, modes + 2))
+        template[:rows, modes] = 1.0
+        template[rows:, modes + 1] = 1.0
+        lagged = [np.concatenate((np.arange(modes - r, n - r), n + np.arange(modes - r, n - r)))
+                  for r in range(modes + 1)]
+        if len(_DESIGNS) > 1024:
+            _DESIGNS.clear()
+        found = _DESIGNS[key] = (template, lagged)
+    return found
+
+
+_GELSD: dict[tuple[int, int], tuple[int, int]] = {}  # LAPACK workspace sizes per shape
+
+
+def _least_squares(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``np.linalg.lstsq(x, y, rcond=None)[0]``: the same LAPACK driver (dgelsd) and cut-off, called directly.
+
+    numpy's wrapper costs several times the solve of a small system; where LAPACK reports a failure numpy's own
+    call is made instead, so that it fails the way numpy does.
+    """
+    from scipy.linalg import lapack  # imported where used: it is slow to import
+
+    m, k = x.shape
+    sizes = _GELSD.get((m, k))
+    if sizes is None:
+        work, iwork, info = lapack.dgelsd_lwork(m, k, 1, -1)
+        if info != 0:
+            return np.asarray(np.linalg.lstsq(x, y, rcond=None)[0])
+        if len(_GELSD) > 4096:
+            _GELSD.clear()
+        sizes = _GELSD[(m, k)] = (int(work), int(iwork))
+    sol, _, _, info = lapack.dgelsd(x, y, sizes[0], sizes[1], _EPS * max(m, k))
+    if info != 0:
+        return np.asarray(np.linalg.lstsq(x, y, rcond=None)[0])
+    return np.asarray(sol[:k])
+
+
+def _mode_roots(alpha: np.ndarray) -> list[complex]:
+    """The modes lambda_r of the recurrence: roots of z^m - alpha_1 z^(m-1) - ... - alpha_m (closed form to m = 2)."""
+    if alpha.size == 1:
+        return [complex(alpha[0])]
+    if alpha.size == 2:
+        a1, a2 = float(alpha[0]), float(alpha[1])
+        disc = a1 * a1 + 4.0 * a2
+        if disc < 0.0:
+            half = 0.5 * math.sqrt(-disc)
+            return [complex(0.5 * a1, half), complex(0.5 * a1, -half)]
+        q = 0.5 * (a1 + math.copysign(math.sqrt(disc), a1))  # the larger root; the other from the product -a2
+        return [complex(q), complex(-a2 / q)] if q != 0.0 else [0j, 0j]
+    return [complex(v) for v in np.roots(np.concatenate([[1.0], -alpha]))]
+
+
+_SHORT_FORECAST = 64  # steps up to which the recurrence is run on Python scalars (cheaper than a filter call)
 
 
 def _forecast(last: np.ndarray, alpha: np.ndarray, limit: complex, steps: int) -> np.ndarray:
-    """The next ``steps`` values of the recurrence Z(i) - Z_inf = sum_r alpha_r (Z(i-r) - Z_inf), from its last values."""
+    """The next ``steps`` values of the recurrence Z(i) - Z_inf = sum_r alpha_r (Z(i-r) - Z_inf) from its last ones.
+
+    Run as a direct-form-II-transposed filter: state[m] = sum over r > m of alpha_r times the deviation r - m
+    periods back, the next deviation is state[0].
+    """
     if steps == 0 or alpha.size == 0:
         return np.full(steps, limit, dtype=complex)
-    from scipy.signal import lfilter, lfiltic  # imported where used: it is slow to import
+    coef = [float(v) for v in alpha]
+    order = len(coef)
+    past = [complex(v) - limit for v in last[::-1].tolist()]  # the most recent deviation first
+    state = [sum(coef[m + k] * past[k] for k in range(order - m)) for m in range(order)]
+    if steps > _SHORT_FORECAST:
+        from scipy.signal import lfilter  # imported where used: it is slow to import
 
-    a = np.concatenate([[1.0], -alpha])
-    zi = lfiltic([1.0], a, (last[::-1] - limit))
-    return limit + lfilter([1.0], a, np.zeros(steps, dtype=complex), zi=zi.astype(complex))[0]
+        a = np.concatenate([[1.0], -alpha])
+        return limit + lfilter([1.0], a, np.zeros(steps, dtype=complex), zi=np.array(state, dtype=complex))[0]
+    out = []
+    for _ in range(steps):
+        y = state[0]
+        for m in range(order - 1):
+            state[m] = state[m + 1] + y * coef[m]
+        state[order - 1] = y * coef[order - 1]
+        out.append(limit + y)
+    return np.array(out, dtype=complex)
+
+
+def _two_mode_fit_may_pass(hist: SeriesHistory, s: int, w: int, e: float, floor: float) -> bool:
+    """False where no two-mode fit of periods s+1..s+w can explain them well enough for the modal check; O(1).
+
+    The fit's rows are the periods t = s+3..s+w, fitted by Z(t) = c + alpha_1 Z(t-1) + alpha_2 Z(t-2) with real
+    alpha. Its least-squares residual is the Schur complement of the Gram matrix of the centred columns, which
+    the running sums give; the error of those sums (at most a few n x machine-epsilon of their totals) and of
+    the complement are subtracted. A fit the modal check accepts has both modes inside the unit circle, so
+    |alpha_1| < 2, |alpha_2| < 1, |1 - alpha_1 - alpha_2| < 4 and |c| <= |m0| + 2 |m1| + |m2| (m_r the row
+    means of Z(t-r)); with eps = e, twice its rms residual within a tolerance met at the second window's limit
+    needs rms <= e/2 max((|m0| + 2 |m1| + |m2|) / (1 - e), 4 floor). True where that is still possible, or where
+    the sums cannot tell. floor: the tolerance's absolute floor (output units).
+    """
+    rows = w - 2
+    if rows < 5:  # too short for the fit itself
+        return True
+    cum, cum2, z0 = hist._cum_list, hist._cum2_list, hist._first
+    lag, lag2 = hist._lag_list, hist._lag2_list
+    end = s + w
+    d0 = cum[end] - cum[s + 2] - rows * z0  # sums over the rows of Z(t - r) - Z(1)
+    d1 = cum[end - 1] - cum[s + 1] - rows * z0
+    d2 = cum[end - 2] - cum[s] - rows * z0
+    g00 = cum2[end] - cum2[s + 2] - abs(d0) ** 2 / rows
+    g11 = cum2[end - 1] - cum2[s + 1] - abs(d1) ** 2 / rows
+    g22 = cum2[end - 2] - cum2[s] - abs(d2) ** 2 / rows
+    g01 = (lag[end] - lag[s + 2]).real - (d0 * d1.conjugate()).real / rows
+    g12 = (lag[end - 1] - lag[s + 1]).real - (d1 * d2.conjugate()).real / rows
+    g02 = (lag2[end] - lag2[s + 2]).real - (d0 * d2.conjugate()).real / rows
+    # round-off of the running sums: sequential sums of end terms, each no larger than the sum of squares
+    total = cum2[end]
+    err_d = 4.0 * end * _EPS * (end * abs(z0) + math.sqrt(end * total))
+    err = 2.0 * (8.0 * end * _EPS * total + (2.0 * math.sqrt(rows * total) * err_d + err_d * err_d) / rows)
+    m0, m1, m2 = d0 / rows + z0, d1 / rows + z0, d2 / rows + z0
+    level = abs(m0) + 2.0 * abs(m1) + abs(m2)
+    if not math.isfinite(g00 + g11 + g22 + g01 + g12 + g02 + err + level):
+        return True
+    if g00 <= w * (2.0 * _ROUND_OFF * level) ** 2 + 16.0 * err:  # settled to round-off: the fit needs no modes
+        return True
+    det = g11 * g22 - g12 * g12
+    if not (g11 > 0.0 and g22 > 0.0 and det > 1e-6 * g11 * g22):  # the lagged columns all but collinear
+        return True
+    explained = (g22 * g01 * g01 - 2.0 * g12 * g01 * g02 + g11 * g02 * g02) / det
+    # residual over alpha in the box |alpha_1| <= 2, |alpha_2| <= 1: a perturbation of the Gram matrix by err
+    # per entry moves the quadratic form by at most (1 + 2 + 1)^2 err
+    lowest = g00 - explained - 16.0 * err - 1e-7 * (abs(g00) + abs(explained))
+    limit = 0.5 * e * max(level / (1.0 - e), 4.0 * floor)
+    return lowest <= 2 * rows * limit * limit * _SLACK
+
+
+_TABLE_SPAN = 1024  # periods whose settled screen is worked out at once
+_TABLE_AHEAD = 16   # periods the history must hold beyond the one checked for a table to pay
+
+
+class _ScreenTable:
+    """The settled screen of periods first..last of one history, worked out at once with numpy.
+
+    Per period: the reference (the channel's scale, output units) at and above which a converged verdict is
+    possible (conv), the open interval (low, high) and the bound below which (below) a noise-limited one is;
+    and the quarter-block statistics and lag-1 correlation the settled estimate then takes. The same
+    necessary conditions as :meth:`AdaptiveRule._settled_may_stop`, solved for the reference.
+    """
+
+    __slots__ = ("hist", "first", "last", "conv", "low", "high", "below", "m2", "m3", "m4", "within", "lag")
+
+    def __init__(self, hist: SeriesHistory, skip: int, first: int, last: int, e: float, budget: float) -> None:
+        self.hist, self.first, self.last = hist, first, last
+        n = np.arange(first, last + 1)
+        length = (n - skip) // _BLOCKS
+        start = n - _BLOCKS * length
+        e1 = start + length
+        e2 = e1 + length
+        e3 = e2 + length
+        size = length.astype(float)
+        cum, cum2, z0 = hist._cum, hist._cum2, hist._first
+        c0, c1, c2, c3, c4 = cum[start], cum[e1], cum[e2], cum[e3], cum[n]
+        means = [_divide(hi - lo, size) for lo, hi in ((c0, c1), (c1, c2), (c2, c3), (c3, c4))]
+        within = np.zeros(n.size)
+        for (lo, hi), m in zip(((e1, e2), (e2, e3), (e3, n)), means[1:], strict=True):
+            scatter = cum2[hi] - cum2[lo] - size * np.abs(m - z0) ** 2
+            within += np.maximum(scatter, 0.0)
+        # |lag-1 autocorrelation| over blocks 2-4, as SeriesHistory.lag_correlation
+        span = 3 * length
+        shift = _divide(c4 - c1, span.astype(float)) - z0
+        inner = c4 - cum[e1 + 1] - z0 * (span - 1)
+        outer = cum[n - 1] - c1 - z0 * (span - 1)
+        cov = (hist._lag[n] - hist._lag[e1 + 1]) - inner * np.conj(shift) - shift * np.conj(outer) \
+            + (span - 1) * np.abs(shift) ** 2
+        spread = np.maximum(cum2[n] - cum2[e1] - span * np.abs(shift) ** 2, 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lag = np.where(spread > 0.0, np.abs(cov) / spread, np.nan)
+            r = np.clip(np.nan_to_num(lag - 2.0 / np.sqrt(3 * size), nan=0.0), 0.0, 0.99)
+            dof = 2 * (_BLOCKS - 1) * (length - 1)
+            disc2 = dof * ((1.0 - CONFIDENCE) ** (-2.0 / dof) - 1.0)  # the disc factor squared
+            var = within / dof
+            low = disc2 * var / size * (1.0 + r) / (1.0 - r)
+            a3 = np.abs((means[1] + means[2] + means[3]) / 3)
+            a2 = np.abs((means[2] + means[3]) / 2)
+            d3 = np.abs(means[3] - means[2])
+            scale = e * RESOLUTION  # the tolerance floor per unit reference
+            # converged: the tolerance at the value of the last three (two) blocks must reach the half-width
+            # (plus 1.5 |d3|); the tolerance is e max(|value|, RESOLUTION reference)
+            need3 = np.sqrt(low / 3.0)
+            need2 = 1.5 * d3 + np.sqrt(low / 2.0)
+            conv = np.minimum(np.where(e * a3 * _SLACK2 >= need3, -np.inf, need3 / (scale * _SLACK2)),
+                              np.where(e * a2 * _SLACK2 >= need2, -np.inf, need2 / (scale * _SLACK2)))
+            conv[~np.isfinite(a3 + a2 + var + d3 + low)] = -np.inf
+            # noise-limited, the last two blocks: the tolerance in (3 |d3|, sqrt(2 n high / budget)); all three:
+            # below sqrt(n high / (3 budget)), with no drift visible
+            high = _DISC_BATCHES ** 2 * _WHITE_RATIO * var / size
+            top2 = np.sqrt(2.0 * n * high / budget) * _SLACK2
+            bottom2 = 3.0 * d3 / _SLACK2
+            empty = e * a2 >= top2
+            open_below = e * a2 > bottom2
+            low2 = np.where(empty, np.inf, np.where(open_below, -np.inf, bottom2 / scale))
+            high2 = np.where(empty, -np.inf, top2 / scale)
+            top3 = np.sqrt(n * high / (3.0 * budget)) * _SLACK2
+            largest = np.maximum.reduce([np.abs(m) for m in means])
+            still = (d3 * d3 <= _DRIFT_SIGMAS ** 2 * 2.0 * _WHITE_RATIO * var / size * _SLACK2) \
+                | (d3 <= _ROUND_OFF * largest * _SLACK)
+            below = np.where(still & (e * a3 < top3), top3 / scale, -np.inf)
+        white = (n - skip >= _MIN_NOISE_EVIDENCE) & (lag <= _WHITE_LAG)
+        low2[~white] = np.inf
+        high2[~white] = -np.inf
+        below[~white] = -np.inf
+        self.conv, self.low, self.high, self.below = conv.tolist(), low2.tolist(), high2.tolist(), below.tolist()
+        self.m2, self.m3, self.m4 = means[1].tolist(), means[2].tolist(), means[3].tolist()
+        self.within, self.lag = within.tolist(), lag.tolist()
+
+
+def _divide(z: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """z / d for complex z and real d, part by part (as Python divides a complex by a real)."""
+    out = np.empty(z.shape, dtype=complex)
+    out.real = z.real / d
+    out.imag = z.imag / d
+    return out
 
 
 class AdaptiveRule(StoppingRule):
@@ -547,55 +923,170 @@ class AdaptiveRule(StoppingRule):
     one is measured to an absolute floor and reported as below resolution when its confidence region
     contains zero. Points that reach ``max_periods`` end ``noise_limited`` when only the statistical part is
     too wide (with the periods the requested eps would need), else ``capped``.
+
+    Cost per period O(1): the settled estimate is checked at every period, but worked out in full only where
+    necessary conditions from the running sums (:meth:`_settled_may_stop`, or :class:`_ScreenTable` for many
+    periods at once) leave a verdict possible; the fit is tried every period up to 64 analysed periods, then
+    every (n - n_k) // 32, and skipped where the running sums bound its residual above what the check accepts.
+    A screen only skips analyses that cannot give a verdict, so the stop is the one the full analysis at every
+    period gives (``screened=False`` runs that, for comparison).
     """
 
     name = "adaptive"
 
     def __init__(self, tolerance_percent: float, skip_periods: int, *, max_periods: int = 20000, modes: int = 2,
-                 min_window: int = 8, min_periods: int = 8) -> None:
+                 min_window: int = 8, min_periods: int = 8, screened: bool = True) -> None:
         super().__init__(tolerance_percent, skip_periods)
         self.max_periods = max_periods
         self.modes = modes
         self.min_window = min_window
         self.min_periods = min_periods
+        self.screened = screened
         self._next_extrapolation = 0
+        self._table: _ScreenTable | None = None
 
-    def _extrapolated(self, hist: SeriesHistory, n: int) -> tuple[complex, float] | None:
-        """(limit, error bound) of the modal fit confirmed on two windows, or None where it is not confirmed."""
+    def _extrapolated(self, hist: SeriesHistory, n: int, reference: float) -> tuple[complex, float] | None:
+        """(limit, error bound) of the modal fit confirmed on two windows, or None where it is not confirmed.
+
+        Screened, None also where the bound cannot come within the tolerance: where the running sums show that
+        no two-mode fit explains the first window well enough (no fit is made), or where the first window's fit
+        already shows it (the second is not made).
+        """
         w = max(self.min_window, (n - self.skip) // 4)
         if n - 2 * w < self.skip:
             return None
+        e = self.eps / 100.0
+        screened = self.screened and e < 1.0
+        if screened and self.modes == 2 and not _two_mode_fit_may_pass(hist, n - 2 * w, w, e, RESOLUTION * reference):
+            return None
         z = hist.values
         first = extrapolate_modes(z[n - 2 * w:n - w], self.modes, predict=w)
-        second = extrapolate_modes(z[n - w:n], self.modes)
-        if first is None or second is None:
+        if first is None:
             return None
         prediction_error = float(np.max(np.abs(first.prediction - z[n - w:n])))
+        if screened:
+            # the bound holds the prediction error, twice the first residual and the gap between the limits, so
+            # a tolerance it meets, e max(|limit|, floor) at the second limit, is at most e max(|first limit| /
+            # (1 - e), floor)
+            ceiling = e * max(abs(first.limit) / (1.0 - e), RESOLUTION * reference) * _SLACK
+            if prediction_error > ceiling or 2.0 * first.residual > ceiling:
+                return None
+        second = extrapolate_modes(z[n - w:n], self.modes)
+        if second is None:
+            return None
         bound = abs(first.limit - second.limit) + 2.0 * max(first.residual, second.residual)
         return second.limit, max(bound, prediction_error)
 
     def check(self, hist: SeriesHistory, n: int, reference: float) -> Verdict | None:
-        if n - self.skip < self.min_periods:
+        analysed = n - self.skip
+        if analysed < self.min_periods:
             return None
-        settled = settled_estimate(hist, self.skip, n)
-        floor = self.tolerance(0.0, reference)
-        if settled.bounded:
-            tol = self.tolerance(settled.value, reference)
-            if settled.uncertainty <= tol:
-                return self._finish(n, settled, floor, "settled mean")
-            needed = self._periods_needed(n, settled, tol)
-            if settled.white and needed > _HOPELESS * self.max_periods and n - self.skip >= _MIN_NOISE_EVIDENCE:
-                # the noise alone keeps eps out of reach within the budget: say so now, not at max_periods
-                return self._noise_limited(n, settled, needed)
+        # a settled estimate is bounded only with eight batches in each quarter-block
+        if analysed >= _BLOCKS * _SUB_BATCHES:
+            verdict = self._settled_check(hist, n, reference)
+            if verdict is not None:
+                return verdict
         # the fit costs more than the mean: once windows are long, try it on a sparser schedule
         if self.modes > 0 and n >= self._next_extrapolation:
-            self._next_extrapolation = n + max(1, (n - self.skip) // 32)
-            fit = self._extrapolated(hist, n)
+            self._next_extrapolation = n + max(1, analysed // 32)
+            fit = self._extrapolated(hist, n, reference)
             if fit is not None:
                 limit, bound = fit
                 if bound <= self.tolerance(limit, reference):
-                    return self._finish(n, Estimate(limit, bound, bound, 0.0, True), floor, "extrapolated")
+                    return self._finish(n, Estimate(limit, bound, bound, 0.0, True), self.tolerance(0.0, reference),
+                                        "extrapolated")
         return None
+
+    def _settled_check(self, hist: SeriesHistory, n: int, reference: float) -> Verdict | None:
+        """The settled estimate's verdict at n where the screen leaves one possible; None to go on."""
+        if not self.screened:
+            return self._settled_verdict(hist, _quarters(hist, self.skip, n), reference)
+        table = self._table
+        if table is None or table.hist is not hist or not table.first <= n <= table.last:
+            table = None
+            if hist.n - n >= _TABLE_AHEAD:
+                table = self._table = _ScreenTable(hist, self.skip, n, min(hist.n, n + _TABLE_SPAN - 1),
+                                                   self.eps / 100.0, _HOPELESS * self.max_periods / _SLACK)
+        if table is None:
+            q = _quarters(hist, self.skip, n)
+            possible, lag = self._settled_may_stop(hist, q, reference)
+            return self._settled_verdict(hist, q, reference, lag) if possible else None
+        i = n - table.first
+        if (reference >= table.conv[i] or table.low[i] < reference < table.high[i] or reference < table.below[i]
+                or reference != reference):
+            length = (n - self.skip) // _BLOCKS
+            q = (n, length, n - _BLOCKS * length, table.m2[i], table.m3[i], table.m4[i], table.within[i])
+            return self._settled_verdict(hist, q, reference, table.lag[i])
+        return None
+
+    def _settled_verdict(self, hist: SeriesHistory, q: _QuarterStats, reference: float,
+                         lag: float | None = None) -> Verdict | None:
+        """A verdict from the settled estimate at period q[0]: converged, or noise-limited already; None to go on."""
+        settled = _settle(hist, q, lag)
+        if not settled.bounded:
+            return None
+        n = q[0]
+        tol = self.tolerance(settled.value, reference)
+        if settled.uncertainty <= tol:
+            return self._finish(n, settled.estimate(), self.tolerance(0.0, reference), "settled mean")
+        needed = self._periods_needed(n, settled.statistical, settled.uncertainty - settled.statistical, tol)
+        if settled.white and needed > _HOPELESS * self.max_periods and n - self.skip >= _MIN_NOISE_EVIDENCE:
+            # the noise alone keeps eps out of reach within the budget: say so now, not at max_periods
+            return self._noise_limited(n, settled.estimate(), needed)
+        return None
+
+    def _settled_may_stop(self, hist: SeriesHistory, q: _QuarterStats,
+                          reference: float) -> tuple[bool, float | None]:
+        """(False, _) where the settled estimate cannot give a verdict at period q[0]; from the running sums, O(1).
+
+        Whatever the batch means turn out to be, the noise variance is at least the per-period variance within
+        blocks 2-4 times its correlation factor (1 + r)/(1 - r), and its disc factor at least that of their
+        degrees of freedom (no fewer than the batch means'), so the statistical half-width is at least what
+        those give; unless all three blocks are averaged, the bias is 1.5 |d3|. A noise-limited verdict needs
+        white periods: a lag-1 correlation within the white limit, a variance at most twice the per-period
+        one, degrees of freedom at least the batch means'. True where either verdict is still possible (or an
+        input is not finite); second, the lag-1 correlation over blocks 2-4 where it was needed (else None).
+        """
+        n, length, start, m2, m3, m4, within = q
+        e = self.eps / 100.0
+        floor = RESOLUTION * reference
+        size = abs((m2 + m3 + m4) / 3)
+        tol3 = e * (size if size > floor else floor)  # the tolerance at each candidate value
+        size = abs((m3 + m4) / 2)
+        tol2 = e * (size if size > floor else floor)
+        var = within / (2 * (_BLOCKS - 1) * (length - 1))
+        d3 = abs(m4 - m3)
+        if not math.isfinite(tol3 + tol2 + var + d3) or tol3 <= 0.0 or tol2 <= 0.0:
+            return True, None
+        # squared half-widths per averaged block, compared with squared tolerances
+        low = _disc_factor(2 * (_BLOCKS - 1) * (length - 1)) ** 2 * var / length
+        room = tol2 * _SLACK - 1.5 * d3  # what the bias of the last two blocks leaves of their tolerance
+        lag = math.nan
+        if low <= 3.0 * tol3 * tol3 * _SLACK2 or (room >= 0.0 and low <= 2.0 * room * room):
+            lag = hist.lag_correlation(start + length, n)
+            if not math.isnan(lag):
+                r = min(max(0.0, lag - 2.0 / math.sqrt(3 * length)), 0.99)
+                low *= (1.0 + r) / (1.0 - r)
+            if low <= 3.0 * tol3 * tol3 * _SLACK2 or (room >= 0.0 and low <= 2.0 * room * room):
+                return True, lag
+        if n - self.skip < _MIN_NOISE_EVIDENCE:
+            return False, None
+        white_var = _WHITE_RATIO * var  # the largest noise variance white periods allow
+        high = _DISC_BATCHES ** 2 * white_var / length
+        budget = _HOPELESS * self.max_periods / _SLACK
+        # the last two blocks: a bias up to half the tolerance leaves at least half of it to the noise
+        possible = 3.0 * d3 < tol2 * _SLACK and 2.0 * n * high > budget * tol2 * tol2
+        # all three averaged: no drift visible, so |d3| within the drift threshold
+        if not possible and n * high > 3.0 * budget * tol3 * tol3:
+            possible = d3 * d3 <= _DRIFT_SIGMAS ** 2 * 2.0 * white_var / length * _SLACK2
+            if not possible:
+                m1 = abs(hist.mean(start, start + length))
+                possible = d3 <= _ROUND_OFF * max(abs(m2), abs(m3), abs(m4), m1) * _SLACK
+        if not possible:
+            return False, None
+        if math.isnan(lag):
+            lag = hist.lag_correlation(start + length, n)
+        return lag <= _WHITE_LAG, lag
 
     def _finish(self, n: int, est: Estimate, floor: float, method: str) -> Verdict:
         """A coefficient within its own uncertainty or the absolute floor of zero has no phase."""
@@ -604,17 +1095,17 @@ class AdaptiveRule(StoppingRule):
                        uncertainty_1d=est.uncertainty_1d, within_eps=True)
 
     def estimate(self, hist: SeriesHistory, n: int) -> tuple[complex, float]:
-        if n - self.skip < 2:
+        if (n - self.skip) // _BLOCKS < 2:
             return hist.at(n), math.nan
-        est = settled_estimate(hist, self.skip, n)
-        return est.value, est.uncertainty
+        settled = _settle(hist, _quarters(hist, self.skip, n))
+        return settled.value, settled.uncertainty
 
     @staticmethod
-    def _periods_needed(n: int, est: Estimate, tol: float) -> int:
+    def _periods_needed(n: int, statistical: float, bias: float, tol: float) -> int:
         """Periods after which the statistical half-width, shrinking as 1/sqrt(n), leaves room for the bias."""
-        if est.bias >= 0.5 * tol or not est.statistical > 0.0:
+        if bias >= 0.5 * tol or not statistical > 0.0:
             return 0
-        return int(math.ceil(n * (est.statistical / (tol - est.bias)) ** 2))
+        return int(math.ceil(n * (statistical / (tol - bias)) ** 2))
 
     def _noise_limited(self, n: int, est: Estimate, needed: int) -> Verdict:
         return Verdict(n, est.value.real, est.value.imag, est.uncertainty, NOISE_LIMITED, "settled mean",
@@ -623,7 +1114,8 @@ class AdaptiveRule(StoppingRule):
     def capped(self, hist: SeriesHistory, n: int, reference: float) -> Verdict:
         """At max_periods: noise-limited (with the periods eps would need) when only the statistics are too wide."""
         est = settled_estimate(hist, self.skip, n)
-        needed = self._periods_needed(n, est, self.tolerance(est.value, reference)) if est.bounded and est.white else 0
+        tol = self.tolerance(est.value, reference)
+        needed = self._periods_needed(n, est.statistical, est.bias, tol) if est.bounded and est.white else 0
         if needed:
             return self._noise_limited(n, est, needed)
         return Verdict(n, est.value.real, est.value.imag, est.uncertainty, CAPPED, self.name,

@@ -1,0 +1,260 @@
+"""What the stopping rules cost per period: CPU microseconds per period per series, every criterion.
+
+Run: python benchmarks/bench_rule_cost.py [--repeat 3] [--every 1]
+
+Series: the first harmonic of the position output of the paper's two plants (configs/paper2013.toml, input
+amplitude A_F, eps 0.01 %, n_k = 1, l = 5, max_periods 20000) on its 42-frequency grid (``--every k``: every k-th
+frequency), simulated from rest the way measure_frequency does it (step 1/(K_f f), harmonics 1 and 2, so that
+the scale handed to the rules is the channel's largest coefficient):
+  linear    LinearOscillator(m, K_p, damping ratio 0.05)
+  friction  CoulombOscillator(m, K_p, F_ct = 0.008), Fbar 0.8
+each clean and with white noise on every sample (seeded) of 1 % of the linear oscillator's steady output
+amplitude at that frequency. Every criterion is replayed period by period on its own SeriesHistory with a fresh
+rule, as the Autointegrator calls it (check, then the capped verdict at max_periods), the history growing 256
+periods at a time as in an offline sweep; the CPU time (time.process_time) of those calls, stop included, over
+the periods checked is the figure. Each replay is repeated ``--repeat`` times on the same coefficients; the
+median is printed. A warm-up replay of every criterion comes first, so that imports done on first use are not
+counted.
+
+Then the whole call path: Autointegrator.feed on the linear oscillator at 2 f_n with 1 % noise (harmonics 1
+and 2, the default rule) against its PeriodIntegrator alone on the same samples, fed one period at a time (a
+bench) and 256 at a time (a sweep): what the Autointegrator adds per period per series (least of ``--repeat``
+runs of each).
+
+Then one long series that no rule can close, the friction link at Fbar 0.6 at its natural frequency (a beat that
+never dies: capped at max_periods): the default rule's cost per period over periods 1..1000, 1000..5000 and
+5000..20000, to show that it does not grow with the record.
+
+Target: at most 5 us per period per series. Prints figures only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from bodebench.bench.offline import OUTPUT_CHANNEL  # noqa: E402
+from bodebench.core.autointegration import Autointegrator  # noqa: E402
+from bodebench.core.fourier import PeriodIntegrator  # noqa: E402
+from bodebench.core.rules import CRITERIA, AdaptiveRule, SeriesHistory, StoppingRule, make_rule  # noqa: E402
+from bodebench.io.config import AnalysisConfig, load_config  # noqa: E402
+from bodebench.sim.plants import CoulombOscillator, LinearOscillator, Plant  # noqa: E402
+
+CONFIG = ROOT / "configs" / "paper2013.toml"
+FRICTION_CASE = "fbar_0.8"
+DAMPING_RATIO = 0.05
+NOISE_RELATIVE = 0.01
+HARMONICS = (1, 2)
+CHUNK_PERIODS = 256
+LONG_FBAR = 0.6
+BANDS = ((0, 1000), (1000, 5000), (5000, 20000))
+TARGET_US = 5.0
+
+
+def fresh_rule(criterion: str, analysis: AnalysisConfig) -> StoppingRule:
+    return make_rule(criterion, tolerance_percent=analysis.tolerance_percent, skip_periods=analysis.skip_periods,
+                     window=analysis.window, settle_periods=analysis.settle_periods,
+                     average_periods=analysis.average_periods, max_periods=analysis.max_periods)
+
+
+def replay(rule: StoppingRule, hist: SeriesHistory, reference: np.ndarray, start: int, stop: int,
+           max_periods: int) -> tuple[bool, int]:
+    """Check periods start+1..stop as the Autointegrator does; (decided, last period checked)."""
+    for n in range(start + 1, stop + 1):
+        verdict = rule.check(hist, n, float(reference[n - 1]))
+        if verdict is None and n >= max_periods:
+            verdict = rule.capped(hist, n, float(reference[n - 1]))
+        if verdict is not None:
+            return True, n
+    return False, stop
+
+
+class Simulation:
+    """Per-period coefficients of one plant at one frequency from rest, simulated on demand (harmonics 1, 2)."""
+
+    def __init__(self, plant: Plant, frequency_hz: float, amplitude: float, steps: int, noise_std: float,
+                 seed: int) -> None:
+        self.plant, self.frequency_hz, self.amplitude, self.steps = plant, frequency_hz, amplitude, steps
+        self.noise_std = noise_std
+        self.rng = np.random.default_rng(seed)
+        self.channel = plant.output_names.index(OUTPUT_CHANNEL)
+        self.h = 1.0 / (steps * frequency_hz)
+        self.integ = PeriodIntegrator(frequency_hz, HARMONICS, 1)
+        self.integ.feed(np.array([0.0]), np.zeros((1, 1)))
+        self.state = plant.initial_state()
+        self.step = 0
+        self.z = np.empty(0, dtype=complex)      # first harmonic, periods 1..
+        self.scale = np.empty(0)                 # largest coefficient of each period
+
+    def extend_to(self, periods: int) -> None:
+        while self.z.size < periods:
+            n = min(CHUNK_PERIODS, periods - self.z.size) * self.steps
+            y = self.plant.run_sine(self.state, self.step * self.h, self.h, n, self.amplitude,
+                                    self.frequency_hz)[:, self.channel]
+            if self.noise_std > 0.0:
+                y = y + self.rng.normal(0.0, self.noise_std, n)
+            t = (self.step + 1 + np.arange(n)) * self.h
+            self.step += n
+            p, q = self.integ.feed(t, y[:, None])
+            z = (p + 1j * q)[:, 0, :]
+            self.z = np.concatenate([self.z, z[:, 0]])
+            self.scale = np.concatenate([self.scale, np.max(np.abs(z), axis=1)])
+
+
+def cost(sim: Simulation, criterion: str, analysis: AnalysisConfig) -> tuple[float, int]:
+    """(CPU seconds of the rule's calls, periods checked) for one criterion on one series."""
+    rule = fresh_rule(criterion, analysis)
+    hist = SeriesHistory()
+    seconds, done, checked = 0.0, False, 0
+    while not done:
+        sim.extend_to(min(checked + CHUNK_PERIODS, analysis.max_periods))
+        hist.extend(sim.z[hist.n:])
+        started = time.process_time()
+        done, checked = replay(rule, hist, sim.scale, checked, hist.n, analysis.max_periods)
+        seconds += time.process_time() - started
+    return seconds, checked
+
+
+def grid_costs(plant: Plant, freqs: tuple[float, ...], amplitude: float, analysis: AnalysisConfig,
+               noise: np.ndarray | None, repeat: int) -> dict[str, tuple[float, int]]:
+    """Per criterion: (median over repeats of the total CPU seconds over the grid, total periods checked)."""
+    out: dict[str, tuple[float, int]] = {}
+    sims = [Simulation(plant, f, amplitude, analysis.steps_per_period, 0.0 if noise is None else float(noise[i]),
+                       1000 + i) for i, f in enumerate(freqs)]
+    for c in CRITERIA:
+        runs = []
+        for _ in range(repeat):
+            total, periods = 0.0, 0
+            for sim in sims:
+                seconds, checked = cost(sim, c, analysis)
+                total += seconds
+                periods += checked
+            runs.append(total)
+        out[c] = (statistics.median(runs), periods)
+    return out
+
+
+def long_run(analysis: AnalysisConfig, pc_mass: float, pc_stiffness: float, amplitude: float,
+             repeat: int) -> list[float]:
+    """The default rule's us/period in each band of BANDS on a series it cannot close."""
+    plant = CoulombOscillator(pc_mass, pc_stiffness, LONG_FBAR * amplitude)
+    sim = Simulation(plant, plant.natural_frequency_hz, amplitude, analysis.steps_per_period, 0.0, 7)
+    sim.extend_to(analysis.max_periods)
+    per_band: list[list[float]] = [[] for _ in BANDS]
+    for _ in range(repeat):
+        hist = SeriesHistory()
+        hist.extend(sim.z)
+        rule = AdaptiveRule(analysis.tolerance_percent, analysis.skip_periods, max_periods=analysis.max_periods)
+        for i, (a, b) in enumerate(BANDS):
+            started = time.process_time()
+            done, _ = replay(rule, hist, sim.scale, a, b, analysis.max_periods)
+            per_band[i].append((time.process_time() - started) / (b - a) * 1e6)
+            if done and b < analysis.max_periods:
+                raise RuntimeError("the long series was closed before max_periods")
+    return [statistics.median(v) for v in per_band]
+
+
+def sampler_overhead(plant: Plant, frequency_hz: float, amplitude: float, analysis: AnalysisConfig,
+                     noise_std: float, chunk_periods: int, repeat: int) -> tuple[float, int, int]:
+    """(us per period per series, periods, series) the Autointegrator adds to its integrator: the least CPU time
+    of feed() over ``repeat`` runs less the least of PeriodIntegrator.feed() alone on the same samples, fed in
+    chunks of ``chunk_periods`` periods until every series has its verdict."""
+    steps = analysis.steps_per_period
+    h = 1.0 / (steps * frequency_hz)
+    n = analysis.max_periods * steps
+    y = plant.run_sine(plant.initial_state(), 0.0, h, n, amplitude, frequency_hz)[:, :1]
+    y = y + np.random.default_rng(11).normal(0.0, noise_std, y.shape)
+    t = (1 + np.arange(n)) * h
+    cut = chunk_periods * steps
+    with_rules, alone = [], []
+    periods = fed = 0
+    for _ in range(repeat):
+        sampler = Autointegrator(frequency_hz, amplitude, (OUTPUT_CHANNEL,), analysis)
+        sampler.feed(np.array([0.0]), np.zeros((1, 1)))
+        started = time.process_time()
+        fed = 0
+        while not sampler.done:
+            sampler.feed(t[fed:fed + cut], y[fed:fed + cut])
+            fed += cut
+        with_rules.append(time.process_time() - started)
+        periods = sampler.periods
+        integ = PeriodIntegrator(frequency_hz, analysis.harmonics, 1)
+        integ.feed(np.array([0.0]), np.zeros((1, 1)))
+        started = time.process_time()
+        for i in range(0, fed, cut):
+            integ.feed(t[i:i + cut], y[i:i + cut])
+        alone.append(time.process_time() - started)
+    series = len(analysis.harmonics)
+    return (min(with_rules) - min(alone)) / (periods * series) * 1e6, periods, series
+
+
+def warm_up(plant: Plant, frequency_hz: float, amplitude: float, analysis: AnalysisConfig) -> None:
+    """Every criterion once on a short noisy series, untimed: the imports rules make on first use happen here."""
+    sim = Simulation(plant, frequency_hz, amplitude, analysis.steps_per_period, 1e-3 * amplitude, 0)
+    for c in CRITERIA:
+        cost(sim, c, replace(analysis, max_periods=300))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=3, help="replays of every series (median printed)")
+    parser.add_argument("--every", type=int, default=1, help="every k-th frequency of the grid")
+    args = parser.parse_args()
+    config = load_config(CONFIG)
+    case = next(c for c in config.cases if c.name == FRICTION_CASE)
+    analysis, pc = case.analysis, case.plant
+    amplitude = case.excitation.amplitude
+    freqs = tuple(case.excitation.frequencies_hz)[:: args.every]
+    linear = LinearOscillator(pc.mass, pc.stiffness, DAMPING_RATIO)
+    plants: dict[str, Plant] = {"linear": linear,
+                                "friction": CoulombOscillator(pc.mass, pc.stiffness, pc.friction)}
+    print(f"{len(freqs)} frequencies {freqs[0]:g}..{freqs[-1]:g} Hz; eps {analysis.tolerance_percent:g} %, "
+          f"n_k = {analysis.skip_periods}, l = {analysis.window}, max_periods {analysis.max_periods}; "
+          f"median of {args.repeat} replays; CPU us per period per series (periods checked)")
+    started = time.perf_counter()
+    warm_up(plants["friction"], freqs[0], amplitude, analysis)
+    columns: dict[str, dict[str, tuple[float, int]]] = {}
+    steady = np.abs(linear.frequency_response(np.array(freqs))[:, 0]) * amplitude
+    for name, plant in plants.items():
+        for label, noise in (("clean", None), ("1% noise", NOISE_RELATIVE * steady)):
+            columns[f"{name} {label}"] = grid_costs(plant, freqs, amplitude, analysis, noise, args.repeat)
+    print(f"{'criterion':<14}" + "".join(f"{col:>22}" for col in columns))
+    worst = 0.0
+    for c in CRITERIA:
+        cells = []
+        for col in columns.values():
+            seconds, periods = col[c]
+            us = seconds / periods * 1e6
+            worst = max(worst, us)
+            cells.append(f"{us:>10.2f} ({periods:>8})")
+        print(f"{c:<14}" + "".join(f"{cell:>22}" for cell in cells))
+    fn = linear.natural_frequency_hz
+    noise = NOISE_RELATIVE * float(np.abs(linear.frequency_response(np.array([2.0 * fn]))[0, 0])) * amplitude
+    for chunk in (1, CHUNK_PERIODS):
+        us, periods, series = sampler_overhead(linear, 2.0 * fn, amplitude, analysis, noise, chunk, args.repeat)
+        worst = max(worst, us)
+        print(f"Autointegrator.feed beyond its integrator, linear 1% noise at 2 f_n, {series} series, chunks of "
+              f"{chunk} period(s): {us:.2f} us per period per series over {periods} periods")
+    bands = long_run(analysis, pc.mass, pc.stiffness, amplitude, args.repeat)
+    print(f"adaptive on the friction link at Fbar {LONG_FBAR:g}, f = f_n (capped at {analysis.max_periods}): "
+          + ", ".join(f"periods {a + 1}..{b}: {us:.2f} us/period" for (a, b), us in zip(BANDS, bands, strict=True)))
+    worst = max(worst, *bands)
+    print(f"worst: {worst:.2f} us per period per series (target <= {TARGET_US:g}: "
+          f"{'met' if worst <= TARGET_US else 'NOT met'}); {time.perf_counter() - started:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
