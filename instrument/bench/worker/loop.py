@@ -89,6 +89,7 @@ class BusWorker:
         self.round_trips = RoundTrips()
         self.batch = _Batch()
         self.invalid_samples = 0  # samples with NaN or infinite values, dropped
+        self.reply_owed = False  # lockstep: no valid sample came back for the last setpoint sent
         self._echo_index: int | None = None  # the setpoint_echo channel, when the drive has one
 
     def run(self) -> None:
@@ -165,8 +166,10 @@ class BusWorker:
         """Lockstep: send the next setpoint and await its reply when the credit allows (True), else wait for a
         command (False)."""
         pacing = self.lockstep_pacing
-        # without credit the worker waits, except to ramp out and start a requested sine
-        if pacing.out_of_credit(self.tick) and self.sine.pending is None and \
+        # without credit the worker waits, except to ramp out and start a requested sine, and after a setpoint
+        # the drive did not answer: a silent drive gives the session no samples to grant credit for, so the worker
+        # goes on asking (beyond the credit) until a valid sample comes back or the watchdog trips
+        if pacing.out_of_credit(self.tick) and self.sine.pending is None and not self.reply_owed and \
                 not (self.stopping is not None and self.sine.running):
             self._ship()
             self._health()
@@ -185,9 +188,11 @@ class BusWorker:
         # may still be starting) may take up to the watchdog time; the others a few typical round trips.
         wait = pacing.reply_wait(not self.timebase.aligned, self.round_trips, self.spec.limits.watchdog_s)
         samples = pacing.await_reply(self.driver, wait, self.watchdog)
+        answered = False
         if samples:
             self.round_trips.add(time.perf_counter() - sent)
-            self._accept(samples, self.tick)
+            answered = self._accept(samples, self.tick)
+        self.reply_owed = not answered
         self.tick += 1
         if pacing.out_of_credit(self.tick):
             self._ship()
@@ -226,9 +231,10 @@ class BusWorker:
         self._send(u)
         self.tick += 1
 
-    def _accept(self, samples: list[FeedbackSample], answered_tick: int | None) -> None:
+    def _accept(self, samples: list[FeedbackSample], answered_tick: int | None) -> bool:
         """Check and time feedback samples and add them to the batch; answered_tick: lockstep, the tick whose
-        setpoint they answer (None: realtime)."""
+        setpoint they answer (None: realtime). Whether any was valid (taken)."""
+        taken = False
         for s in samples:
             if not all(math.isfinite(v) for v in s.values):  # NaN or inf on the wire: not a measurement
                 self.invalid_samples += 1
@@ -241,6 +247,8 @@ class BusWorker:
                 self.round_trips.echoed(s.values[self._echo_index], s.receive_time)
             self.watchdog.feed()
             self.batch.add(t, s.values, self.last_sent)
+            taken = True
+        return taken
 
     # --- reports to the session
     def _ship(self) -> None:
