@@ -216,8 +216,9 @@ class BenchSession:
         except (EOFError, OSError):
             raise SessionError(FaultKind.BUS, "the bus worker ended unexpectedly") from None
         if isinstance(message, Fault):
-            self.listener(SessionFault(message.kind, message.message, len(self.response.points)))
-            raise SessionError(message.kind, message.message)
+            kind = FaultKind(message.kind)
+            self.listener(SessionFault(kind, message.message, len(self.response.points)))
+            raise SessionError(kind, message.message)
         if isinstance(message, Stopped):
             raise SessionError(FaultKind.BUS, f"the bus worker stopped: {message.reason}")
         if isinstance(message, Health):

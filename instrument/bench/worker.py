@@ -382,7 +382,8 @@ class BusWorker:
                                        self.tick, self.h)
             self._post(SineStarted(p.frequency_hz, self.tick))
             if self.lockstep:  # the ramp in and the first period need no asking
-                self.credit = max(self.credit, self.tick + math.ceil((p.ramp_in_periods + 1) / (p.frequency_hz * self.h)) + 1)
+                ramp_ticks = math.ceil((p.ramp_in_periods + 1) / (p.frequency_hz * self.h))
+                self.credit = max(self.credit, self.tick + ramp_ticks + 1)
         return self.program.value(self.tick) if self.program is not None else 0.0
 
     def _send(self, u: float) -> None:
