@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import cmath
+import json
 import math
 import os
 import shutil
@@ -20,6 +21,7 @@ from typing import Callable
 import numpy as np
 import pytest
 from helpers import BusRecorder
+from textual.widgets import Static
 
 from bodebench.apps.tui import BodeBenchApp
 from bodebench.apps.tui.braille import Axis, BrailleCanvas, HLine, PlotError, Trace, auto_axis, render_plot
@@ -363,6 +365,14 @@ async def test_start_runs_the_sweep_and_the_screen_follows(tmp_path: Path, monke
                                             "gain")) == f"{p.gain_db:+.2f}"
             assert row.periods == p.periods
         assert len(app.w_bode.query_one("#bode-gain", PlotView).traces) == 1
+        # the summary figures under the Bode plot: those of the sidecar, on one line
+        (summary,) = json.loads((out / "response.json").read_text())["summary"]
+        shown = str(app.w_bode.query_one("#bode-summary", Static).render())
+        for figure in summary["figures"]:
+            short = {"bandwidth (-3 dB)": "BW", "resonance peak": "peak", "phase -90 deg": "-90°",
+                     "phase -180 deg": "-180°"}[figure["name"]]
+            sign = "+" if short == "peak" else ""
+            assert (f"{short} {figure['value']:{sign}.3g}" if figure["found"] else f"{short} --") in shown
         await pilot.press("q")
     assert app.return_value == 0
 

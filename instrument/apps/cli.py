@@ -10,6 +10,7 @@ import traceback
 from pathlib import Path
 from typing import Sequence
 
+from bodebench.core.summary import ResponseSummary
 from bodebench.drivers.errors import DriverError
 from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
 from bodebench.io.config import ConfigError, ExperimentConfig, load_config
@@ -68,9 +69,17 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
         print(f"{outcome.case.name}: {len(outcome.response.points)} points, {len(unconverged)} not "
               f"converged{refused}{rt} -> {outcome.directory}/response.csv "
               f"(+ {', '.join(f.name for f in outcome.files)}); {drive}")
+        _print_summary(outcome.summary)
         if session.refused:
             status = 1
     return status
+
+
+def _print_summary(summary: Sequence[ResponseSummary]) -> None:
+    """The figures read off a finished case, indented under its line."""
+    for item in summary:
+        for line in item.lines():
+            print("  " + line)
 
 
 def _cause(exc: BaseException) -> str:
@@ -180,6 +189,7 @@ def _simulate(args: argparse.Namespace) -> int:
             print(f"{outcome.case.name}: {len(outcome.response.points)} points, "
                   f"{len(unconverged)} not converged -> {outcome.directory}/response.csv "
                   f"(+ {', '.join(f.name for f in outcome.files)})")
+            _print_summary(outcome.summary)
     finally:
         if executor is not None:
             executor.shutdown(cancel_futures=True)

@@ -6,13 +6,14 @@ matplotlib is imported inside the functions so that importing this module stays 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from bodebench.core.response import FrequencyResponse
+from bodebench.core.summary import ResponseSummary, summarize_response
 from bodebench.status import PointStatus
 
 if TYPE_CHECKING:
@@ -86,16 +87,49 @@ def _draw_series(
         ax.errorbar(freq[bars], y[bars], yerr=ci[bars], fmt="none", ecolor=color, elinewidth=0.8, capsize=2.0)
 
 
+def _mark_summary(ax_gain: Any, ax_phase: Any, summary: Sequence[ResponseSummary]) -> None:
+    """The summary's figures on the Bode plot: each found one a labelled marker, with its 95 % frequency
+    interval as a horizontal bar where it has one."""
+    for item in summary:
+        ref = item.reference_db
+        for fig in item.figures:
+            if not fig.found:
+                continue
+            if fig.name.startswith("bandwidth"):
+                ax, x, y, text = ax_gain, fig.value, ref - 3.0103, f"BW {fig.value:.3g} Hz"
+                span = (fig.low, fig.high)
+            elif fig.name.startswith("resonance"):
+                ax, x, y, text = ax_gain, fig.at_hz, ref + fig.value, f"peak {fig.value:.3g} dB"
+                span = (fig.at_low_hz, fig.at_high_hz)
+            elif fig.name.startswith("phase -"):
+                level = float(fig.name.split()[1])
+                ax, x, y, text = ax_phase, fig.value, level, f"{level:g} deg at {fig.value:.3g} Hz"
+                span = (fig.low, fig.high)
+            elif fig.name == "phase margin":
+                ax, x, y, text = ax_phase, fig.at_hz, fig.value - 180.0, f"PM {fig.value:.3g} deg"
+                span = (fig.at_low_hz, fig.at_high_hz)
+            elif fig.name == "gain margin":
+                ax, x, y, text = ax_gain, fig.at_hz, -fig.value, f"GM {fig.value:.3g} dB"
+                span = (fig.at_low_hz, fig.at_high_hz)
+            else:
+                continue
+            ax.plot([x], [y], marker="D", ms=5.0, mfc="none", mec="k", linestyle="none", zorder=5)
+            if all(np.isfinite(span)):
+                ax.plot(list(span), [y, y], "-", color="k", lw=1.5, zorder=5)
+            ax.annotate(text, (x, y), xytext=(5, 5), textcoords="offset points", fontsize="x-small")
+
+
 def plot_bode(
     responses: Mapping[str, FrequencyResponse] | FrequencyResponse,
     path_stem: str | Path,
     title: str = "",
+    summary: Sequence[ResponseSummary] = (),
 ) -> list[Path]:
     """Bode diagram: gain (dB) over phase (degrees, unwrapped per curve) against log frequency (Hz).
 
     One curve per (case label, harmonic, channel); hollow markers for points that did not converge; error bars
-    from ``gain_db_ci`` and ``phase_ci_deg`` where finite. Writes ``<path_stem>.png`` and ``<path_stem>.svg``
-    and returns both paths.
+    from ``gain_db_ci`` and ``phase_ci_deg`` where finite; the figures of ``summary`` marked (diamonds, with
+    their 95 % frequency intervals). Writes ``<path_stem>.png`` and ``<path_stem>.svg`` and returns both paths.
     """
     from matplotlib.lines import Line2D
     from matplotlib.ticker import MaxNLocator
@@ -119,6 +153,7 @@ def plot_bode(
                 ax_phase.plot(freq, phase, "-", lw=1.0, color=color)
                 _draw_series(ax_gain, freq, gain_db, sel.gain_db_ci, filled, color)
                 _draw_series(ax_phase, freq, phase, sel.phase_ci_deg, filled, color)
+    _mark_summary(ax_gain, ax_phase, summary)
     ax_gain.set_xscale("log")
     ax_gain.set_ylabel("Gain (dB)")
     ax_phase.set_ylabel("Phase (deg)")
@@ -192,6 +227,13 @@ def plot_periods(
     return _save(fig, path_stem)
 
 
-def write_plots(response: FrequencyResponse, directory: Path, title: str) -> list[Path]:
-    """The plots of a finished case in ``directory``: the Bode plot and the periods each point took."""
-    return plot_bode(response, directory / "bode", title) + plot_periods(response, directory / "periods", title)
+def write_plots(response: FrequencyResponse, directory: Path, title: str,
+                summary: Sequence[ResponseSummary] | None = None) -> list[Path]:
+    """The plots of a finished case in ``directory``: the Bode plot with the summary's figures marked
+    (``summary``; None: read off ``response`` as its configuration's ``analysis.response`` says) and the periods
+    each point took."""
+    if summary is None:
+        kind = response.config.get("analysis", {}).get("response") or "system"
+        summary = summarize_response(response, kind)
+    return (plot_bode(response, directory / "bode", title, summary)
+            + plot_periods(response, directory / "periods", title))

@@ -21,11 +21,20 @@ from pathlib import Path
 from bodebench.bench.events import CaseBegins, CaseSaved, Listener, PointFinished, PointStarted
 from bodebench.bench.session import BenchSession, SessionResult, completed_frequencies
 from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.core.summary import ResponseSummary, summarize_response
 from bodebench.io.config import CaseConfig, ExperimentConfig
-from bodebench.io.results import CSV_NAME, SIDECAR_NAME, ResultsError, ResultsWriter, load_response, save_response
+from bodebench.io.results import (
+    CSV_NAME,
+    SIDECAR_NAME,
+    ResultsError,
+    ResultsWriter,
+    load_response,
+    save_response,
+    write_summary,
+)
 
-PlotWriter = Callable[[FrequencyResponse, Path, str], list[Path]]
-"""Draws a finished case: (response, directory, title) -> the files written."""
+PlotWriter = Callable[..., list[Path]]
+"""Draws a finished case: (response, directory, title, summary=...) -> the files written."""
 
 
 def case_directory(config: ExperimentConfig, out: Path, case: CaseConfig) -> Path:
@@ -71,6 +80,7 @@ class CaseOutcome:
     files: tuple[Path, ...] = ()
     session: BenchSession | None = None
     result: SessionResult | None = None
+    summary: tuple[ResponseSummary, ...] = ()
 
 
 class SweepProcedure:
@@ -205,8 +215,9 @@ class SweepProcedure:
             outcome.response = outcome.session.response if outcome.session else outcome.response
             if outcome.response.points:
                 try:
+                    self._summarize(outcome)
                     self._draw(outcome)
-                except OSError:
+                except (OSError, ResultsError):
                     pass  # the plots only: the points are on disk already
             raise
         outcome.response = latest_points(result.response)
@@ -252,9 +263,15 @@ class SweepProcedure:
     def _draw(self, outcome: CaseOutcome) -> None:
         if self.plots is not None:
             title = outcome.case.name or self.config.title
-            outcome.files = tuple(self.plots(outcome.response, outcome.directory, title))
+            outcome.files = tuple(self.plots(outcome.response, outcome.directory, title, summary=outcome.summary))
+
+    def _summarize(self, outcome: CaseOutcome) -> None:
+        """The figures read off the case's response, into the outcome and the sidecar."""
+        outcome.summary = tuple(summarize_response(outcome.response, outcome.case.analysis.response_kind))
+        write_summary(outcome.directory, [s.to_json() for s in outcome.summary])
 
     def _finish(self, outcome: CaseOutcome) -> None:
+        self._summarize(outcome)
         self._draw(outcome)
         self.listener(CaseSaved(outcome.index, outcome.response, outcome.directory, outcome.files))
 

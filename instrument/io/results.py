@@ -33,6 +33,7 @@ __all__ = [
     "check_output",
     "load_response",
     "save_response",
+    "write_summary",
 ]
 
 CSV_NAME = "response.csv"
@@ -337,6 +338,17 @@ def save_response(response: FrequencyResponse, directory: str | Path) -> None:
     csv_text = _HEADER + "".join(_point_row(point) + "\n" for point in response.points)
     atomic_write_text(directory / SIDECAR_NAME, _sidecar_text(response.case, response.config))
     atomic_write_text(directory / CSV_NAME, csv_text)
+
+
+def write_summary(directory: str | Path, summary: list[dict[str, Any]]) -> None:
+    """Add (or replace) the ``summary`` key of ``directory``'s sidecar atomically: the figures read off the
+    response (:func:`bodebench.core.summary.summarize_response`, as JSON), written when a case is finished."""
+    path = Path(directory) / SIDECAR_NAME
+    data = read_json_file(path, ResultsError, "sidecar file")
+    if not isinstance(data, dict):
+        raise ResultsError(f"{path}: sidecar must hold a JSON object, got {type(data).__name__}")
+    data["summary"] = summary
+    atomic_write_text(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
 
 
 def load_response(directory: str | Path, *, drop_torn_row: bool = False) -> FrequencyResponse:

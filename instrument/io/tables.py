@@ -13,6 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from bodebench.core.rules import CRITERIA
+from bodebench.core.summary import RESPONSE_KINDS
 from bodebench.io.schema import FieldError
 from bodebench.sim.faults import FaultConfig
 
@@ -200,6 +201,15 @@ class AnalysisConfig:
     average_periods: int = field(
         default=50, metadata={"min": 1, "doc": 'periods averaged (criterion "fixed" only)'}
     )
+    response: str | None = field(default=None, metadata={
+        "choices": RESPONSE_KINDS,
+        "doc": "what the measured response is, for its summary: system (default), closed_loop, or open_loop "
+               "(adds the gain and phase margins)"})
+
+    @property
+    def response_kind(self) -> str:
+        """The kind of response the summary reads (:data:`bodebench.core.summary.RESPONSE_KINDS`)."""
+        return self.response or "system"
 
     def validate(self, where: Callable[[str], str]) -> None:
         """Cross-field checks; raises :class:`FieldError`."""

@@ -34,6 +34,7 @@ from bodebench.apps.tui.model import (
 )
 from bodebench.bench.worker import Health
 from bodebench.core.response import FrequencyResponse
+from bodebench.core.summary import ResponseSummary, summarize_response
 
 #: trace colours, in order of use
 PALETTE = ("cyan", "yellow", "magenta", "green", "bright_blue", "bright_red", "white", "bright_green")
@@ -253,16 +254,52 @@ class SweepPanel(Vertical):
         yield self.table if self.table is not None else SweepTable(id="sweep-table")
 
 
+_SHORT_NAMES = {"bandwidth (-3 dB)": "BW", "resonance peak": "peak", "phase -90 deg": "-90°",
+                "phase -180 deg": "-180°", "phase margin": "PM", "gain margin": "GM"}
+
+
+def summary_line(summary: ResponseSummary) -> Text:
+    """The figures of one summary on one line: ``BW 9.95 Hz  peak +11.3 dB @ 8.52 Hz  -90° 9.13 Hz  -180° --``
+    (``--``: not found in the measured range)."""
+    text = Text()
+    for figure in summary.figures:
+        if text.plain:
+            text.append("  ")
+        text.append(_SHORT_NAMES.get(figure.name, figure.name) + " ", style="bold")
+        if not figure.found:
+            text.append("--", style="bright_black")
+        elif figure.unit == "Hz":
+            text.append(f"{figure.value:.3g} Hz")
+        else:
+            sign = "+" if figure.name == "resonance peak" else ""
+            text.append(f"{figure.value:{sign}.3g} {figure.unit.replace('deg', '°')} @ {figure.at_hz:.3g} Hz")
+    return text
+
+
 class BodePanel(Vertical):
-    """Gain (dB) and phase (deg) against log frequency, first harmonic, one colour per response and channel."""
+    """Gain (dB) and phase (deg) against log frequency, first harmonic, one colour per response and channel;
+    under them the summary figures of the first response (its first channel), read off the points so far."""
 
     DEFAULT_CSS = """
     BodePanel { height: 1fr; }
+    BodePanel #bode-summary { height: 1; }
     """
 
     def compose(self) -> ComposeResult:
         yield PlotView("gain dB", "no converged points yet", id="bode-gain")
         yield PlotView("phase °", "", id="bode-phase")
+        yield Static("", id="bode-summary")
+
+    def show_summary(self, responses: Sequence[tuple[str, FrequencyResponse]]) -> None:
+        text = Text()
+        for label, response in responses[:1]:
+            kind = response.config.get("analysis", {}).get("response") or "system"
+            summaries = summarize_response(response, kind)
+            if summaries:
+                text = summary_line(summaries[0])
+                if len(responses) > 1 or len(summaries) > 1:
+                    text = Text(f"{label} {summaries[0].channel}: ", style="bold") + text
+        self.query_one("#bode-summary", Static).update(text, layout=False)
 
     def show(self, responses: Sequence[tuple[str, FrequencyResponse]]) -> None:
         gain_traces, phase_traces, legend = [], [], Text()
@@ -288,6 +325,7 @@ class BodePanel(Vertical):
                 legend.append(f"● {label}" + (f" {channel}" if len(first.channels) > 1 else ""), style=colour)
         gain_view = self.query_one("#bode-gain", PlotView)
         phase_view = self.query_one("#bode-phase", PlotView)
+        self.show_summary(responses)
         if not gain_traces:
             gain_view.clear()
             phase_view.clear()
