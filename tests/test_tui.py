@@ -42,7 +42,7 @@ from bodebench.apps.tui.model import (
     remaining_seconds,
     row_key,
 )
-from bodebench.apps.tui.widgets import PlotView
+from bodebench.apps.tui.widgets import PlotView, percent_cell
 from bodebench.bench.events import PointProgress
 from bodebench.core.autointegration import SeriesState
 from bodebench.core.response import FrequencyResponse, ResponsePoint
@@ -364,6 +364,10 @@ async def test_start_runs_the_sweep_and_the_screen_follows(tmp_path: Path, monke
             assert str(app.w_table.get_cell(row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel),
                                             "gain")) == f"{p.gain_db:+.2f}"
             assert row.periods == p.periods
+            cell = str(app.w_table.get_cell(row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel), "thd"))
+            assert cell == (percent_cell(p.thd) if p.harmonic == 1 else "--")
+            assert str(app.w_table.get_cell(row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel),
+                                            "coh")) == f"{p.coherence:.3f}"
         assert len(app.w_bode.query_one("#bode-gain", PlotView).traces) == 1
         # the summary figures under the Bode plot: those of the sidecar, on one line
         (summary,) = json.loads((out / "response.json").read_text())["summary"]

@@ -7,6 +7,7 @@ caller brings timestamped samples from a simulation or a bus.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -14,6 +15,7 @@ from typing import Protocol
 import numpy as np
 
 from bodebench.core.fourier import PeriodIntegrator
+from bodebench.core.quality import coherence, coherence_periods, total_harmonic_distortion
 from bodebench.core.response import ResponsePoint
 from bodebench.core.rules import SeriesHistory, StoppingRule, Verdict, make_rule
 
@@ -80,6 +82,7 @@ class Autointegrator:
         self.channels = tuple(channels)
         self.harmonics = tuple(analysis.harmonics)
         self.max_periods = analysis.max_periods
+        self.skip_periods = analysis.skip_periods
         self.reference = reference
         harmonics = self.harmonics if reference is None or 1 in self.harmonics else (*self.harmonics, 1)
         self._ref_index = harmonics.index(1) if reference is not None else -1
@@ -179,12 +182,24 @@ class Autointegrator:
             raise RuntimeError("Autointegrator.points() before every series has a verdict")
         pts = []
         for c, name in enumerate(self.channels):
+            verdicts = self._verdicts[c]
+            thd = math.nan
+            if 1 in self.harmonics:
+                fundamental = verdicts[self.harmonics.index(1)]
+                assert fundamental is not None
+                thd = total_harmonic_distortion(complex(fundamental.p, fundamental.q),
+                                                [complex(v.p, v.q) for k, v in zip(self.harmonics, verdicts,
+                                                                                   strict=True)
+                                                 if k != 1 and v is not None])
             for k, harmonic in enumerate(self.harmonics):
-                v = self._verdicts[c][k]
+                v = verdicts[k]
                 assert v is not None
+                start, stop = coherence_periods(self.skip_periods, v.period)
                 pts.append(ResponsePoint(frequency_hz=self.frequency_hz, harmonic=harmonic, channel=name,
                                          amplitude=self.amplitude, p=v.p, q=v.q, periods=v.period,
                                          converged=v.converged, status=v.status, uncertainty=v.uncertainty,
                                          uncertainty_1d=v.uncertainty_1d, within_eps=v.within_eps,
-                                         periods_needed=v.periods_needed))
+                                         periods_needed=v.periods_needed,
+                                         thd=thd if harmonic == 1 else math.nan,
+                                         coherence=coherence(self._histories[c][k].values[start:stop])))
         return pts

@@ -62,7 +62,10 @@ class ResponsePoint:
     the 95 % half-width of its projection on one direction, from which the gain and phase intervals derive
     (output units; NaN: not stated, then ``uncertainty`` stands in), ``within_eps`` whether the stated
     uncertainty is within the requested tolerance, ``periods_needed`` for a noise-limited point the periods
-    the requested tolerance would take (0: not estimated).
+    the requested tolerance would take (0: not estimated), ``thd`` on a harmonic-1 point the total harmonic
+    distortion of the channel's output from the harmonics measured (dimensionless; NaN: none measured, or not a
+    harmonic-1 point), ``coherence`` the series' coherence with the excitation over its later analysed periods
+    (dimensionless, 0 to 1; NaN: not stated), both defined in :mod:`bodebench.core.quality`.
     ``p`` and ``q`` may be NaN (e.g. a failed point) but not infinite.
     """
 
@@ -79,12 +82,14 @@ class ResponsePoint:
     uncertainty_1d: float = math.nan
     within_eps: bool = False
     periods_needed: int = 0
+    thd: float = math.nan
+    coherence: float = math.nan
 
     def __post_init__(self) -> None:
         def set_(name: str, value: object) -> None:
             object.__setattr__(self, name, value)
 
-        for name in ("frequency_hz", "amplitude", "p", "q", "uncertainty", "uncertainty_1d"):
+        for name in ("frequency_hz", "amplitude", "p", "q", "uncertainty", "uncertainty_1d", "thd", "coherence"):
             value = getattr(self, name)
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
                 raise ValueError(f"{name} must be a real number, got {value!r}")
@@ -96,9 +101,11 @@ class ResponsePoint:
         for name in ("p", "q"):
             if math.isinf(getattr(self, name)):
                 raise ValueError(f"{name} must be finite or NaN, got {getattr(self, name)!r}")
-        for name in ("uncertainty", "uncertainty_1d"):
+        for name in ("uncertainty", "uncertainty_1d", "thd"):
             if not (math.isnan(getattr(self, name)) or getattr(self, name) >= 0.0):
                 raise ValueError(f"{name} must be >= 0 or NaN, got {getattr(self, name)!r}")
+        if not (math.isnan(self.coherence) or 0.0 <= self.coherence <= 1.0):
+            raise ValueError(f"coherence must be within [0, 1] or NaN, got {self.coherence!r}")
         for name in ("within_eps", "converged"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")

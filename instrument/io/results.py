@@ -39,7 +39,7 @@ __all__ = [
 CSV_NAME = "response.csv"
 SIDECAR_NAME = "response.json"
 FORMAT_NAME = "bodebench-response"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 
 #: Columns of response.csv, in file order.
 CSV_COLUMNS: tuple[str, ...] = (
@@ -62,9 +62,13 @@ CSV_COLUMNS: tuple[str, ...] = (
     "uncertainty_1d",
     "within_eps",
     "periods_needed",
+    "thd",
+    "coherence",
 )
-#: Columns of a version-1 response.csv (read; the added columns take their defaults).
+#: Columns of a version-1 and a version-2 response.csv (read; the added columns take their defaults).
 _CSV_COLUMNS_V1 = CSV_COLUMNS[:16]
+_CSV_COLUMNS_V2 = CSV_COLUMNS[:19]
+_OLDER_COLUMNS = (_CSV_COLUMNS_V1, _CSV_COLUMNS_V2)
 _DERIVED_COLUMNS: tuple[str, ...] = ("gain", "gain_db", "phase_deg", "gain_ci", "gain_db_ci", "phase_ci_deg")
 _DERIVED_RTOL = 1e-9
 
@@ -167,6 +171,8 @@ def _point_row(point: ResponsePoint) -> str:
         "uncertainty_1d": _format_float(point.uncertainty_1d),
         "within_eps": "true" if point.within_eps else "false",
         "periods_needed": str(point.periods_needed),
+        "thd": _format_float(point.thd),
+        "coherence": _format_float(point.coherence),
     }
     for name in _DERIVED_COLUMNS:
         values[name] = _format_float(getattr(point, name))
@@ -198,7 +204,7 @@ def _parse_csv(path: Path, drop_torn_row: bool = False) -> list[ResponsePoint]:
     if not lines:
         raise ResultsError(f"{path}: line 1: empty file, expected header {','.join(CSV_COLUMNS)!r}")
     header = lines[0].rstrip("\r").split(",")
-    columns = _CSV_COLUMNS_V1 if tuple(header) == _CSV_COLUMNS_V1 else CSV_COLUMNS
+    columns = _columns_of(lines[0])
     if tuple(header) != columns:
         for index, (got, want) in enumerate(zip(header, CSV_COLUMNS, strict=False)):
             if got != want:
@@ -218,9 +224,15 @@ def _parse_line(path: Path, lineno: int, line: str, columns: tuple[str, ...]) ->
     return _parse_row(path, lineno, dict(zip(columns, cells, strict=True)))
 
 
+def _columns_of(header: str) -> tuple[str, ...]:
+    """The columns of a file with this header line: an older version's, else the current ones."""
+    names = tuple(header.rstrip("\r").split(","))
+    return names if names in _OLDER_COLUMNS else CSV_COLUMNS
+
+
 def _torn(path: Path, lineno: int, line: str, header: str) -> bool:
     """Whether an unterminated last row is the remains of an interrupted append (it does not parse)."""
-    columns = _CSV_COLUMNS_V1 if tuple(header.rstrip("\r").split(",")) == _CSV_COLUMNS_V1 else CSV_COLUMNS
+    columns = _columns_of(header)
     try:
         _parse_line(path, lineno, line, columns)
     except ResultsError:
@@ -266,6 +278,8 @@ def _parse_row(path: Path, lineno: int, row: dict[str, str]) -> ResponsePoint:
             uncertainty_1d=number("uncertainty_1d") if "uncertainty_1d" in row else math.nan,
             within_eps=boolean("within_eps"),
             periods_needed=integer("periods_needed") if "periods_needed" in row else 0,
+            thd=number("thd") if "thd" in row else math.nan,
+            coherence=number("coherence") if "coherence" in row else math.nan,
         )
     except ResultsError:
         raise
@@ -306,7 +320,7 @@ def _parse_sidecar(path: Path) -> tuple[str, dict[str, Any]]:
             raise ResultsError(f"{path}: key {key!r} missing from sidecar")
     if data["format"] != FORMAT_NAME:
         raise ResultsError(f"{path}: key 'format': unknown format {data['format']!r}, expected {FORMAT_NAME!r}")
-    if not _is_int(data["version"]) or data["version"] not in (1, FORMAT_VERSION):
+    if not _is_int(data["version"]) or data["version"] not in range(1, FORMAT_VERSION + 1):
         raise ResultsError(
             f"{path}: key 'version': unsupported version {data['version']!r}, expected {FORMAT_VERSION}"
         )
@@ -366,7 +380,8 @@ class ResultsWriter:
     """Appends the points of a sweep to ``directory/response.csv`` as they are measured.
 
     Opening writes the sidecar (atomically) and, for a new file, the header; ``resume=True`` continues an existing
-    file instead (an unterminated last row, left by a crash mid-append, is cut off first). Each :meth:`append`
+    file instead (an unterminated last row, left by a crash mid-append, is cut off first; a file of an older
+    format is rewritten in the current one, its new columns NaN). Each :meth:`append`
     writes whole rows and syncs the file before it returns.
     """
 
@@ -377,6 +392,11 @@ class ResultsWriter:
         atomic_write_text(self.directory / SIDECAR_NAME, _sidecar_text(case, config))
         if resume and self.path.exists():
             _end_last_row(self.path)
+            with open(self.path, encoding="utf-8") as handle:
+                header = handle.readline().rstrip("\n")
+            if _columns_of(header) != CSV_COLUMNS:  # an older format: its rows rewritten in the current one
+                points = _parse_csv(self.path)
+                atomic_write_text(self.path, _HEADER + "".join(_point_row(p) + "\n" for p in points))
         else:
             atomic_write_text(self.path, _HEADER)
 

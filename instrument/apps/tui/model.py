@@ -104,6 +104,8 @@ class Row:
     gain_db: float = math.nan
     phase_deg: float = math.nan
     periods: int = 0
+    thd: float = math.nan
+    coherence: float = math.nan
 
 
 @dataclass
@@ -194,7 +196,8 @@ class SweepModel:
         self.periods = 0
         self._point_started = now
         for key in self.keys_at(position):
-            self._set(key, state=SETTLING, gain_db=math.nan, phase_deg=math.nan, periods=0)
+            self._set(key, state=SETTLING, gain_db=math.nan, phase_deg=math.nan, periods=0, thd=math.nan,
+                      coherence=math.nan)
 
     def progress(self, index: int, periods: int, states: Sequence[SeriesState]) -> None:
         if index != self.current_index or self.current is None:
@@ -225,7 +228,7 @@ class SweepModel:
                 self._set(key, state=SKIPPED)
         for p in points:
             self._set(row_key(position, p.harmonic, p.channel), state=point_state(p), gain_db=p.gain_db,
-                      phase_deg=p.phase_deg, periods=p.periods)
+                      phase_deg=p.phase_deg, periods=p.periods, thd=p.thd, coherence=p.coherence)
         if self._point_started is not None and not skipped and position not in self.finished:
             self.durations.append((self.frequencies_hz[position], now - self._point_started))
         self.finished.add(position)
@@ -252,7 +255,7 @@ class SweepModel:
             except ValueError:
                 continue
             self._set(row_key(position, p.harmonic, p.channel), state=point_state(p), gain_db=p.gain_db,
-                      phase_deg=p.phase_deg, periods=p.periods)
+                      phase_deg=p.phase_deg, periods=p.periods, thd=p.thd, coherence=p.coherence)
             self.finished.add(position)
 
     # --- summaries

@@ -44,11 +44,19 @@ STATE_STYLES = {PENDING: "bright_black", SETTLING: "yellow", INTEGRATING: "bold 
 
 #: sweep table columns: (key, label, width in cells)
 COLUMNS = (("f", "f Hz", 7), ("k", "k", 2), ("ch", "channel", 9), ("state", "state", 11), ("gain", "gain dB", 8),
-           ("phase", "phase °", 7), ("periods", "periods", 7))
+           ("phase", "phase °", 7), ("periods", "periods", 7), ("thd", "THD %", 6), ("coh", "coh", 5))
 
 
 def _number(value: float, fmt: str) -> str:
     return format(value, fmt) if math.isfinite(value) else "--"
+
+
+def percent_cell(ratio: float) -> str:
+    """A ratio as a percentage in at most 5 cells: ``--`` (not stated), ``<0.01``, or 3 significant digits."""
+    if not math.isfinite(ratio):
+        return "--"
+    value = 100.0 * ratio
+    return "<0.01" if value < 0.01 else f"{value:.3g}"
 
 
 def _si_time(seconds: float) -> str:
@@ -229,7 +237,9 @@ class SweepTable(DataTable):
                 Text(row.state, style=style),
                 Text(_number(row.gain_db, "+.2f"), justify="right"),
                 Text(_number(row.phase_deg, ".1f"), justify="right"),
-                Text(str(row.periods) if row.periods else "", justify="right")]
+                Text(str(row.periods) if row.periods else "", justify="right"),
+                Text(percent_cell(row.thd), justify="right"),
+                Text(_number(row.coherence, ".3f"), justify="right")]
 
     def selected_key(self) -> str | None:
         """Key of the row under the cursor (None when the table is empty)."""
