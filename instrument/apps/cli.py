@@ -253,6 +253,34 @@ def _identify(args: argparse.Namespace) -> int:
     return status
 
 
+def _plot(args: argparse.Namespace) -> int:
+    from bodebench.apps.plots import plot_comparison
+    from bodebench.io.results import CSV_NAME
+
+    responses = {}
+    for given in args.results:
+        directory = Path(given)
+        if not directory.is_dir():
+            raise ResultsError(f"{directory}: not a directory")
+        found = [directory] if (directory / CSV_NAME).exists() else sorted(
+            p for p in directory.iterdir() if p.is_dir() and (p / CSV_NAME).exists())
+        if not found:
+            raise ResultsError(f"{directory}: no {CSV_NAME} here or in its sub-directories")
+        for sub in found:
+            label = given if sub == directory else str(Path(given) / sub.name)
+            responses[label] = load_response(sub)
+    try:
+        path = plot_comparison(responses, Path(args.out), args.title)
+    except ValueError as exc:
+        print(f"bodebench: {args.out}: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"bodebench: {args.out}: cannot write the plot: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    print(f"{len(responses)} responses -> {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="bodebench", description=__doc__.strip().splitlines()[0] if __doc__ else "")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -298,6 +326,12 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument("--calibration", default=None, help="calibration file (default: the shipped table)")
     ident.add_argument("--no-plot", action="store_true", help="do not write identify.png/svg")
     ident.set_defaults(handler=_identify)
+    plot = sub.add_parser("plot", help="one Bode diagram comparing several results directories")
+    plot.add_argument("results", metavar="DIR", nargs="+",
+                      help="results directories (or directories of case sub-directories)")
+    plot.add_argument("--out", required=True, help="image file; its suffix names the format (.png, .svg, .pdf)")
+    plot.add_argument("--title", default="", help="the figure's title")
+    plot.set_defaults(handler=_plot)
     return parser
 
 

@@ -1,31 +1,64 @@
 """Plots of measured frequency responses (Bode diagram, periods needed per point).
 
-Figures are drawn with matplotlib's Agg canvas (no pyplot, no GUI) and written as PNG and SVG.
+Figures are drawn with matplotlib's Agg canvas (no pyplot, no GUI) and written as PNG and SVG (``formats``).
 matplotlib is imported inside the functions so that importing this module stays cheap.
+
+What a figure shows is what was measured:
+
+- every harmonic has one colour in every figure (k = 1 the first of :data:`HARMONIC_COLOURS`, and so on); several
+  responses or channels in one figure differ by line style and marker;
+- a point below the resolution (its 95 % disc holds zero) is not drawn as a value: a downward triangle marks the
+  upper end of its gain interval, and it has no phase;
+- the 95 % interval of every point is a shaded band around its curve, named in the legend;
+- log axes are labelled in plain numbers (1, 2, 5, 10, 20, 50, ...).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from bodebench.core.response import FrequencyResponse
-from bodebench.core.summary import ResponseSummary, summarize_response
+from bodebench.core.response import PHASE_UNDEFINED_STATUSES, FrequencyResponse
+from bodebench.core.summary import CONFIDENCE, ResponseSummary, summarize_response
 from bodebench.status import PointStatus
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["plot_bode", "plot_periods", "write_plots"]
+__all__ = [
+    "FORMATS",
+    "HARMONIC_COLOURS",
+    "bode_figure",
+    "harmonic_colour",
+    "periods_figure",
+    "plot_bode",
+    "plot_periods",
+    "plot_comparison",
+    "write_plots",
+]
 
 #: Status of a point whose measurement stopped at the period cap.
 _NOT_WITHIN_TOLERANCE = (PointStatus.CAPPED, PointStatus.NOISE_LIMITED)
 
-_MARKER = "o"
+FORMATS = ("png", "svg")
+"""The image formats written by default, by file suffix."""
+
+HARMONIC_COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b", "#e377c2")
+"""The colour of harmonic k is entry k - 1 (cycled)."""
+
+_STYLES = ("-", "--", ":", "-.")
+_MARKERS = ("o", "s", "^", "D", "v", "P")
 _MARKER_SIZE = 4.0
+_BAND_ALPHA = 0.25
+
+
+def harmonic_colour(harmonic: int) -> str:
+    """The colour harmonic ``harmonic`` has in every figure."""
+    return HARMONIC_COLOURS[(harmonic - 1) % len(HARMONIC_COLOURS)]
 
 
 def _as_mapping(responses: Mapping[str, FrequencyResponse] | FrequencyResponse) -> dict[str, FrequencyResponse]:
@@ -59,32 +92,32 @@ def _new_figure(rows: int, height_in: float) -> tuple[Figure, Any]:
     return fig, axes
 
 
-def _save(fig: Figure, path_stem: str | Path) -> list[Path]:
+def _save(fig: Figure, path_stem: str | Path, formats: Sequence[str] = FORMATS) -> list[Path]:
     stem = Path(path_stem)
     stem.parent.mkdir(parents=True, exist_ok=True)
-    paths = [Path(f"{stem}.png"), Path(f"{stem}.svg")]
-    fig.savefig(paths[0], dpi=120)
-    fig.savefig(paths[1])
+    paths = [Path(f"{stem}.{suffix}") for suffix in formats]
+    for path in paths:
+        fig.savefig(path, dpi=120)
     return paths
 
 
-def _finite_or_nan(values: np.ndarray) -> np.ndarray:
-    out = np.asarray(values, dtype=float).copy()
-    out[~np.isfinite(out)] = np.nan
+def _plain_log_axis(axis: Any) -> None:
+    """Log-axis ticks at 1, 2 and 5 of every decade, labelled as plain numbers (no 2x10^0), no minor labels."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    axis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(FuncFormatter(lambda value, _pos: f"{value:g}"))
+    axis.set_minor_locator(LogLocator(base=10.0, subs=tuple(float(s) for s in range(1, 10))))
+    axis.set_minor_formatter(NullFormatter())
+
+
+def _series_groups(curves: Mapping[str, FrequencyResponse]) -> list[tuple[str, str]]:
+    """(label, channel) pairs in order: each gets its own line style and marker."""
+    out: list[tuple[str, str]] = []
+    for label, response in curves.items():
+        for channel in response.channels:
+            out.append((label, channel))
     return out
-
-
-def _draw_series(
-    ax: Any, freq: np.ndarray, y: np.ndarray, ci: np.ndarray, filled: np.ndarray, color: Any
-) -> None:
-    """Markers (filled where ``filled``, hollow elsewhere) and error bars where ``ci`` is finite."""
-    ax.plot(freq[filled], y[filled], _MARKER, ms=_MARKER_SIZE, color=color, linestyle="none")
-    ax.plot(
-        freq[~filled], y[~filled], _MARKER, ms=_MARKER_SIZE, mfc="none", mec=color, linestyle="none"
-    )
-    bars = np.isfinite(ci) & np.isfinite(y)
-    if bars.any():
-        ax.errorbar(freq[bars], y[bars], yerr=ci[bars], fmt="none", ecolor=color, elinewidth=0.8, capsize=2.0)
 
 
 def _mark_summary(ax_gain: Any, ax_phase: Any, summary: Sequence[ResponseSummary]) -> None:
@@ -96,10 +129,10 @@ def _mark_summary(ax_gain: Any, ax_phase: Any, summary: Sequence[ResponseSummary
             if not fig.found:
                 continue
             if fig.name.startswith("bandwidth"):
-                ax, x, y, text = ax_gain, fig.value, ref - 3.0103, f"BW {fig.value:.3g} Hz"
+                ax, x, y, text = ax_gain, fig.value, ref - 10.0 * math.log10(2.0), f"BW {fig.value:.3g} Hz"
                 span = (fig.low, fig.high)
             elif fig.name.startswith("resonance"):
-                ax, x, y, text = ax_gain, fig.at_hz, ref + fig.value, f"peak {fig.value:.3g} dB"
+                ax, x, y, text = ax_gain, fig.at_hz, ref + fig.value, f"peak {fig.value:+.3g} dB"
                 span = (fig.at_low_hz, fig.at_high_hz)
             elif fig.name.startswith("phase -"):
                 level = float(fig.name.split()[1])
@@ -119,42 +152,93 @@ def _mark_summary(ax_gain: Any, ax_phase: Any, summary: Sequence[ResponseSummary
             ax.annotate(text, (x, y), xytext=(5, 5), textcoords="offset points", fontsize="x-small")
 
 
+def _gain_bounds(sel: FrequencyResponse) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper ends of each point's 95 % gain interval, dB (lower NaN where the interval holds zero)."""
+    width = np.array([p.gain_ci for p in sel.points])
+    gain = sel.gain
+    width = np.where(np.isfinite(width), width, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        low = np.where(gain > width, 20.0 * np.log10(gain - width), np.nan)
+        high = 20.0 * np.log10(gain + width)
+    high[~np.isfinite(high)] = np.nan
+    return low, high
+
+
 def plot_bode(
     responses: Mapping[str, FrequencyResponse] | FrequencyResponse,
     path_stem: str | Path,
     title: str = "",
     summary: Sequence[ResponseSummary] = (),
+    formats: Sequence[str] = FORMATS,
 ) -> list[Path]:
+    """The Bode diagram of :func:`bode_figure`, written as ``<path_stem>.<format>`` for each of ``formats``;
+    returns the paths."""
+    return _save(bode_figure(responses, title, summary), path_stem, formats)
+
+
+def bode_figure(
+    responses: Mapping[str, FrequencyResponse] | FrequencyResponse,
+    title: str = "",
+    summary: Sequence[ResponseSummary] = (),
+) -> Figure:
     """Bode diagram: gain (dB) over phase (degrees, unwrapped per curve) against log frequency (Hz).
 
-    One curve per (case label, harmonic, channel); hollow markers for points that did not converge; error bars
-    from ``gain_db_ci`` and ``phase_ci_deg`` where finite; the figures of ``summary`` marked (diamonds, with
-    their 95 % frequency intervals). Writes ``<path_stem>.png`` and ``<path_stem>.svg`` and returns both paths.
+    One curve per (case label, harmonic, channel), coloured by harmonic; hollow markers for points that did not
+    converge; the 95 % interval of every point as a band; points below the resolution as the upper end of their
+    gain interval (downward triangles), left out of the curves; the figures of ``summary`` marked (diamonds, with
+    their 95 % frequency intervals).
     """
     from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
     from matplotlib.ticker import MaxNLocator
 
     curves = _as_mapping(responses)
+    groups = _series_groups(curves)
     fig, (ax_gain, ax_phase) = _new_figure(2, 6.5)
-    any_hollow = False
+    any_hollow = any_band = any_bound = False
     for case_label, response in curves.items():
         for harmonic in response.harmonics:
             for channel in response.select(harmonic=harmonic).channels:
                 sel = response.select(harmonic=harmonic, channel=channel)
+                if not len(sel):
+                    continue
+                group = groups.index((case_label, channel))
+                style, marker = _STYLES[group % len(_STYLES)], _MARKERS[group % len(_MARKERS)]
+                color = harmonic_colour(harmonic)
                 freq = sel.frequency_hz
-                filled = sel.converged
-                any_hollow |= bool((~filled).any())
-                gain_db = _finite_or_nan(sel.gain_db)
+                unresolved = np.array([p.status in PHASE_UNDEFINED_STATUSES for p in sel.points])
+                filled = sel.converged & ~unresolved
+                gain_db = sel.gain_db.copy()
+                gain_db[unresolved | ~np.isfinite(gain_db)] = np.nan
                 phase = sel.phase_unwrapped_deg()
-                (line,) = ax_gain.plot(
-                    freq, gain_db, "-", lw=1.0, label=_label(case_label, f"k={harmonic}", channel)
-                )
-                color = line.get_color()
-                ax_phase.plot(freq, phase, "-", lw=1.0, color=color)
-                _draw_series(ax_gain, freq, gain_db, sel.gain_db_ci, filled, color)
-                _draw_series(ax_phase, freq, phase, sel.phase_ci_deg, filled, color)
+                phase[unresolved] = np.nan
+                low, high = _gain_bounds(sel)
+                label = _label(case_label if len(curves) > 1 else "", f"k={harmonic}",
+                               channel if len(response.channels) > 1 or len(curves) > 1 else "")
+                ax_gain.plot(freq, gain_db, style, lw=1.0, color=color, label=label)
+                ax_phase.plot(freq, phase, style, lw=1.0, color=color)
+                for ax, y in ((ax_gain, gain_db), (ax_phase, phase)):
+                    ax.plot(freq[filled], y[filled], marker, ms=_MARKER_SIZE, color=color, linestyle="none")
+                    ax.plot(freq[~filled], y[~filled], marker, ms=_MARKER_SIZE, mfc="none", mec=color,
+                            linestyle="none")
+                any_hollow |= bool((~filled & ~unresolved).any())
+                band_low = np.where(unresolved, np.nan, np.where(np.isfinite(low), low, np.nanmin(
+                    np.concatenate([low[np.isfinite(low)], gain_db[np.isfinite(gain_db)], [0.0]])) - 20.0))
+                band_high = np.where(unresolved, np.nan, high)
+                if np.isfinite(band_high).any():
+                    ax_gain.fill_between(freq, band_low, band_high, color=color, alpha=_BAND_ALPHA, lw=0)
+                    any_band = True
+                ci = sel.phase_ci_deg
+                ci = np.where(np.isfinite(ci), ci, np.nan)
+                if np.isfinite(phase + ci).any():
+                    ax_phase.fill_between(freq, phase - ci, phase + ci, color=color, alpha=_BAND_ALPHA, lw=0)
+                if unresolved.any():
+                    any_bound = True
+                    bound = np.where(np.isfinite(high), high, np.nan)[unresolved]
+                    ax_gain.plot(freq[unresolved], bound, "v", ms=6.0, mfc="none", mec=color, linestyle="none")
     _mark_summary(ax_gain, ax_phase, summary)
     ax_gain.set_xscale("log")
+    _plain_log_axis(ax_phase.xaxis)
     ax_gain.set_ylabel("Gain (dB)")
     ax_phase.set_ylabel("Phase (deg)")
     ax_phase.set_xlabel("Frequency (Hz)")
@@ -163,56 +247,68 @@ def plot_bode(
         ax.grid(True, which="major", alpha=0.5)
         ax.grid(True, which="minor", alpha=0.2)
     handles, labels = ax_gain.get_legend_handles_labels()
+    if any_band:
+        handles.append(Patch(color="0.3", alpha=_BAND_ALPHA, lw=0))
+        labels.append(f"{CONFIDENCE:.0%} confidence band")
     if any_hollow:
         handles += [
-            Line2D([], [], marker=_MARKER, color="0.3", linestyle="none", ms=_MARKER_SIZE),
-            Line2D([], [], marker=_MARKER, mfc="none", mec="0.3", linestyle="none", ms=_MARKER_SIZE),
+            Line2D([], [], marker="o", color="0.3", linestyle="none", ms=_MARKER_SIZE),
+            Line2D([], [], marker="o", mfc="none", mec="0.3", linestyle="none", ms=_MARKER_SIZE),
         ]
         labels += ["converged", "not converged"]
+    if any_bound:
+        handles.append(Line2D([], [], marker="v", mfc="none", mec="0.3", linestyle="none", ms=6.0))
+        labels.append("below resolution: upper bound")
     ax_gain.legend(handles, labels, fontsize="small")
     if title:
         fig.suptitle(title)
-    return _save(fig, path_stem)
+    return fig
 
 
 def plot_periods(
     responses: Mapping[str, FrequencyResponse] | FrequencyResponse,
     path_stem: str | Path,
     title: str = "",
+    formats: Sequence[str] = FORMATS,
 ) -> list[Path]:
-    """Periods integrated per point against log frequency (Hz), log y axis; one curve per (case label, harmonic).
+    """The chart of :func:`periods_figure`, written as ``<path_stem>.<format>`` for each of ``formats``; returns
+    the paths."""
+    return _save(periods_figure(responses, title), path_stem, formats)
+
+
+def periods_figure(responses: Mapping[str, FrequencyResponse] | FrequencyResponse, title: str = "") -> Figure:
+    """Periods integrated per point against log frequency (Hz), log y axis; one curve per (case label, harmonic),
+    coloured by harmonic as in the Bode plot.
 
     Where several channels share a frequency the largest period count is shown. Points with status ``capped``
-    or ``noise_limited`` are marked with a cross. Writes ``<path_stem>.png`` and ``<path_stem>.svg`` and returns
-    both paths.
+    or ``noise_limited`` are marked with a cross.
     """
     from matplotlib.lines import Line2D
-    from matplotlib.ticker import FuncFormatter
 
     curves = _as_mapping(responses)
     fig, (ax,) = _new_figure(1, 4.5)
     any_capped = False
-    for case_label, response in curves.items():
+    for index, (case_label, response) in enumerate(curves.items()):
+        style, marker = _STYLES[index % len(_STYLES)], _MARKERS[index % len(_MARKERS)]
         for harmonic in response.harmonics:
             sel = response.select(harmonic=harmonic)
             freq_all = sel.frequency_hz
             freq = np.unique(freq_all)
-            index = np.searchsorted(freq, freq_all)
+            at = np.searchsorted(freq, freq_all)
             periods = np.zeros(freq.size, dtype=float)
-            np.maximum.at(periods, index, sel.periods.astype(float))
+            np.maximum.at(periods, at, sel.periods.astype(float))
             capped = np.zeros(freq.size, dtype=bool)
-            np.logical_or.at(capped, index, np.array([pt.status in _NOT_WITHIN_TOLERANCE for pt in sel]))
-            (line,) = ax.plot(
-                freq, periods, "-", marker=_MARKER, ms=_MARKER_SIZE, lw=1.0, label=_label(case_label, f"k={harmonic}")
-            )
+            np.logical_or.at(capped, at, np.array([pt.status in _NOT_WITHIN_TOLERANCE for pt in sel]))
+            color = harmonic_colour(harmonic)
+            ax.plot(freq, periods, style, marker=marker, ms=_MARKER_SIZE, lw=1.0, color=color,
+                    label=_label(case_label if len(curves) > 1 else "", f"k={harmonic}"))
             if capped.any():
                 any_capped = True
-                ax.plot(freq[capped], periods[capped], "x", ms=9.0, mew=2.0, color=line.get_color(), linestyle="none")
+                ax.plot(freq[capped], periods[capped], "x", ms=9.0, mew=2.0, color=color, linestyle="none")
     ax.set_xscale("log")
     ax.set_yscale("log")
-    plain = FuncFormatter(lambda value, _pos: f"{value:g}")
-    ax.yaxis.set_major_formatter(plain)
-    ax.yaxis.set_minor_formatter(plain)
+    _plain_log_axis(ax.xaxis)
+    _plain_log_axis(ax.yaxis)
     ax.set_xlabel("Frequency (Hz)")
     ax.set_ylabel("Periods")
     ax.grid(True, which="major", alpha=0.5)
@@ -224,16 +320,29 @@ def plot_periods(
     ax.legend(handles, labels, fontsize="small")
     if title:
         ax.set_title(title)
-    return _save(fig, path_stem)
+    return fig
 
 
 def write_plots(response: FrequencyResponse, directory: Path, title: str,
-                summary: Sequence[ResponseSummary] | None = None) -> list[Path]:
+                summary: Sequence[ResponseSummary] | None = None, formats: Sequence[str] = FORMATS) -> list[Path]:
     """The plots of a finished case in ``directory``: the Bode plot with the summary's figures marked
     (``summary``; None: read off ``response`` as its configuration's ``analysis.response`` says) and the periods
-    each point took."""
+    each point took, each in ``formats``."""
     if summary is None:
         kind = response.config.get("analysis", {}).get("response") or "system"
         summary = summarize_response(response, kind)
-    return (plot_bode(response, directory / "bode", title, summary)
-            + plot_periods(response, directory / "periods", title))
+    return (plot_bode(response, directory / "bode", title, summary, formats)
+            + plot_periods(response, directory / "periods", title, formats))
+
+
+def plot_comparison(responses: Mapping[str, FrequencyResponse], path: str | Path, title: str = "") -> Path:
+    """One Bode diagram of several responses (labels: where they came from), written to ``path`` in the format
+    its suffix names (png, svg, pdf, ...); returns the path."""
+    target = Path(path)
+    suffix = target.suffix.lstrip(".").lower()
+    if not suffix:
+        raise ValueError(f"{target}: no file suffix to take the image format from (e.g. .png or .svg)")
+    summaries = [s for response in responses.values()
+                 for s in summarize_response(response, response.config.get("analysis", {}).get("response")
+                                             or "system")] if len(responses) == 1 else []
+    return _save(bode_figure(responses, title, summaries), target.with_suffix(""), (suffix,))[0]

@@ -262,7 +262,7 @@ class SweepProcedure:
 
     def _draw(self, outcome: CaseOutcome) -> None:
         if self.plots is not None:
-            title = outcome.case.name or self.config.title
+            title = f"{self.config.title}: {outcome.case.name}" if self.config.has_cases else self.config.title
             outcome.files = tuple(self.plots(outcome.response, outcome.directory, title, summary=outcome.summary))
 
     def _summarize(self, outcome: CaseOutcome) -> None:

@@ -53,8 +53,9 @@ from bodebench.bench.events import (
 from bodebench.bench.procedure import CaseOutcome, SweepProcedure, case_directory
 from bodebench.bench.worker import Health
 from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.core.summary import summarize_response
 from bodebench.io.config import CaseConfig, ExperimentConfig
-from bodebench.io.results import CSV_NAME, ResultsError, load_response, save_response
+from bodebench.io.results import CSV_NAME, ResultsError, load_response, save_response, write_summary
 from bodebench.status import FaultKind
 
 VIEWS = ("live", "sweep", "bode", "bus")
@@ -383,7 +384,10 @@ class BodeBenchApp(App[int]):
 
         try:
             save_response(response, directory)
-            files = write_plots(response, directory, response.case)
+            summary = summarize_response(response, self.case.analysis.response_kind)
+            write_summary(directory, [s.to_json() for s in summary])
+            title = f"{self.config.title}: {self.case.name}" if self.config.has_cases else self.config.title
+            files = write_plots(response, directory, title, summary=summary)
         except Exception as exc:  # noqa: BLE001 - reported to the user, never fatal
             self.call_from_thread(self.notify, f"saving failed: {type(exc).__name__}: {exc}", severity="error",
                                   timeout=10)
