@@ -119,8 +119,9 @@ def cost(sim: Simulation, criterion: str, analysis: AnalysisConfig) -> tuple[flo
     hist = SeriesHistory()
     seconds, done, checked = 0.0, False, 0
     while not done:
-        sim.extend_to(min(checked + CHUNK_PERIODS, analysis.max_periods))
-        hist.extend(sim.z[hist.n:])
+        target = min(checked + CHUNK_PERIODS, analysis.max_periods)
+        sim.extend_to(target)
+        hist.extend(sim.z[hist.n:target])
         started = time.process_time()
         done, checked = replay(rule, hist, sim.scale, checked, hist.n, analysis.max_periods)
         seconds += time.process_time() - started
