@@ -829,9 +829,10 @@ class _ScreenTable:
     necessary conditions as :meth:`AdaptiveRule._settled_may_stop`, solved for the reference.
     """
 
-    __slots__ = ("hist", "first", "last", "conv", "low", "high", "below", "m2", "m3", "m4", "within", "lag")
+    __slots__ = ("hist", "first", "last", "conv", "low", "high", "below", "m2", "m3", "m4", "within", "lag", "fit")
 
-    def __init__(self, hist: SeriesHistory, skip: int, first: int, last: int, e: float, budget: float) -> None:
+    def __init__(self, hist: SeriesHistory, skip: int, first: int, last: int, e: float, budget: float,
+                 fit_window: int | None = None) -> None:
         self.hist, self.first, self.last = hist, first, last
         n = np.arange(first, last + 1)
         length = (n - skip) // _BLOCKS
@@ -894,6 +895,42 @@ class _ScreenTable:
         self.conv, self.low, self.high, self.below = conv.tolist(), low2.tolist(), high2.tolist(), below.tolist()
         self.m2, self.m3, self.m4 = means[1].tolist(), means[2].tolist(), means[3].tolist()
         self.within, self.lag = within.tolist(), lag.tolist()
+        # the two-mode fit's screen (fit_window: the rule's shortest window; None: no such fit): per period, the
+        # reference at and above which it may pass
+        self.fit = None if fit_window is None else _two_mode_fit_floors(hist, skip, n, fit_window, e).tolist()
+
+
+def _two_mode_fit_floors(hist: SeriesHistory, skip: int, n: np.ndarray, min_window: int, e: float) -> np.ndarray:
+    """For each period n, the least reference at which :func:`_two_mode_fit_may_pass` holds for the first window
+    of the fit made at n (-inf: at any), worked out for all n at once."""
+    w = np.maximum(min_window, (n - skip) // 4)
+    s = np.maximum(n - 2 * w, 0)
+    rows = w - 2
+    end = s + w
+    cum, cum2, lag, lag2, z0 = hist._cum, hist._cum2, hist._lag, hist._lag2, hist._first
+    d0 = cum[end] - cum[s + 2] - rows * z0
+    d1 = cum[end - 1] - cum[s + 1] - rows * z0
+    d2 = cum[end - 2] - cum[s] - rows * z0
+    g00 = cum2[end] - cum2[s + 2] - np.abs(d0) ** 2 / rows
+    g11 = cum2[end - 1] - cum2[s + 1] - np.abs(d1) ** 2 / rows
+    g22 = cum2[end - 2] - cum2[s] - np.abs(d2) ** 2 / rows
+    g01 = (lag[end] - lag[s + 2]).real - (d0 * np.conj(d1)).real / rows
+    g12 = (lag[end - 1] - lag[s + 1]).real - (d1 * np.conj(d2)).real / rows
+    g02 = (lag2[end] - lag2[s + 2]).real - (d0 * np.conj(d2)).real / rows
+    total = cum2[end]
+    err_d = 4.0 * end * _EPS * (end * abs(z0) + np.sqrt(end * total))
+    err = 2.0 * (8.0 * end * _EPS * total + (2.0 * np.sqrt(rows * total) * err_d + err_d * err_d) / rows)
+    level = np.abs(d0 / rows + z0) + 2.0 * np.abs(d1 / rows + z0) + np.abs(d2 / rows + z0)
+    det = g11 * g22 - g12 * g12
+    with np.errstate(divide="ignore", invalid="ignore"):
+        explained = (g22 * g01 * g01 - 2.0 * g12 * g01 * g02 + g11 * g02 * g02) / det
+        lowest = g00 - explained - 16.0 * err - 1e-7 * (np.abs(g00) + np.abs(explained))
+        need = np.sqrt(np.maximum(lowest, 0.0) / (2 * rows)) / _SLACK  # the limit the residual needs, less a margin
+        always = (rows < 5) | ~np.isfinite(g00 + g11 + g22 + g01 + g12 + g02 + err + level + lowest) \
+            | (g00 <= w * (2.0 * _ROUND_OFF * level) ** 2 + 16.0 * err) \
+            | ~((g11 > 0.0) & (g22 > 0.0) & (det > 1e-6 * g11 * g22)) \
+            | (lowest <= 0.0) | (0.5 * e * level / (1.0 - e) >= need)
+        return np.where(always, -np.inf, need / (2.0 * e * RESOLUTION))
 
 
 def _divide(z: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -957,8 +994,13 @@ class AdaptiveRule(StoppingRule):
             return None
         e = self.eps / 100.0
         screened = self.screened and e < 1.0
-        if screened and self.modes == 2 and not _two_mode_fit_may_pass(hist, n - 2 * w, w, e, RESOLUTION * reference):
-            return None
+        if screened and self.modes == 2:
+            table = self._table
+            if table is not None and table.fit is not None and table.hist is hist and table.first <= n <= table.last:
+                if reference < table.fit[n - table.first]:
+                    return None
+            elif not _two_mode_fit_may_pass(hist, n - 2 * w, w, e, RESOLUTION * reference):
+                return None
         z = hist.values
         first = extrapolate_modes(z[n - 2 * w:n - w], self.modes, predict=w)
         if first is None:
@@ -1005,8 +1047,10 @@ class AdaptiveRule(StoppingRule):
         if table is None or table.hist is not hist or not table.first <= n <= table.last:
             table = None
             if hist.n - n >= _TABLE_AHEAD:
-                table = self._table = _ScreenTable(hist, self.skip, n, min(hist.n, n + _TABLE_SPAN - 1),
-                                                   self.eps / 100.0, _HOPELESS * self.max_periods / _SLACK)
+                e = self.eps / 100.0
+                fit_window = self.min_window if self.modes == 2 and e < 1.0 else None
+                table = self._table = _ScreenTable(hist, self.skip, n, min(hist.n, n + _TABLE_SPAN - 1), e,
+                                                   _HOPELESS * self.max_periods / _SLACK, fit_window)
         if table is None:
             q = _quarters(hist, self.skip, n)
             possible, lag = self._settled_may_stop(hist, q, reference)
