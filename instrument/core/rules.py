@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -818,6 +819,7 @@ def _two_mode_fit_may_pass(hist: SeriesHistory, s: int, w: int, e: float, floor:
 
 _TABLE_SPAN = 1024  # periods whose settled screen is worked out at once
 _TABLE_AHEAD = 16   # periods the history must hold beyond the one checked for a table to pay
+_TABLE_FITS = 16    # scheduled fits in a table's stretch for their screens to be worked out at once
 
 
 class _ScreenTable:
@@ -826,36 +828,34 @@ class _ScreenTable:
     Per period: the reference (the channel's scale, output units) at and above which a converged verdict is
     possible (conv), the open interval (low, high) and the bound below which (below) a noise-limited one is;
     and the quarter-block statistics and lag-1 correlation the settled estimate then takes. The same
-    necessary conditions as :meth:`AdaptiveRule._settled_may_stop`, solved for the reference.
+    necessary conditions as :meth:`AdaptiveRule._settled_may_stop`, solved for the reference. fit: for the
+    periods ``fits`` lists (the modal fit's schedule), the reference at and above which the two-mode fit's
+    screen passes (None where the schedule has too few in the stretch to pay).
     """
 
     __slots__ = ("hist", "first", "last", "conv", "low", "high", "below", "m2", "m3", "m4", "within", "lag", "fit")
 
     def __init__(self, hist: SeriesHistory, skip: int, first: int, last: int, e: float, budget: float,
-                 fit_window: int | None = None) -> None:
+                 fits: Sequence[int] = (), fit_window: int = 0) -> None:
         self.hist, self.first, self.last = hist, first, last
         n = np.arange(first, last + 1)
         length = (n - skip) // _BLOCKS
-        start = n - _BLOCKS * length
-        e1 = start + length
-        e2 = e1 + length
-        e3 = e2 + length
+        edges = n - _BLOCKS * length + length * np.arange(_BLOCKS + 1)[:, None]  # block edges, one row each
         size = length.astype(float)
         cum, cum2, z0 = hist._cum, hist._cum2, hist._first
-        c0, c1, c2, c3, c4 = cum[start], cum[e1], cum[e2], cum[e3], cum[n]
-        means = [_divide(hi - lo, size) for lo, hi in ((c0, c1), (c1, c2), (c2, c3), (c3, c4))]
-        within = np.zeros(n.size)
-        for (lo, hi), m in zip(((e1, e2), (e2, e3), (e3, n)), means[1:], strict=True):
-            scatter = cum2[hi] - cum2[lo] - size * np.abs(m - z0) ** 2
-            within += np.maximum(scatter, 0.0)
+        c = cum[edges]
+        means = _divide(c[1:] - c[:-1], size)  # the four block means
+        sq = cum2[edges[1:]]
+        within = np.maximum((sq[1:] - sq[:-1]) - size * np.abs(means[1:] - z0) ** 2, 0.0).sum(axis=0)
         # |lag-1 autocorrelation| over blocks 2-4, as SeriesHistory.lag_correlation
+        e1 = edges[1]
         span = 3 * length
-        shift = _divide(c4 - c1, span.astype(float)) - z0
-        inner = c4 - cum[e1 + 1] - z0 * (span - 1)
-        outer = cum[n - 1] - c1 - z0 * (span - 1)
+        shift = _divide(c[4] - c[1], span.astype(float)) - z0
+        inner = c[4] - cum[e1 + 1] - z0 * (span - 1)
+        outer = cum[n - 1] - c[1] - z0 * (span - 1)
         cov = (hist._lag[n] - hist._lag[e1 + 1]) - inner * np.conj(shift) - shift * np.conj(outer) \
             + (span - 1) * np.abs(shift) ** 2
-        spread = np.maximum(cum2[n] - cum2[e1] - span * np.abs(shift) ** 2, 0.0)
+        spread = np.maximum(sq[3] - sq[0] - span * np.abs(shift) ** 2, 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
             lag = np.where(spread > 0.0, np.abs(cov) / spread, np.nan)
             r = np.clip(np.nan_to_num(lag - 2.0 / np.sqrt(3 * size), nan=0.0), 0.0, 0.99)
@@ -863,8 +863,8 @@ class _ScreenTable:
             disc2 = dof * ((1.0 - CONFIDENCE) ** (-2.0 / dof) - 1.0)  # the disc factor squared
             var = within / dof
             low = disc2 * var / size * (1.0 + r) / (1.0 - r)
-            a3 = np.abs((means[1] + means[2] + means[3]) / 3)
-            a2 = np.abs((means[2] + means[3]) / 2)
+            a3 = np.abs(means[1:].sum(axis=0) / 3)
+            a2 = np.abs(means[2:].sum(axis=0) / 2)
             d3 = np.abs(means[3] - means[2])
             scale = e * RESOLUTION  # the tolerance floor per unit reference
             # converged: the tolerance at the value of the last three (two) blocks must reach the half-width
@@ -880,13 +880,11 @@ class _ScreenTable:
             top2 = np.sqrt(2.0 * n * high / budget) * _SLACK2
             bottom2 = 3.0 * d3 / _SLACK2
             empty = e * a2 >= top2
-            open_below = e * a2 > bottom2
-            low2 = np.where(empty, np.inf, np.where(open_below, -np.inf, bottom2 / scale))
+            low2 = np.where(empty, np.inf, np.where(e * a2 > bottom2, -np.inf, bottom2 / scale))
             high2 = np.where(empty, -np.inf, top2 / scale)
             top3 = np.sqrt(n * high / (3.0 * budget)) * _SLACK2
-            largest = np.maximum.reduce([np.abs(m) for m in means])
             still = (d3 * d3 <= _DRIFT_SIGMAS ** 2 * 2.0 * _WHITE_RATIO * var / size * _SLACK2) \
-                | (d3 <= _ROUND_OFF * largest * _SLACK)
+                | (d3 <= _ROUND_OFF * np.abs(means).max(axis=0) * _SLACK)
             below = np.where(still & (e * a3 < top3), top3 / scale, -np.inf)
         white = (n - skip >= _MIN_NOISE_EVIDENCE) & (lag <= _WHITE_LAG)
         low2[~white] = np.inf
@@ -895,9 +893,10 @@ class _ScreenTable:
         self.conv, self.low, self.high, self.below = conv.tolist(), low2.tolist(), high2.tolist(), below.tolist()
         self.m2, self.m3, self.m4 = means[1].tolist(), means[2].tolist(), means[3].tolist()
         self.within, self.lag = within.tolist(), lag.tolist()
-        # the two-mode fit's screen (fit_window: the rule's shortest window; None: no such fit): per period, the
-        # reference at and above which it may pass
-        self.fit = None if fit_window is None else _two_mode_fit_floors(hist, skip, n, fit_window, e).tolist()
+        self.fit: dict[int, float] | None = None
+        if len(fits) >= _TABLE_FITS:
+            periods = np.array(fits)
+            self.fit = dict(zip(fits, _two_mode_fit_floors(hist, skip, periods, fit_window, e).tolist(), strict=True))
 
 
 def _two_mode_fit_floors(hist: SeriesHistory, skip: int, n: np.ndarray, min_window: int, e: float) -> np.ndarray:
@@ -934,7 +933,7 @@ def _two_mode_fit_floors(hist: SeriesHistory, skip: int, n: np.ndarray, min_wind
 
 
 def _divide(z: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """z / d for complex z and real d, part by part (as Python divides a complex by a real)."""
+    """z / d for complex z and real d (broadcast), part by part (as Python divides a complex by a real)."""
     out = np.empty(z.shape, dtype=complex)
     out.real = z.real / d
     out.imag = z.imag / d
@@ -996,8 +995,9 @@ class AdaptiveRule(StoppingRule):
         screened = self.screened and e < 1.0
         if screened and self.modes == 2:
             table = self._table
-            if table is not None and table.fit is not None and table.hist is hist and table.first <= n <= table.last:
-                if reference < table.fit[n - table.first]:
+            floor = table.fit.get(n) if table is not None and table.fit is not None and table.hist is hist else None
+            if floor is not None:
+                if reference < floor:
                     return None
             elif not _two_mode_fit_may_pass(hist, n - 2 * w, w, e, RESOLUTION * reference):
                 return None
@@ -1048,9 +1048,15 @@ class AdaptiveRule(StoppingRule):
             table = None
             if hist.n - n >= _TABLE_AHEAD:
                 e = self.eps / 100.0
-                fit_window = self.min_window if self.modes == 2 and e < 1.0 else None
-                table = self._table = _ScreenTable(hist, self.skip, n, min(hist.n, n + _TABLE_SPAN - 1), e,
-                                                   _HOPELESS * self.max_periods / _SLACK, fit_window)
+                last = min(hist.n, n + _TABLE_SPAN - 1)
+                fits = []
+                if self.modes == 2 and e < 1.0:  # the periods the fit's schedule reaches in the stretch
+                    period = max(self._next_extrapolation, n)
+                    while period <= last:
+                        fits.append(period)
+                        period += max(1, (period - self.skip) // 32)
+                table = self._table = _ScreenTable(hist, self.skip, n, last, e, _HOPELESS * self.max_periods / _SLACK,
+                                                   fits, self.min_window)
         if table is None:
             q = _quarters(hist, self.skip, n)
             possible, lag = self._settled_may_stop(hist, q, reference)
