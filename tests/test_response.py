@@ -421,7 +421,7 @@ def test_missing_files(tmp_path: Path) -> None:
         ("{not json", "not valid JSON"),
         ("[1, 2]", "JSON object"),
         (json.dumps({"format": "other", "version": 1, "case": "", "config": {}}), "'format'"),
-        (json.dumps({"format": "bodebench-response", "version": 3, "case": "", "config": {}}), "'version'"),
+        (json.dumps({"format": "bodebench-response", "version": 4, "case": "", "config": {}}), "'version'"),
         (json.dumps({"format": "bodebench-response", "version": 1, "case": ""}), "'config'"),
     ],
 )

@@ -15,10 +15,12 @@ import math
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 from bodebench.bench.events import CaseBegins, CaseSaved, Listener, PointFinished, PointStarted
+from bodebench.bench.runinfo import RunClock, run_record
 from bodebench.bench.session import BenchSession, SessionResult, completed_frequencies
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.summary import ResponseSummary, summarize_response
@@ -30,7 +32,8 @@ from bodebench.io.results import (
     ResultsWriter,
     load_response,
     save_response,
-    write_summary,
+    sidecar_runs,
+    update_sidecar,
 )
 
 PlotWriter = Callable[..., list[Path]]
@@ -81,6 +84,9 @@ class CaseOutcome:
     session: BenchSession | None = None
     result: SessionResult | None = None
     summary: tuple[ResponseSummary, ...] = ()
+    clock: RunClock = field(default_factory=RunClock)
+    earlier_runs: list[dict[str, Any]] = field(default_factory=list)
+    resumed: bool = False
 
 
 class SweepProcedure:
@@ -175,7 +181,8 @@ class SweepProcedure:
                                                              frequencies_hz=(frequency_hz,)))
         directory = self._directory(index)
         self.listener(CaseBegins(index, case.name, directory, frequency_hz))
-        outcome = CaseOutcome(index, case, directory, FrequencyResponse(config=case.raw, case=case.name))
+        outcome = CaseOutcome(index, case, directory, FrequencyResponse(config=case.raw, case=case.name),
+                              earlier_runs=sidecar_runs(directory))
         self.current = outcome
         result = self._bench_case(outcome, None, write=False)
         merged = merge_frequency(base or FrequencyResponse(config=case.raw, case=case.name),
@@ -202,7 +209,9 @@ class SweepProcedure:
         case = self._case(index)
         directory = self._directory(index)
         self.listener(CaseBegins(index, case.name, directory))
-        outcome = CaseOutcome(index, case, directory, FrequencyResponse(config=case.raw, case=case.name))
+        outcome = CaseOutcome(index, case, directory, FrequencyResponse(config=case.raw, case=case.name),
+                              earlier_runs=sidecar_runs(directory) if previous is not None else [],
+                              resumed=previous is not None)
         self.current = outcome
         self.outcomes.append(outcome)
         if case.bench is None:
@@ -215,7 +224,7 @@ class SweepProcedure:
             outcome.response = outcome.session.response if outcome.session else outcome.response
             if outcome.response.points:
                 try:
-                    self._summarize(outcome)
+                    self._summarize(outcome, completed=False)
                     self._draw(outcome)
                 except (OSError, ResultsError):
                     pass  # the plots only: the points are on disk already
@@ -265,10 +274,20 @@ class SweepProcedure:
             title = f"{self.config.title}: {outcome.case.name}" if self.config.has_cases else self.config.title
             outcome.files = tuple(self.plots(outcome.response, outcome.directory, title, summary=outcome.summary))
 
-    def _summarize(self, outcome: CaseOutcome) -> None:
-        """The figures read off the case's response, into the outcome and the sidecar."""
+    def _summarize(self, outcome: CaseOutcome, completed: bool = True) -> None:
+        """The figures read off the case's response, into the outcome and the sidecar, with the record of this
+        run after those of the runs it continues."""
         outcome.summary = tuple(summarize_response(outcome.response, outcome.case.analysis.response_kind))
-        write_summary(outcome.directory, [s.to_json() for s in outcome.summary])
+        result = outcome.result
+        if result is None and outcome.session is not None and outcome.session.last_health is not None:
+            health = outcome.session.last_health
+            result = SessionResult(outcome.response, False, "", math.nan, False, health.round_trip_s, health)
+        record = run_record(outcome.case, outcome.clock, direct=self.direct, points=len(outcome.response),
+                            resumed=outcome.resumed, result=result,
+                            completed=completed and (outcome.result is None or outcome.result.completed),
+                            reason=outcome.result.reason if outcome.result is not None else "")
+        update_sidecar(outcome.directory, {"summary": [s.to_json() for s in outcome.summary],
+                                           "runs": [*outcome.earlier_runs, record]})
 
     def _finish(self, outcome: CaseOutcome) -> None:
         self._summarize(outcome)

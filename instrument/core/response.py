@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -65,7 +65,8 @@ class ResponsePoint:
     the requested tolerance would take (0: not estimated), ``thd`` on a harmonic-1 point the total harmonic
     distortion of the channel's output from the harmonics measured (dimensionless; NaN: none measured, or not a
     harmonic-1 point), ``coherence`` the series' coherence with the excitation over its later analysed periods
-    (dimensionless, 0 to 1; NaN: not stated), both defined in :mod:`bodebench.core.quality`.
+    (dimensionless, 0 to 1; NaN: not stated), both defined in :mod:`bodebench.core.quality` and left out of
+    comparisons between points (NaN, their usual value where not stated, equals nothing).
     ``p`` and ``q`` may be NaN (e.g. a failed point) but not infinite.
     """
 
@@ -82,8 +83,8 @@ class ResponsePoint:
     uncertainty_1d: float = math.nan
     within_eps: bool = False
     periods_needed: int = 0
-    thd: float = math.nan
-    coherence: float = math.nan
+    thd: float = field(default=math.nan, compare=False)
+    coherence: float = field(default=math.nan, compare=False)
 
     def __post_init__(self) -> None:
         def set_(name: str, value: object) -> None:

@@ -33,6 +33,8 @@ __all__ = [
     "check_output",
     "load_response",
     "save_response",
+    "sidecar_runs",
+    "update_sidecar",
     "write_summary",
 ]
 
@@ -354,15 +356,31 @@ def save_response(response: FrequencyResponse, directory: str | Path) -> None:
     atomic_write_text(directory / CSV_NAME, csv_text)
 
 
-def write_summary(directory: str | Path, summary: list[dict[str, Any]]) -> None:
-    """Add (or replace) the ``summary`` key of ``directory``'s sidecar atomically: the figures read off the
-    response (:func:`bodebench.core.summary.summarize_response`, as JSON), written when a case is finished."""
+def update_sidecar(directory: str | Path, values: Mapping[str, Any]) -> None:
+    """Add (or replace) keys of ``directory``'s sidecar atomically, e.g. ``summary`` (the figures read off the
+    response) and ``runs`` (the record of each run), written when a case is finished."""
     path = Path(directory) / SIDECAR_NAME
     data = read_json_file(path, ResultsError, "sidecar file")
     if not isinstance(data, dict):
         raise ResultsError(f"{path}: sidecar must hold a JSON object, got {type(data).__name__}")
-    data["summary"] = summary
+    data.update(values)
     atomic_write_text(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
+
+
+def write_summary(directory: str | Path, summary: list[dict[str, Any]]) -> None:
+    """The ``summary`` key of the sidecar (:func:`bodebench.core.summary.summarize_response`, as JSON)."""
+    update_sidecar(directory, {"summary": summary})
+
+
+def sidecar_runs(directory: str | Path) -> list[dict[str, Any]]:
+    """The ``runs`` records of ``directory``'s sidecar ([] when there is no sidecar or no such key)."""
+    path = Path(directory) / SIDECAR_NAME
+    try:
+        data = read_json_file(path, ResultsError, "sidecar file")
+    except ResultsError:
+        return []
+    runs = data.get("runs") if isinstance(data, dict) else None
+    return [r for r in runs if isinstance(r, dict)] if isinstance(runs, list) else []
 
 
 def load_response(directory: str | Path, *, drop_torn_row: bool = False) -> FrequencyResponse:

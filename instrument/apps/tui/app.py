@@ -55,7 +55,14 @@ from bodebench.bench.worker import Health
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.summary import summarize_response
 from bodebench.io.config import CaseConfig, ExperimentConfig
-from bodebench.io.results import CSV_NAME, ResultsError, load_response, save_response, write_summary
+from bodebench.io.results import (
+    CSV_NAME,
+    ResultsError,
+    load_response,
+    save_response,
+    sidecar_runs,
+    update_sidecar,
+)
 from bodebench.status import FaultKind
 
 VIEWS = ("live", "sweep", "bode", "bus")
@@ -383,9 +390,10 @@ class BodeBenchApp(App[int]):
         from bodebench.apps.plots import write_plots
 
         try:
+            runs = sidecar_runs(directory)  # the records of the runs that made these points stay
             save_response(response, directory)
             summary = summarize_response(response, self.case.analysis.response_kind)
-            write_summary(directory, [s.to_json() for s in summary])
+            update_sidecar(directory, {"summary": [s.to_json() for s in summary], "runs": runs})
             title = f"{self.config.title}: {self.case.name}" if self.config.has_cases else self.config.title
             files = write_plots(response, directory, title, summary=summary)
         except Exception as exc:  # noqa: BLE001 - reported to the user, never fatal
