@@ -43,6 +43,7 @@ from bodebench.io.tables import (
     CanConfig,
     ExcitationConfig,
     PlantConfig,
+    ResultsConfig,
     SafetyConfig,
     SerialConfig,
     SimulatorConfig,
@@ -79,6 +80,7 @@ TABLES: dict[str, type] = {
     "serial": SerialConfig,
     "safety": SafetyConfig,
     "simulator": SimulatorConfig,
+    "results": ResultsConfig,
 }
 """The schema tables, by TOML name. Each may also appear inside ``[cases.NAME]``."""
 
@@ -119,6 +121,7 @@ class CaseConfig:
     serial: SerialConfig | None = None
     safety: SafetyConfig | None = None
     simulator: SimulatorConfig | None = None
+    results: ResultsConfig | None = None
     layout: Layout | None = field(default=None, compare=False, repr=False)
 
     @property
@@ -204,6 +207,7 @@ def _build_case(
         serial=built["serial"],
         safety=built["safety"],
         simulator=built["simulator"],
+        results=built["results"],
         layout=layout,
     )
 

@@ -21,6 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from bodebench.core.response import FrequencyResponse, ResponsePoint, _is_int, _normalise_config
+from bodebench.core.summary import CONFIDENCE
+from bodebench.io.csvstyle import CsvStyle, preamble, style_of_config, style_of_header
 
 __all__ = [
     "CSV_COLUMNS",
@@ -73,6 +75,7 @@ _CSV_COLUMNS_V2 = CSV_COLUMNS[:19]
 _OLDER_COLUMNS = (_CSV_COLUMNS_V1, _CSV_COLUMNS_V2)
 _DERIVED_COLUMNS: tuple[str, ...] = ("gain", "gain_db", "phase_deg", "gain_ci", "gain_db_ci", "phase_ci_deg")
 _DERIVED_RTOL = 1e-9
+_DEFAULT_STYLE = CsvStyle()
 
 class ResultsError(ValueError):
     """A results file or sidecar is missing, malformed or inconsistent."""
@@ -158,27 +161,46 @@ def _format_float(value: float) -> str:
     return repr(float(value))  # shortest round-tripping form; 'nan', 'inf', '-inf' for non-finite values
 
 
-def _point_row(point: ResponsePoint) -> str:
+def _point_row(point: ResponsePoint, style: CsvStyle = _DEFAULT_STYLE) -> str:
+    def num(value: float) -> str:
+        return style.number(_format_float(value))
+
     values: dict[str, str] = {
-        "frequency_hz": _format_float(point.frequency_hz),
+        "frequency_hz": num(point.frequency_hz),
         "harmonic": str(point.harmonic),
         "channel": point.channel,
-        "amplitude": _format_float(point.amplitude),
-        "p": _format_float(point.p),
-        "q": _format_float(point.q),
+        "amplitude": num(point.amplitude),
+        "p": num(point.p),
+        "q": num(point.q),
         "periods": str(point.periods),
         "converged": "true" if point.converged else "false",
         "status": point.status,
-        "uncertainty": _format_float(point.uncertainty),
-        "uncertainty_1d": _format_float(point.uncertainty_1d),
+        "uncertainty": num(point.uncertainty),
+        "uncertainty_1d": num(point.uncertainty_1d),
         "within_eps": "true" if point.within_eps else "false",
         "periods_needed": str(point.periods_needed),
-        "thd": _format_float(point.thd),
-        "coherence": _format_float(point.coherence),
+        "thd": num(point.thd),
+        "coherence": num(point.coherence),
     }
     for name in _DERIVED_COLUMNS:
-        values[name] = _format_float(getattr(point, name))
-    return ",".join(values[name] for name in CSV_COLUMNS)
+        values[name] = num(getattr(point, name))
+    try:
+        return style.join([values[name] for name in CSV_COLUMNS])
+    except ValueError as exc:
+        raise ResultsError(f"point at {point.frequency_hz:g} Hz: {exc}") from None
+
+
+def _file_head(style: CsvStyle) -> str:
+    """The comment block and the header line of a new response.csv."""
+    return preamble(FORMAT_VERSION, CONFIDENCE, style, CSV_COLUMNS) + style.join(list(CSV_COLUMNS)) + "\n"
+
+
+def _header_index(lines: list[str]) -> int:
+    """Index of the header line: the first that is not a comment (len(lines) when there is none)."""
+    for index, line in enumerate(lines):
+        if not line.startswith("#"):
+            return index
+    return len(lines)
 
 
 def _agree(stored: float, computed: float) -> bool:
@@ -197,38 +219,44 @@ def _parse_csv(path: Path, drop_torn_row: bool = False) -> list[ResponsePoint]:
     except (OSError, UnicodeDecodeError) as exc:
         raise ResultsError(f"{path}: cannot read results file: {exc}") from None
     lines = text.split("\n")
-    torn = len(lines) > 2 and lines[-1] != "" and _torn(path, len(lines), lines[-1], lines[0])
+    h = _header_index(lines)
+    header_line = lines[h] if h < len(lines) else ""
+    style = style_of_header(header_line)
+    torn = len(lines) > h + 2 and lines[-1] != "" and _torn(path, len(lines), lines[-1], header_line)
     if torn and not drop_torn_row:
         raise ResultsError(f"{path}: line {len(lines)}: unterminated row, cut short by an interrupted write "
                            "(resuming the sweep drops it and measures that frequency again)")
     if torn or (lines and lines[-1] == ""):
         lines.pop()  # the final newline, or a row an interrupted append left unterminated (never written)
-    if not lines:
-        raise ResultsError(f"{path}: line 1: empty file, expected header {','.join(CSV_COLUMNS)!r}")
-    header = lines[0].rstrip("\r").split(",")
-    columns = _columns_of(lines[0])
+    if h >= len(lines):
+        raise ResultsError(f"{path}: line {h + 1}: empty file, expected header {','.join(CSV_COLUMNS)!r}")
+    header = lines[h].rstrip("\r").split(style.delimiter)
+    columns = _columns_of(lines[h])
     if tuple(header) != columns:
         for index, (got, want) in enumerate(zip(header, CSV_COLUMNS, strict=False)):
             if got != want:
                 raise ResultsError(
-                    f"{path}: line 1: bad header, column {index + 1} is {got!r}, expected {want!r}"
+                    f"{path}: line {h + 1}: bad header, column {index + 1} is {got!r}, expected {want!r}"
                 )
         raise ResultsError(
-            f"{path}: line 1: bad header, {len(header)} columns, expected {len(CSV_COLUMNS)}: {','.join(CSV_COLUMNS)!r}"
+            f"{path}: line {h + 1}: bad header, {len(header)} columns, expected {len(CSV_COLUMNS)}: "
+            f"{','.join(CSV_COLUMNS)!r}"
         )
-    return [_parse_line(path, lineno, line, columns) for lineno, line in enumerate(lines[1:], start=2)]
+    return [_parse_line(path, lineno, line, columns, style)
+            for lineno, line in enumerate(lines[h + 1:], start=h + 2)]
 
 
-def _parse_line(path: Path, lineno: int, line: str, columns: tuple[str, ...]) -> ResponsePoint:
-    cells = line.rstrip("\r").split(",")
+def _parse_line(path: Path, lineno: int, line: str, columns: tuple[str, ...],
+                style: CsvStyle = _DEFAULT_STYLE) -> ResponsePoint:
+    cells = line.rstrip("\r").split(style.delimiter)
     if len(cells) != len(columns):
         raise ResultsError(f"{path}: line {lineno}: {len(cells)} columns, expected {len(columns)}")
-    return _parse_row(path, lineno, dict(zip(columns, cells, strict=True)))
+    return _parse_row(path, lineno, dict(zip(columns, cells, strict=True)), decimal_comma=style.decimal == ",")
 
 
 def _columns_of(header: str) -> tuple[str, ...]:
     """The columns of a file with this header line: an older version's, else the current ones."""
-    names = tuple(header.rstrip("\r").split(","))
+    names = tuple(header.rstrip("\r").split(style_of_header(header).delimiter))
     return names if names in _OLDER_COLUMNS else CSV_COLUMNS
 
 
@@ -236,17 +264,17 @@ def _torn(path: Path, lineno: int, line: str, header: str) -> bool:
     """Whether an unterminated last row is the remains of an interrupted append (it does not parse)."""
     columns = _columns_of(header)
     try:
-        _parse_line(path, lineno, line, columns)
+        _parse_line(path, lineno, line, columns, style_of_header(header))
     except ResultsError:
         return True
     return False
 
 
-def _parse_row(path: Path, lineno: int, row: dict[str, str]) -> ResponsePoint:
+def _parse_row(path: Path, lineno: int, row: dict[str, str], decimal_comma: bool = False) -> ResponsePoint:
     where = f"{path}: line {lineno}"
 
     def number(name: str) -> float:
-        cell = row[name]
+        cell = row[name].replace(",", ".") if decimal_comma else row[name]
         try:
             return float(cell)
         except ValueError:
@@ -344,14 +372,12 @@ def _sidecar_text(case: str, config: Mapping[str, Any]) -> str:
     return json.dumps(sidecar, indent=2) + "\n"
 
 
-_HEADER = ",".join(CSV_COLUMNS) + "\n"
-
-
 def save_response(response: FrequencyResponse, directory: str | Path) -> None:
     """Write ``directory/response.csv`` and ``directory/response.json`` atomically (creates the directory)."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    csv_text = _HEADER + "".join(_point_row(point) + "\n" for point in response.points)
+    style = style_of_config(response.config)
+    csv_text = _file_head(style) + "".join(_point_row(point, style) + "\n" for point in response.points)
     atomic_write_text(directory / SIDECAR_NAME, _sidecar_text(response.case, response.config))
     atomic_write_text(directory / CSV_NAME, csv_text)
 
@@ -407,23 +433,28 @@ class ResultsWriter:
         self.directory = Path(directory)
         self.directory.mkdir(parents=True, exist_ok=True)
         self.path = self.directory / CSV_NAME
+        self.style = style_of_config(config)
         atomic_write_text(self.directory / SIDECAR_NAME, _sidecar_text(case, config))
         if resume and self.path.exists():
             _end_last_row(self.path)
             with open(self.path, encoding="utf-8") as handle:
-                header = handle.readline().rstrip("\n")
-            if _columns_of(header) != CSV_COLUMNS:  # an older format: its rows rewritten in the current one
-                points = _parse_csv(self.path)
-                atomic_write_text(self.path, _HEADER + "".join(_point_row(p) + "\n" for p in points))
+                first = handle.readline()
+                header = first
+                while header.startswith("#"):
+                    header = handle.readline()
+            if _columns_of(header.rstrip("\n")) != CSV_COLUMNS or not first.startswith("#"):
+                points = _parse_csv(self.path)  # an older format: its rows rewritten in the current one
+                atomic_write_text(self.path, _file_head(self.style)
+                                  + "".join(_point_row(p, self.style) + "\n" for p in points))
         else:
-            atomic_write_text(self.path, _HEADER)
+            atomic_write_text(self.path, _file_head(self.style))
 
     def append(self, points: list[ResponsePoint] | tuple[ResponsePoint, ...]) -> None:
         """Append ``points`` (one frequency's, typically) and sync them to disk. A write that fails (a full disk,
         a file size limit) is undone before the error propagates: the file keeps its whole rows only."""
         if not points:
             return
-        data = "".join(_point_row(point) + "\n" for point in points).encode("utf-8")
+        data = "".join(_point_row(point, self.style) + "\n" for point in points).encode("utf-8")
         fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
         try:
             start = os.lseek(fd, 0, os.SEEK_END)
@@ -447,7 +478,8 @@ def _end_last_row(path: Path) -> None:
         if not data or data.endswith(b"\n"):
             return
         start = data.rfind(b"\n") + 1
-        header = data[: data.find(b"\n")].decode("utf-8", "replace")
+        header = next((line for line in data.split(b"\n") if not line.startswith(b"#")), b"").decode(
+            "utf-8", "replace")
         lineno = data.count(b"\n") + 1
         if start and not _torn(path, lineno, data[start:].decode("utf-8", "replace"), header):
             handle.write(b"\n")

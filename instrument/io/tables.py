@@ -23,6 +23,7 @@ __all__ = [
     "CanConfig",
     "ExcitationConfig",
     "PlantConfig",
+    "ResultsConfig",
     "SafetyConfig",
     "SerialConfig",
     "SimulatorConfig",
@@ -328,3 +329,22 @@ class SimulatorConfig:
     seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of the jitter and the noise"})
     faults: FaultConfig = field(default_factory=FaultConfig, metadata={
         "doc": "fault injection on the wire and in the drive (drivers/PROTOCOL.md section 7)"})
+
+
+@dataclass(frozen=True)
+class ResultsConfig:
+    """How response.csv is written: its delimiter and decimal mark, for spreadsheets of comma-decimal locales."""
+
+    TABLE_OPTIONAL = True
+
+    delimiter: str = field(default=",", metadata={
+        "choices": (",", ";", "tab"), "doc": 'column delimiter of response.csv: ",", ";" or "tab"'})
+    decimal: str = field(default=".", metadata={
+        "choices": (".", ","), "doc": 'decimal mark of the numbers in response.csv: "." or "," (not with the '
+                                      'comma delimiter)'})
+
+    def validate(self, where: Callable[[str], str]) -> None:
+        """A decimal comma needs another delimiter; raises :class:`FieldError`."""
+        if self.decimal == "," and self.delimiter == ",":
+            raise FieldError("decimal", f'"," needs {where("delimiter")} = ";" or "tab" (the comma separates '
+                                        "the columns)")
