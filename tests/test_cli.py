@@ -47,8 +47,8 @@ def test_simulate_writes_one_directory_per_case(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     for case, zeta in (("light", 0.05), ("heavy", 0.7)):
         d = tmp_path / "out" / case
-        with open(d / "response.csv", newline="") as fh:
-            rows = list(csv.DictReader(fh))
+        with open(d / "response.csv", newline="") as fh:  # the comment lines above the header skipped
+            rows = list(csv.DictReader(line for line in fh if not line.startswith("#")))
         assert {"frequency_hz", "harmonic", "gain", "gain_db", "phase_deg", "periods", "converged"} <= set(rows[0])
         assert len(rows) == 6
         sidecar = json.loads((d / "response.json").read_text())

@@ -23,6 +23,9 @@ HEADER = (
     "frequency_hz,harmonic,channel,amplitude,gain,gain_db,phase_deg,p,q,periods,converged,status,"
     "uncertainty,gain_ci,gain_db_ci,phase_ci_deg,uncertainty_1d,within_eps,periods_needed,thd,coherence"
 )
+HEAD = 3 + len(HEADER.split(","))
+"""Comment lines above the header of a response.csv: what a row is, the confidence level, the style, a line per
+column."""
 
 
 def point(
@@ -294,8 +297,8 @@ def test_csv_layout(tmp_path: Path) -> None:
     fr = FrequencyResponse([point(3.0, 4.0, amplitude=2.0, periods=7, converged=False, status="capped")])
     save_response(fr, tmp_path)
     lines = (tmp_path / "response.csv").read_text().splitlines()
-    assert lines[0] == HEADER
-    cells = dict(zip(HEADER.split(","), lines[1].split(","), strict=False))
+    assert all(line.startswith("# ") for line in lines[:HEAD]) and lines[HEAD] == HEADER
+    cells = dict(zip(HEADER.split(","), lines[HEAD + 1].split(","), strict=False))
     assert float(cells["gain"]) == pytest.approx(2.5)
     assert cells["converged"] == "false" and cells["status"] == "capped" and cells["periods"] == "7"
     assert cells["uncertainty"] == "nan"
@@ -336,7 +339,7 @@ def test_a_row_an_interrupted_append_left_is_not_read_and_resuming_cuts_it(tmp_p
     row = whole.split(b"\n")[-2]
     for cut in (1, len(row) // 2, len(row) - 20):  # torn inside the first, a middle and a derived column
         (tmp_path / "response.csv").write_bytes(whole + row[:cut])
-        with pytest.raises(ResultsError, match=r"response\.csv: line 4: unterminated row"):
+        with pytest.raises(ResultsError, match=rf"response\.csv: line {HEAD + 4}: unterminated row"):
             load_response(tmp_path)
         assert rows(load_response(tmp_path, drop_torn_row=True).points) == rows(points[:2])
         ResultsWriter(tmp_path, "live", {}, resume=True).append(points[2:])
@@ -355,6 +358,8 @@ def test_config_must_be_json_serialisable() -> None:
 
 
 def _replace_cell(csv_path: Path, line: int, column: str, value: str) -> None:
+    """Replace a cell of ``line`` counted from the header (line 1)."""
+    line += HEAD
     lines = csv_path.read_text().split("\n")
     cells = lines[line - 1].split(",")
     cells[HEADER.split(",").index(column)] = value
@@ -369,7 +374,7 @@ def test_tampered_derived_column_names_file_line_column(tmp_path: Path, column: 
     with pytest.raises(ResultsError) as info:
         load_response(tmp_path)
     message = str(info.value)
-    assert "response.csv" in message and "line 2" in message and repr(column) in message
+    assert "response.csv" in message and f"line {HEAD + 2}:" in message and repr(column) in message
 
 
 def test_derived_within_tolerance_accepted(tmp_path: Path) -> None:
@@ -381,7 +386,7 @@ def test_derived_within_tolerance_accepted(tmp_path: Path) -> None:
 def test_unparsable_number_names_column(tmp_path: Path) -> None:
     save_response(sample_response(), tmp_path)
     _replace_cell(tmp_path / "response.csv", 3, "p", "1.2.3")
-    with pytest.raises(ResultsError, match=r"line 3.*'p'"):
+    with pytest.raises(ResultsError, match=rf"line {HEAD + 3}:.*'p'"):
         load_response(tmp_path)
 
 
@@ -390,7 +395,7 @@ def test_truncated_csv(tmp_path: Path) -> None:
     csv_path = tmp_path / "response.csv"
     text = csv_path.read_text()
     csv_path.write_text(text[: len(text) - 25])
-    with pytest.raises(ResultsError, match=r"response\.csv: line 7"):
+    with pytest.raises(ResultsError, match=rf"response\.csv: line {HEAD + 7}"):
         load_response(tmp_path)
 
 
@@ -398,7 +403,7 @@ def test_bad_header(tmp_path: Path) -> None:
     save_response(sample_response(), tmp_path)
     csv_path = tmp_path / "response.csv"
     csv_path.write_text(csv_path.read_text().replace("gain_db,", "gain_dB,", 1))
-    with pytest.raises(ResultsError, match=r"line 1.*gain_dB"):
+    with pytest.raises(ResultsError, match=rf"line {HEAD + 1}:.*gain_dB"):
         load_response(tmp_path)
 
 

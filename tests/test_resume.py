@@ -33,7 +33,7 @@ def small_config(tmp_path: Path) -> Path:
 
 
 def measured_rows(directory: Path) -> list[str]:
-    return (directory / "response.csv").read_text().splitlines()[1:]
+    return [line for line in (directory / "response.csv").read_text().splitlines() if not line.startswith("#")][1:]
 
 
 def test_kill_9_then_resume_keeps_every_converged_point(tmp_path: Path) -> None:
@@ -91,7 +91,7 @@ def test_corrupt_results_directory_gives_one_line(tmp_path: Path, damage: str) -
     response = FrequencyResponse(config={}, case="x")
     save_response(response, out)
     csv = out / "response.csv"
-    header = csv.read_text().splitlines()[0]
+    header = next(line for line in csv.read_text().splitlines() if not line.startswith("#"))
     if damage == "truncate":
         csv.write_text(header + "\n3.0,1,position,0.01,0.7")
     elif damage == "garbage":
