@@ -39,12 +39,13 @@ def measure_frequency(case: CaseConfig, frequency_hz: float) -> list[ResponsePoi
     period-by-period run would need.
     """
     analysis = case.analysis
+    settle = case.excitation.settle_at(frequency_hz)  # whole periods simulated before period 1
     plant = build_plant(case.plant)
     channel = plant.output_names.index(OUTPUT_CHANNEL)
-    amplitude = case.excitation.amplitude
+    amplitude = case.excitation.amplitude_at(frequency_hz)
     steps = analysis.steps_per_period
     h = 1.0 / (steps * frequency_hz)
-    sampler = Autointegrator(frequency_hz, amplitude, (OUTPUT_CHANNEL,), analysis)
+    sampler = Autointegrator(frequency_hz, amplitude, (OUTPUT_CHANNEL,), analysis, t0=settle / frequency_hz)
     state = plant.initial_state()
     sampler.feed(np.array([0.0]), np.zeros((1, 1)))
     step = 0

@@ -177,8 +177,7 @@ class SweepProcedure:
     def remeasure(self, index: int, frequency_hz: float, base: FrequencyResponse | None) -> CaseOutcome:
         """Measure one frequency of bench case ``index`` again and save ``base`` (the case's points so far) with
         that frequency's points replaced."""
-        case = replace(self._case(index), excitation=replace(self._case(index).excitation,
-                                                             frequencies_hz=(frequency_hz,)))
+        case = replace(self._case(index), excitation=self._case(index).excitation.only(frequency_hz))
         directory = self._directory(index)
         self.listener(CaseBegins(index, case.name, directory, frequency_hz))
         outcome = CaseOutcome(index, case, directory, FrequencyResponse(config=case.raw, case=case.name),

@@ -269,14 +269,15 @@ class BenchSession:
     def _measure(self, index: int, f: float) -> None:
         bench = self.bench
         analysis = self._analysis()
-        amplitude = self.case.excitation.amplitude
+        amplitude = self.case.excitation.amplitude_at(f)
+        settle = self.case.excitation.settle_at(f)  # whole periods at full amplitude before period 1
         outputs = bench.output_channels
         reference = bench.reference_channel
         columns = [self.channels.index(n) for n in outputs + ((reference,) if reference else ())]
         self._conn.send(StartSine(f, amplitude, bench.ramp_in_periods, bench.ramp_out_periods))
         self.listener(PointStarted(index, f, analysis.tolerance_percent, analysis.criterion))
         started = self._expect(SineStarted, timeout=60.0)
-        t0 = started.tick * self.period + bench.ramp_in_periods / f
+        t0 = started.tick * self.period + (bench.ramp_in_periods + settle) / f
         sampler = Autointegrator(f, amplitude, outputs, analysis, t0=t0, reference=reference or None)
         ticks_per_period = max(1, math.ceil(1.0 / (f * self.period)))
         held: tuple[float, np.ndarray] | None = None  # the last sample at or before t0
@@ -304,7 +305,9 @@ class BenchSession:
                 if before.size:
                     held = (float(t[before[-1]]), values[before[-1]])
             t, values = t[keep], values[keep]
-            if t.size == 0:
+            if t.size == 0:  # still before period 1 (the ramp, the settle periods): the drive goes on
+                if bench.clock == "lockstep":
+                    self._conn.send(Credit(message.last_tick + ticks_per_period))
                 continue
             if held is not None and held[0] <= t0:
                 t = np.concatenate([[held[0]], t])

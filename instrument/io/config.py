@@ -291,24 +291,28 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
     safety: SafetyConfig | None = tables.get("safety")
     if safety is None:
         raise _Fault("safety", "a bench config needs a [safety] table (at least max_amplitude)")
-    amplitude = tables["excitation"].amplitude
-    if amplitude > safety.max_amplitude:
+    excitation: ExcitationConfig = tables["excitation"]
+    if excitation.amplitude > safety.max_amplitude:
         raise _Fault(key("excitation", "amplitude"),
-                             f"{amplitude:g} exceeds safety.max_amplitude ({safety.max_amplitude:g})")
+                             f"{excitation.amplitude:g} exceeds safety.max_amplitude ({safety.max_amplitude:g})")
     top = max(tables["analysis"].harmonics)
-    for i, f in enumerate(tables["excitation"].frequencies_hz):
+    for i, f in enumerate(excitation.frequencies_hz):
+        at = (f"{key('excitation', 'frequencies_hz')}[{i}]" if excitation.frequencies is None
+              else f"{key('excitation', 'frequencies')} (frequency {i})")
+        amplitude = excitation.amplitude_at(f)
+        if amplitude > safety.max_amplitude:
+            rule = "amplitudes" if excitation.amplitudes is not None else "amplitude_profile"
+            raise _Fault(f"{key('excitation', rule)}" + (f"[{i}]" if rule == "amplitudes" else ""),
+                         f"{amplitude:g} at {f:g} Hz exceeds safety.max_amplitude ({safety.max_amplitude:g})")
         if f < MIN_FREQUENCY_HZ:
-            raise _Fault(f"{key('excitation', 'frequencies_hz')}[{i}]",
-                                 f"{f:g} Hz is below {MIN_FREQUENCY_HZ:g} Hz (a period of 1000 s): a point would "
+            raise _Fault(at, f"{f:g} Hz is below {MIN_FREQUENCY_HZ:g} Hz (a period of 1000 s): a point would "
                                  "take hours")
         if top * f * MIN_SAMPLES_PER_PERIOD > bench.rate_hz:
-            raise _Fault(f"{key('excitation', 'frequencies_hz')}[{i}]",
-                                 f"{f:g} Hz: harmonic {top} needs at least {MIN_SAMPLES_PER_PERIOD} samples a "
+            raise _Fault(at, f"{f:g} Hz: harmonic {top} needs at least {MIN_SAMPLES_PER_PERIOD} samples a "
                                  f"period at bench.rate_hz = {bench.rate_hz:g} (at most "
                                  f"{bench.rate_hz / (MIN_SAMPLES_PER_PERIOD * top):g} Hz)")
         if safety.max_rate is not None and 2 * math.pi * f * amplitude > safety.max_rate:
-            raise _Fault(f"{key('excitation', 'frequencies_hz')}[{i}]",
-                                 f"{f:g} Hz: the sine's slew 2*pi*f*A = {2 * math.pi * f * amplitude:g} exceeds "
+            raise _Fault(at, f"{f:g} Hz: the sine's slew 2*pi*f*A = {2 * math.pi * f * amplitude:g} exceeds "
                                  f"safety.max_rate ({safety.max_rate:g})")
     try:
         layout = default_layout() if frames is None else Layout.from_mapping(frames, source)

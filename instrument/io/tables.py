@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from bodebench.core.rules import CRITERIA
 from bodebench.core.summary import RESPONSE_KINDS
@@ -18,10 +18,12 @@ from bodebench.io.schema import FieldError
 from bodebench.sim.faults import FaultConfig
 
 __all__ = [
+    "AmplitudeProfile",
     "AnalysisConfig",
     "BenchConfig",
     "CanConfig",
     "ExcitationConfig",
+    "FrequencyRange",
     "PlantConfig",
     "ResultsConfig",
     "SafetyConfig",
@@ -161,22 +163,151 @@ class PlantConfig:
     )
 
 
+PLAN_MAX_POINTS = 10_000
+"""Most frequencies a log-spaced range may expand to."""
+
+
+@dataclass(frozen=True)
+class FrequencyRange:
+    """Log-spaced frequencies: ``start_hz * 10**(i / per_decade)`` for i = 0, 1, ... up to ``stop_hz``, each
+    rounded to 6 significant digits; ``stop_hz`` is the last one when it falls on the grid (within 1e-9)."""
+
+    start_hz: float = field(metadata={"min": 0, "min_exclusive": True, "doc": "first frequency, Hz"})
+    stop_hz: float = field(metadata={"min": 0, "min_exclusive": True, "doc": "last frequency at most, Hz"})
+    per_decade: int = field(metadata={"min": 1, "max": 1000, "doc": "points per decade"})
+
+    def validate(self, where: Callable[[str], str]) -> None:
+        """Stop above start, and not too many points; raises :class:`FieldError`."""
+        if not self.stop_hz > self.start_hz:
+            raise FieldError("stop_hz", f"must be > {where('start_hz')} ({self.start_hz:g} Hz), got {self.stop_hz:g}")
+        count = len(self.expand())
+        if count > PLAN_MAX_POINTS:
+            raise FieldError("per_decade", f"{count} frequencies, more than {PLAN_MAX_POINTS}")
+
+    def expand(self) -> tuple[float, ...]:
+        """The frequencies, Hz, ascending."""
+        decades = math.log10(self.stop_hz / self.start_hz)
+        count = math.floor(decades * self.per_decade + 1e-9) + 1
+        return tuple(float(f"{self.start_hz * 10.0 ** (i / self.per_decade):.6g}") for i in range(count))
+
+
+@dataclass(frozen=True)
+class AmplitudeProfile:
+    """Amplitude against frequency: straight lines between the knots on log-log axes, constant beyond the ends."""
+
+    frequencies_hz: tuple[float, ...] = field(metadata={
+        "min": 0, "min_exclusive": True, "non_empty": True, "unique": True, "doc": "knot frequencies, Hz, ascending"})
+    amplitudes: tuple[float, ...] = field(metadata={
+        "min": 0, "min_exclusive": True, "non_empty": True, "doc": "amplitude at each knot, input units"})
+
+    def validate(self, where: Callable[[str], str]) -> None:
+        """As many amplitudes as knots, knots ascending; raises :class:`FieldError`."""
+        if len(self.amplitudes) != len(self.frequencies_hz):
+            raise FieldError("amplitudes", f"{len(self.amplitudes)} values for {len(self.frequencies_hz)} knots in "
+                                           f"{where('frequencies_hz')}")
+        for i in range(1, len(self.frequencies_hz)):
+            if not self.frequencies_hz[i] > self.frequencies_hz[i - 1]:
+                raise FieldError("frequencies_hz", f"knots must ascend: [{i}] = {self.frequencies_hz[i]:g} Hz "
+                                                   f"after {self.frequencies_hz[i - 1]:g} Hz")
+
+    def at(self, frequency_hz: float) -> float:
+        """The amplitude at ``frequency_hz``, input units."""
+        x = math.log10(frequency_hz)
+        xs = [math.log10(f) for f in self.frequencies_hz]
+        ys = [math.log10(a) for a in self.amplitudes]
+        if x <= xs[0]:
+            return self.amplitudes[0]
+        if x >= xs[-1]:
+            return self.amplitudes[-1]
+        i = max(j for j in range(len(xs)) if xs[j] <= x)
+        t = (x - xs[i]) / (xs[i + 1] - xs[i])
+        return float(10.0 ** (ys[i] + t * (ys[i + 1] - ys[i])))
+
+
 @dataclass(frozen=True)
 class ExcitationConfig:
-    """The sine input: amplitude and the frequencies to measure at."""
+    """The sine input: the frequencies to measure at (a list or a log-spaced range), the amplitude at each (a
+    constant, a list or a profile), and the periods to settle at each before the analysis."""
 
     amplitude: float = field(
-        metadata={"min": 0, "min_exclusive": True, "doc": "input amplitude A_i (A_F for the friction link)"}
+        metadata={"min": 0, "min_exclusive": True,
+                  "doc": "input amplitude A_i (A_F for the friction link); at every frequency unless amplitudes or "
+                         "amplitude_profile is given"}
     )
     frequencies_hz: tuple[float, ...] = field(
+        default=(),
         metadata={
             "min": 0,
             "min_exclusive": True,
             "non_empty": True,
             "unique": True,
-            "doc": "measurement frequencies, Hz",
+            "doc": "measurement frequencies, Hz (or give frequencies)",
         }
     )
+    frequencies: FrequencyRange | None = field(default=None, metadata={
+        "doc": "log-spaced frequencies {start_hz, stop_hz, per_decade}, instead of frequencies_hz"})
+    amplitudes: tuple[float, ...] | None = field(default=None, metadata={
+        "min": 0, "min_exclusive": True, "doc": "amplitude at each frequency, input units (one per frequency)"})
+    amplitude_profile: AmplitudeProfile | None = field(default=None, metadata={
+        "doc": "amplitude against frequency {frequencies_hz, amplitudes}: log-log lines between the knots"})
+    settle_periods: int | None = field(default=None, metadata={
+        "min": 0, "doc": "whole periods at full amplitude before the first integrated period of each frequency "
+                         "(not counted in its periods)"})
+    settle_periods_per_frequency: tuple[int, ...] | None = field(default=None, metadata={
+        "min": 0, "doc": "settle periods at each frequency (one per frequency), instead of settle_periods"})
+
+    def __post_init__(self) -> None:
+        if not self.frequencies_hz and self.frequencies is not None:
+            object.__setattr__(self, "frequencies_hz", self.frequencies.expand())
+
+    def validate(self, where: Callable[[str], str]) -> None:
+        """One frequency plan, lists as long as it, one amplitude rule, one settle rule; raises
+        :class:`FieldError`."""
+        if not self.frequencies_hz:
+            raise FieldError("frequencies_hz", "missing (give frequencies_hz = [...] or frequencies = {start_hz, "
+                                               "stop_hz, per_decade})")
+        if self.frequencies is not None and self.frequencies_hz != self.frequencies.expand():
+            raise FieldError("frequencies", f"give either this or {where('frequencies_hz')}, not both")
+        n = len(self.frequencies_hz)
+        if self.amplitudes is not None:
+            if self.amplitude_profile is not None:
+                raise FieldError("amplitude_profile", f"give either this or {where('amplitudes')}, not both")
+            if len(self.amplitudes) != n:
+                raise FieldError("amplitudes", f"{len(self.amplitudes)} values for {n} frequencies")
+        if self.settle_periods_per_frequency is not None:
+            if self.settle_periods is not None:
+                raise FieldError("settle_periods_per_frequency",
+                                 f"give either this or {where('settle_periods')}, not both")
+            if len(self.settle_periods_per_frequency) != n:
+                raise FieldError("settle_periods_per_frequency",
+                                 f"{len(self.settle_periods_per_frequency)} values for {n} frequencies")
+
+    def _index(self, frequency_hz: float) -> int:
+        try:
+            return self.frequencies_hz.index(frequency_hz)
+        except ValueError:
+            raise ValueError(f"{frequency_hz:g} Hz is not a frequency of the plan") from None
+
+    def amplitude_at(self, frequency_hz: float) -> float:
+        """The input amplitude at ``frequency_hz`` (one of the plan's), input units."""
+        if self.amplitudes is not None:
+            return self.amplitudes[self._index(frequency_hz)]
+        if self.amplitude_profile is not None:
+            return self.amplitude_profile.at(frequency_hz)
+        return self.amplitude
+
+    def settle_at(self, frequency_hz: float) -> int:
+        """Periods settled at ``frequency_hz`` (one of the plan's) before its analysis."""
+        if self.settle_periods_per_frequency is not None:
+            return self.settle_periods_per_frequency[self._index(frequency_hz)]
+        return self.settle_periods or 0
+
+    def only(self, frequency_hz: float) -> ExcitationConfig:
+        """The plan reduced to ``frequency_hz`` (one of the plan's), with its amplitude and settle periods."""
+        amplitudes = None if self.amplitudes is None else (self.amplitude_at(frequency_hz),)
+        settle = (None if self.settle_periods_per_frequency is None else (self.settle_at(frequency_hz),))
+        return replace(self, frequencies_hz=(frequency_hz,), frequencies=None, amplitudes=amplitudes,
+                       settle_periods_per_frequency=settle)
 
 
 @dataclass(frozen=True)
