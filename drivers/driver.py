@@ -192,10 +192,15 @@ class Driver:
         if self.layout.enable is not None:
             self._send(self.layout.enable, {})
 
-    def disable(self) -> None:
-        """Send the disable message (no-op when the layout has none)."""
+    shutdown_account = ""
+    """What ``disable()`` did to the drive beyond the disable frame, in words (empty: nothing more)."""
+
+    def disable(self) -> bool:
+        """Send the disable message (no-op when the layout has none); True when it went out."""
         if self.layout.disable is not None:
             self._send(self.layout.disable, {})
+            return True
+        return False
 
     def heartbeat(self) -> None:
         """Send the heartbeat message (no-op when the layout has none); call every ``layout.heartbeat_period_s``."""
