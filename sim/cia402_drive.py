@@ -80,6 +80,7 @@ class SimulatedCia402Drive:
         self.faults = faults if faults is not None and faults.any else None
         self.on_event = on_event or (lambda text: None)
         self.state = State.SWITCH_ON_DISABLED
+        controller.enabled = False
         self.mode = 0
         self.error_code = 0
         self.syncs = 0

@@ -118,6 +118,14 @@ def _sim_controller(args: argparse.Namespace) -> int:
     if bench.transport == "serial":
         serving, path = serve_serial_pty(spec)
         where = f"serial ({spec.framing} framing) on {path}: set [serial] port = \"{path}\""
+    elif bench.transport == "canopen":
+        if case.can is not None and case.can.interface == "slcan":
+            raise ConfigError(f"{args.config}: can.interface: the simulated CiA 402 drive is served on a python-can "
+                              "bus (virtual, udp_multicast, socketcan, ...), not as an SLCAN adapter",
+                              "can.interface")
+        serving = serve_can(spec)
+        where = (f"CiA 402 drive, CANopen node {spec.canopen.node_id if spec.canopen else '?'}, on python-can "
+                 f"{spec.can['interface']} channel {spec.can['channel']}")
     elif case.can is not None and case.can.interface == "slcan":
         serving, path = serve_slcan_pty(spec)
         where = f"SLCAN adapter on {path}: set [can] channel = \"{path}\""
