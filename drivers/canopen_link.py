@@ -17,6 +17,7 @@ them unchanged. ``CanopenDriver`` adds the drive's life cycle:
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Iterator
@@ -44,6 +45,8 @@ MODES_DISPLAY = 0x6061
 HEARTBEAT_PRODUCER = 0x1017
 SYNC_COB_ID = 0x80
 NMT_OPERATIONAL = 5
+_SYNC_MEMORY = 4096
+"""SYNCs whose host ticks are remembered (4 s at 1 kHz): a sample answering an older one is dated by the latest."""
 NMT_STATES = {0: "boot-up", 4: "stopped", 5: "operational", 127: "pre-operational"}
 
 # CANopen data types (CiA 301) -> signal types of drivers.codec
@@ -94,6 +97,7 @@ def resolve_object(od: canopen.ObjectDictionary, text: str) -> ObjectRef:
 
     text = text.strip()
     obj: Any
+    lookup: Any = od
     head, sep, tail = text.partition(":")
     try:
         index = int(head, 0)
@@ -106,7 +110,7 @@ def resolve_object(od: canopen.ObjectDictionary, text: str) -> ObjectRef:
             raise ValueError(f"{text!r}: subindex {tail!r} is not a number") from None
         if index not in od:
             raise ValueError(f"{text!r}: the EDS has no object 0x{index:04X}")
-        obj = od[index]
+        obj = lookup[index]
         if isinstance(obj, (ODRecord, ODArray)):
             if subindex not in obj:
                 raise ValueError(f"{text!r}: object 0x{index:04X} has no subindex {subindex}")
@@ -116,14 +120,15 @@ def resolve_object(od: canopen.ObjectDictionary, text: str) -> ObjectRef:
     else:
         record, dot, member = text.partition(".")
         try:
-            obj = od[text] if text in od or not dot else od[record][member]
+            obj = lookup[text] if text in od or not dot else lookup[record][member]
         except KeyError:
             raise ValueError(f"{text!r}: no object of that name in the EDS") from None
     if not isinstance(obj, ODVariable):
         raise ValueError(f"{text!r}: {obj.name!r} is a record or array: name one of its sub-objects")
-    kind = _SIGNAL_TYPES.get(obj.data_type)
+    kind = _SIGNAL_TYPES.get(obj.data_type or 0)
     if kind is None:
-        raise ValueError(f"{text!r}: {obj.name!r} is not a number a PDO can carry (data type 0x{obj.data_type:X})")
+        raise ValueError(f"{text!r}: {obj.name!r} is not a number a PDO can carry (data type "
+                         f"0x{obj.data_type or 0:X})")
     return ObjectRef(obj.index, obj.subindex, obj.name, kind)
 
 
@@ -229,6 +234,9 @@ class CanopenDriver(Driver):
         self._pump: threading.Thread | None = None
         self._pumping = threading.Event()
         self._pump_error: BaseException | None = None
+        self._sync_ticks = [0] * _SYNC_MEMORY  # the host tick of each SYNC sent, by SYNC number modulo the memory
+        self._syncs_sent = 0
+        self._first_counter: int | None = None
 
     # ----------------------------------------------------------------------------------------------------------
     # frames in
@@ -250,7 +258,7 @@ class CanopenDriver(Driver):
                 state = decode_statusword(word)
                 if self._cyclic and state is not State.OPERATION_ENABLED and self._left is None:
                     self._left = f"statusword 0x{word:04X} ({state or 'undefined'})"
-            return self.feed([frame]) if self._cyclic else []
+            return self._dated(self.feed([frame])) if self._cyclic else []
         self.network.notify(frame.id, bytearray(frame.data), frame.timestamp)
         return []
 
@@ -281,13 +289,16 @@ class CanopenDriver(Driver):
     def _where(self) -> str:
         return f"CANopen node {self.setup.node_id}"
 
+    def _variable(self, index: int, subindex: int) -> Any:
+        """The object dictionary entry of ``index``:``subindex``."""
+        obj: Any = self.od[index]
+        return obj[subindex] if not hasattr(obj, "data_type") else obj
+
     def _sdo_write(self, index: int, subindex: int, value: int | float, what: str) -> None:
         from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
         try:
-            obj = self.od[index]
-            var = obj[subindex] if subindex or not hasattr(obj, "data_type") else obj
-            self.node.sdo.download(index, subindex, var.encode_raw(value))
+            self.node.sdo.download(index, subindex, self._variable(index, subindex).encode_raw(value))
         except SdoAbortedError as exc:
             raise DriveFaultError(f"{self._where()}: writing {what} (0x{index:04X}:{subindex:02X}) = {value!r} "
                                   f"was refused: {exc}") from None
@@ -299,9 +310,7 @@ class CanopenDriver(Driver):
         from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
         try:
-            obj = self.od[index]
-            var = obj[subindex] if subindex or not hasattr(obj, "data_type") else obj
-            value = var.decode_raw(self.node.sdo.upload(index, subindex))
+            value = self._variable(index, subindex).decode_raw(self.node.sdo.upload(index, subindex))
         except SdoAbortedError as exc:
             raise DriveFaultError(f"{self._where()}: reading {what} (0x{index:04X}:{subindex:02X}) was refused: "
                                   f"{exc}") from None
@@ -400,6 +409,8 @@ class CanopenDriver(Driver):
                 steps.append(str(command))
         self.start_account = ", ".join(steps)
         self._left = None
+        self._first_counter = None
+        self._syncs_sent = 0
         self._cyclic = True
 
     def _map_pdos(self) -> None:
@@ -425,11 +436,40 @@ class CanopenDriver(Driver):
                                   f"{self._pump_note()}") from None
 
     def send_setpoint(self, value: float, counter: int = 0) -> None:
-        """The setpoint RPDO, then SYNC when the host produces it (the drive applies the setpoint on SYNC)."""
+        """The setpoint RPDO, then SYNC when the host produces it (the drive applies the setpoint on SYNC).
+        ``counter``: the host's tick of this setpoint; a sample is dated by the SYNC it answers (below)."""
         super().send_setpoint(value, counter)
         if self.setup.sync == "produce":
             self.port.send(Frame(SYNC_COB_ID, b""))
+            self._sync_ticks[self._syncs_sent % _SYNC_MEMORY] = counter
+            self._syncs_sent += 1
             self._update_health()
+
+    @property
+    def counts_host_ticks(self) -> bool:  # type: ignore[override]
+        """With host-produced SYNC, samples are dated by the host tick of the SYNC they answer (``_dated``)."""
+        return self.setup.sync == "produce"
+
+    def _dated(self, samples: list[FeedbackSample]) -> list[FeedbackSample]:
+        """With host-produced SYNC, each sample's counter becomes the host tick that follows the SYNC it answers:
+        the drive's counter advances once a SYNC, so its step from the first sample counts SYNCs. Ticks the host
+        skipped (a stalled pacing loop) then do not shift the time base, as the drive's cycle is the SYNC."""
+        if self.setup.sync != "produce":
+            return samples
+        out = []
+        for sample in samples:
+            if sample.counter is None:
+                out.append(sample)
+                continue
+            if self._first_counter is None:
+                self._first_counter = sample.counter
+            n = sample.counter - self._first_counter
+            if not 0 <= n < self._syncs_sent or self._syncs_sent - n > _SYNC_MEMORY:
+                self._first_counter = sample.counter - (self._syncs_sent - 1)  # lost track: the latest SYNC
+                n = self._syncs_sent - 1
+            tick = self._sync_ticks[n % _SYNC_MEMORY]
+            out.append(dataclasses.replace(sample, counter=tick + 1))
+        return out
 
     def receive(self, timeout: float) -> list[FeedbackSample]:
         """TPDO samples within ``timeout`` s (as ``Driver.receive``); DriveFaultError when the drive reported a fault

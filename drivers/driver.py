@@ -192,6 +192,9 @@ class Driver:
         if self.layout.enable is not None:
             self._send(self.layout.enable, {})
 
+    counts_host_ticks = False
+    """True when ``FeedbackSample.counter`` is the host's tick after the setpoint the sample answers (the
+    counter passed to ``send_setpoint`` plus one), not the drive's own count."""
     shutdown_account = ""
     """What ``disable()`` did to the drive beyond the disable frame, in words (empty: nothing more)."""
 

@@ -189,8 +189,10 @@ class SimulatedCia402Drive:
         assert self.node is not None
         self.node.rpdo.read()
         self.node.tpdo.read()
-        self._rpdos = [m for m in self.node.rpdo.map.values() if m.enabled and m.map]
-        self._tpdos = [m for m in self.node.tpdo.map.values() if m.enabled and m.map and 1 <= m.trans_type <= 240]
+        rpdos: Any = self.node.rpdo.map
+        tpdos: Any = self.node.tpdo.map
+        self._rpdos = [m for m in rpdos.values() if m.enabled and m.map]
+        self._tpdos = [m for m in tpdos.values() if m.enabled and m.map and 1 <= m.trans_type <= 240]
 
     # ----------------------------------------------------------------------------------------------------------
     # SYNC

@@ -106,7 +106,8 @@ def _tui(args: argparse.Namespace) -> int:
 
 def _sim_controller(args: argparse.Namespace) -> int:
     from bodebench.bench.connection import simulator_spec
-    from bodebench.sim.serve import serve_can, serve_serial_pty, serve_slcan_pty
+    from bodebench.sim.cia402_drive import ServingCanopen
+    from bodebench.sim.serve import Serving, serve_can, serve_serial_pty, serve_slcan_pty
 
     config = load_config(args.config)
     case = config.cases[0]
@@ -115,6 +116,7 @@ def _sim_controller(args: argparse.Namespace) -> int:
                           "[simulator])", "simulator")
     bench, layout = case.on_bench.bench, case.on_bench.layout
     spec = simulator_spec(case)
+    serving: Serving | ServingCanopen
     if bench.transport == "serial":
         serving, path = serve_serial_pty(spec)
         where = f"serial ({spec.framing} framing) on {path}: set [serial] port = \"{path}\""

@@ -161,8 +161,9 @@ def plan_link(case: CaseConfig, *, direct: bool = False) -> LinkPlan:
         assert can is not None and case.canopen_setup is not None  # the loader made sure
         channel = can.channel or "bodebench"
         spec = simulator_spec(case) if simulated else None
-        link = CanopenLink(can.interface, channel, can.bitrate, dict(can.options), case.canopen_setup, layout, spec)
-        return LinkPlan(link, layout, where=f"CANopen node {case.canopen_setup.node_id} on {can.interface} "
+        co_link = CanopenLink(can.interface, channel, can.bitrate, dict(can.options), case.canopen_setup, layout,
+                              spec)
+        return LinkPlan(co_link, layout, where=f"CANopen node {case.canopen_setup.node_id} on {can.interface} "
                                             f"channel {channel}")
     if bench.transport == "can":
         can = case.can

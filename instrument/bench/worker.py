@@ -408,7 +408,9 @@ class BusWorker:
             if base != "receive":
                 raise _Trip("bus", f"feedback without the {base} the time base needs")
         if self.offset is None:
-            if answered_tick is not None:
+            if base == "counter" and self.driver is not None and self.driver.counts_host_ticks:
+                self.offset = 0.0  # the driver dates each sample by the host tick it answers (CANopen SYNC)
+            elif answered_tick is not None:
                 # lockstep: the controller's clock runs a whole number of periods ahead of the session's,
                 # so round the offset to periods (a jittered first sample must not shift the whole timeline)
                 self.offset = round((raw - (answered_tick + 1) * self.h) / self.h) * self.h

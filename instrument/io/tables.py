@@ -13,8 +13,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from bodebench.core.rules import CRITERIA
-from bodebench.io.schema import FieldError
 from bodebench.drivers.cia402 import MODES
+from bodebench.io.schema import FieldError
 from bodebench.sim.cia402_drive import Cia402Faults
 from bodebench.sim.faults import FaultConfig
 
@@ -216,7 +216,8 @@ class BenchConfig:
 
     TABLE_OPTIONAL = True
 
-    transport: str = field(metadata={"choices": TRANSPORTS, "doc": "bus to the drive: can, serial, or canopen (a CiA 402 drive on the [can] bus)"})
+    transport: str = field(metadata={"choices": TRANSPORTS, "doc": "bus to the drive: can, serial, or canopen "
+                                                                   "(a CiA 402 drive on the [can] bus)"})
     rate_hz: float = field(metadata={"min": 0, "min_exclusive": True,
                                      "doc": "setpoint and feedback sample rate of the drive controller, Hz"})
     clock: str = field(default="lockstep", metadata={
