@@ -395,7 +395,7 @@ class CanopenDriver(Driver):
             steps.append(f"mode {s.mode} ({mode})")
             self._sdo_write(s.setpoint.index, s.setpoint.subindex, 0, s.setpoint.name)
             self._nmt(0x01)
-            if s.heartbeat_ms and not self._wait_heartbeat(wait, NMT_OPERATIONAL):
+            if not self._wait_heartbeat(wait, NMT_OPERATIONAL):
                 raise DriveFaultError(f"{self._where()}: did not report NMT operational within {wait:g} s")
             steps.append("NMT operational")
             for command, target in ((Command.SHUTDOWN, State.READY_TO_SWITCH_ON),
