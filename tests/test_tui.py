@@ -356,7 +356,7 @@ async def test_start_runs_the_sweep_and_the_screen_follows(tmp_path: Path, monke
         on_disk = load_response(out)
         assert sorted((p.frequency_hz, p.harmonic) for p in on_disk.points) == sorted(
             (f, k) for f in FREQS for k in (1, 3))
-        assert (out / "bode.png").exists() and (out / "periods.svg").exists()
+        assert (out / "bode.png").exists() and (out / "periods.png").exists()
         for p in on_disk.points:  # the table shows what is on disk
             row = app.model.rows[row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel)]
             assert str(app.w_table.get_cell(row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel),
