@@ -6,7 +6,8 @@ the lockstep clock) and exchanges only small typed messages with the session
 over a pipe: commands in, sample batches and bus health out. Whatever ends it
 (a stop, an abort, a trip, an exception, Ctrl-C, the session vanishing), its
 last act on the bus is a zero setpoint and, where the layout has one, the
-disable frame.
+disable frame (a CANopen drive: quick stop, disable voltage, NMT
+pre-operational).
 """
 
 from __future__ import annotations
