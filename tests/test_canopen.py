@@ -8,6 +8,7 @@ controlwords written over SDO, statuswords read back, NMT commands.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import threading
 import uuid
 from pathlib import Path
@@ -251,6 +252,28 @@ def test_a_drive_in_fault_is_refused_unless_a_reset_is_asked_for() -> None:
         host.disable()
         host.close()
         serving.close()
+
+
+def test_a_node_that_is_not_there_is_named_and_nothing_is_configured() -> None:
+    """The host asks for node 6 where only node 5 is: no heartbeat, so the enable stops before any SDO write of
+    the mapping or the state machine reaches the bus."""
+    name = channel()
+    recorder = CanopenRecorder(name)
+    serving, host = _drive_and_host(name)
+    host.close()
+    setup = dataclasses.replace(host.setup, node_id=6, heartbeat_timeout_s=0.3, state_timeout_s=0.3)
+    host = CanopenDriver(CanPort.open("virtual", name), setup)
+    try:
+        with pytest.raises(DriveFaultError, match=r"node 6: no SDO answer writing producer heartbeat time"):
+            host.enable()
+        assert not host.disable()
+        assert "not confirmed" in host.shutdown_account
+    finally:
+        host.close()
+        serving.close()
+    frames = recorder.close()
+    assert not any(m.arbitration_id == 0x600 + NODE for m in frames)  # node 5 was never addressed
+    assert serving.drive.transitions == [] and serving.drive.nmt_state == "PRE-OPERATIONAL"
 
 
 # --------------------------------------------------------------------------------------- whole sweeps
