@@ -13,7 +13,8 @@ _EXPORTS = {
     "Codec": "codec", "Message": "codec", "Signal": "codec",
     "BusHealth": "driver", "Driver": "driver", "FeedbackSample": "driver", "Unwrapper": "driver",
     "DriverError": "errors", "DriverInitError": "errors", "DriverOperationError": "errors",
-    "DriverTimeoutError": "errors", "LayoutError": "errors",
+    "DriverTimeoutError": "errors", "DriveFaultError": "errors", "LayoutError": "errors",
+    "CanopenDriver": "canopen_link", "CanopenSetup": "canopen_link",
     "Layout": "layout", "default_layout": "layout",
     "CanPort": "ports", "Frame": "ports", "FramePort": "ports", "SerialPort": "ports",
     "AsciiDeframer": "serial_framing", "BinaryDeframer": "serial_framing", "crc16_ccitt_false": "serial_framing",
@@ -21,9 +22,17 @@ _EXPORTS = {
 }
 
 if TYPE_CHECKING:
+    from .canopen_link import CanopenDriver, CanopenSetup
     from .codec import Codec, Message, Signal
     from .driver import BusHealth, Driver, FeedbackSample, Unwrapper
-    from .errors import DriverError, DriverInitError, DriverOperationError, DriverTimeoutError, LayoutError
+    from .errors import (
+        DriveFaultError,
+        DriverError,
+        DriverInitError,
+        DriverOperationError,
+        DriverTimeoutError,
+        LayoutError,
+    )
     from .layout import Layout, default_layout
     from .ports import CanPort, Frame, FramePort, SerialPort
     from .serial_framing import AsciiDeframer, BinaryDeframer, crc16_ccitt_false, encode_ascii, encode_binary
@@ -42,12 +51,15 @@ __all__ = [
     "BinaryDeframer",
     "BusHealth",
     "CanPort",
+    "CanopenDriver",
+    "CanopenSetup",
     "Codec",
     "Driver",
     "DriverError",
     "DriverInitError",
     "DriverOperationError",
     "DriverTimeoutError",
+    "DriveFaultError",
     "FeedbackSample",
     "Frame",
     "FramePort",

@@ -139,7 +139,8 @@ def _tui(args: argparse.Namespace) -> int:
 def _sim_controller(args: argparse.Namespace) -> int:
     from bodebench.bench.connection import simulator_spec
     from bodebench.io.config import ConfigError, load_config
-    from bodebench.sim.serve import serve_can, serve_serial_pty, serve_slcan_pty
+    from bodebench.sim.cia402_drive import ServingCanopen
+    from bodebench.sim.serve import Serving, serve_can, serve_serial_pty, serve_slcan_pty
 
     config = load_config(args.config)
     case = config.cases[0]
@@ -148,9 +149,18 @@ def _sim_controller(args: argparse.Namespace) -> int:
                           "[simulator])", "simulator")
     bench, layout = case.on_bench.bench, case.on_bench.layout
     spec = simulator_spec(case)
+    serving: Serving | ServingCanopen
     if bench.transport == "serial":
         serving, path = serve_serial_pty(spec)
         where = f"serial ({spec.framing} framing) on {path}: set [serial] port = \"{path}\""
+    elif bench.transport == "canopen":
+        if case.can is not None and case.can.interface == "slcan":
+            raise ConfigError(f"{args.config}: can.interface: the simulated CiA 402 drive is served on a python-can "
+                              "bus (virtual, udp_multicast, socketcan, ...), not as an SLCAN adapter",
+                              "can.interface")
+        serving = serve_can(spec)
+        where = (f"CiA 402 drive, CANopen node {spec.canopen.node_id if spec.canopen else '?'}, on python-can "
+                 f"{spec.can['interface']} channel {spec.can['channel']}")
     elif case.can is not None and case.can.interface == "slcan":
         serving, path = serve_slcan_pty(spec)
         where = f"SLCAN adapter on {path}: set [can] channel = \"{path}\""
