@@ -33,6 +33,7 @@ def canopen_bench(base: dict[str, Any], clock: str = "lockstep") -> dict[str, An
             "safety": {"max_amplitude": 0.02, "watchdog_s": 3.0}, "simulator": {}}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("plant", sorted(PLANTS))
 def test_a_sweep_over_canopen_measures_what_the_offline_experiment_computes(tmp_path: Path, plant: str) -> None:
     table, num, den = PLANTS[plant]
@@ -52,6 +53,7 @@ def test_a_sweep_over_canopen_measures_what_the_offline_experiment_computes(tmp_
         assert abs(z_bench - z_offline) <= allowed, (measured.frequency_hz, abs(z_bench - z_offline), allowed)
 
 
+@pytest.mark.slow
 def test_the_realtime_clock_over_canopen_agrees_with_lockstep() -> None:
     """SYNC paced by the host on the wall clock: the drive samples on each SYNC and each sample is dated by the SYNC
     it answers, so the response is the lockstep one. The bus worker runs in a process of its own, as on a bench;
@@ -86,6 +88,7 @@ def _command() -> list[str]:
     return [exe] if exe else [sys.executable, "-m", "bodebench"]
 
 
+@pytest.mark.slow
 def test_bodebench_run_sweeps_the_shipped_canopen_config_and_says_how_it_left_the_drive(tmp_path: Path) -> None:
     cfg = Path(__file__).resolve().parents[1] / "configs" / "sim_canopen.toml"
     small = tmp_path / "sim_canopen_small.toml"

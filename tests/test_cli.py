@@ -40,6 +40,7 @@ def bodebench(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(cmd + list(args), cwd=cwd, capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.slow
 def test_simulate_writes_one_directory_per_case(tmp_path: Path) -> None:
     cfg = tmp_path / "cases.toml"
     cfg.write_text(CONFIG)

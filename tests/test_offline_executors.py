@@ -109,6 +109,7 @@ def test_a_resumed_pool_run_measures_only_what_is_missing(tmp_path: Path) -> Non
         assert sorted_points(load_response(b.directory)) == sorted_points(a.response)
 
 
+@pytest.mark.slow
 def test_simulate_plot_formats_and_bad_arguments(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     cfg = tmp_path / "cases.toml"
     cfg.write_text(CASES)
@@ -131,6 +132,7 @@ def test_simulate_plot_formats_and_bad_arguments(tmp_path: Path, capsys: pytest.
     assert "plot format jpg unknown; choose from png, svg, pdf" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_simulate_on_a_local_dask_cluster_gives_the_pool_results(tmp_path: Path) -> None:
     cfg = tmp_path / "cases.toml"
     cfg.write_text(CASES)
@@ -145,6 +147,7 @@ def test_simulate_on_a_local_dask_cluster_gives_the_pool_results(tmp_path: Path)
         assert (tmp_path / "dask" / case / "bode.png").exists()  # drawn on the cluster
 
 
+@pytest.mark.slow
 def test_a_missing_dask_scheduler_is_one_line(tmp_path: Path) -> None:
     cfg = tmp_path / "cases.toml"
     cfg.write_text(CASES)
@@ -184,6 +187,7 @@ COMPILE_ONCE = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_the_pool_compiles_the_kernels_once_into_an_empty_cache(tmp_path: Path) -> None:
     script = tmp_path / "compile_once.py"
     script.write_text(COMPILE_ONCE)

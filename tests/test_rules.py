@@ -395,6 +395,7 @@ def battery(family: str) -> list[tuple[Plant, float, float, np.ndarray | None]]:
     return cases
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("setting", list(NOISE_SETTINGS))
 @pytest.mark.parametrize("family", ["linear", "lag", "friction"])
 def test_the_screened_rule_stops_where_the_every_period_rule_stops(family: str, setting: str) -> None:
