@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import threading
 import uuid
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ from typing import Any
 import can
 import numpy as np
 import pytest
+from helpers import FrameRecorder
 
 from bodebench.bench.connection import plan_link
 from bodebench.bench.events import SessionError
@@ -65,31 +65,6 @@ def bench(channel: str, **tables: dict[str, Any]) -> dict[str, Any]:
 
 def channel() -> str:
     return f"canopen-{uuid.uuid4().hex[:8]}"
-
-
-class CanopenRecorder:
-    """A listening node on the virtual bus that keeps every frame."""
-
-    def __init__(self, name: str) -> None:
-        self.bus = can.Bus(interface="virtual", channel=name, receive_own_messages=False)
-        self.frames: list[can.Message] = []
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while not self.stop.is_set():
-            msg = self.bus.recv(0.05)
-            if msg is not None:
-                self.frames.append(msg)
-
-    def close(self) -> list[can.Message]:
-        self.stop.set()
-        self.thread.join()
-        while (msg := self.bus.recv(0.05)) is not None:
-            self.frames.append(msg)
-        self.bus.shutdown()
-        return self.frames
 
 
 def sdo_writes(frames: list[can.Message], index: int) -> list[tuple[int, int]]:
@@ -258,7 +233,7 @@ def test_a_node_that_is_not_there_is_named_and_nothing_is_configured() -> None:
     """The host asks for node 6 where only node 5 is: no heartbeat, so the enable stops before any SDO write of
     the mapping or the state machine reaches the bus."""
     name = channel()
-    recorder = CanopenRecorder(name)
+    recorder = FrameRecorder(name)
     serving, host = _drive_and_host(name)
     host.close()
     setup = dataclasses.replace(host.setup, node_id=6, heartbeat_timeout_s=0.3, state_timeout_s=0.3)
@@ -271,7 +246,7 @@ def test_a_node_that_is_not_there_is_named_and_nothing_is_configured() -> None:
     finally:
         host.close()
         serving.close()
-    frames = recorder.close()
+    frames = recorder.frames_seen()
     assert not any(m.arbitration_id == 0x600 + NODE for m in frames)  # node 5 was never addressed
     assert serving.drive.transitions == [] and serving.drive.nmt_state == "PRE-OPERATIONAL"
 
@@ -291,9 +266,9 @@ def run_session(data: dict[str, Any], out: Path | None = None) -> tuple[BenchSes
 
 def test_a_drive_that_refuses_to_enable_stops_the_session_with_the_reason(tmp_path: Path) -> None:
     name = channel()
-    recorder = CanopenRecorder(name)
+    recorder = FrameRecorder(name)
     session, error = run_session(bench(name, simulator={"cia402": {"refuse_enable": True}}), tmp_path)
-    frames = recorder.close()
+    frames = recorder.frames_seen()
     assert error is not None and error.kind is FaultKind.DRIVE
     assert "did not reach 'operation enabled'" in str(error) and "switched on" in str(error)
     assert session.ended is not None and session.ended.disabled
@@ -309,11 +284,11 @@ def test_a_drive_that_refuses_to_enable_stops_the_session_with_the_reason(tmp_pa
 
 def test_an_emcy_mid_sweep_stops_it_keeps_the_converged_points_and_leaves_the_drive_disabled(tmp_path: Path) -> None:
     name = channel()
-    recorder = CanopenRecorder(name)
+    recorder = FrameRecorder(name)
     # the 5 Hz point takes about 4 s of controller time (ramps and 17 periods); the EMCY comes during the 12 Hz one
     session, error = run_session(bench(name, simulator={"cia402": {"emcy_at_s": 4.8, "emcy_code": 0x2310}}),
                                  tmp_path)
-    frames = recorder.close()
+    frames = recorder.frames_seen()
     assert error is not None and error.kind is FaultKind.DRIVE
     assert "EMCY 0x2310" in str(error) and "Current" in str(error)
     emcy = [m for m in frames if m.arbitration_id == 0x80 + NODE]
@@ -326,10 +301,10 @@ def test_an_emcy_mid_sweep_stops_it_keeps_the_converged_points_and_leaves_the_dr
 
 def test_a_missed_heartbeat_is_a_drive_fault(tmp_path: Path) -> None:
     name = channel()
-    recorder = CanopenRecorder(name)
+    recorder = FrameRecorder(name)
     session, error = run_session(bench(name, canopen={"heartbeat_timeout_s": 0.4},
                                        simulator={"cia402": {"heartbeat_stops_at_s": 0.5}}), tmp_path)
-    frames = recorder.close()
+    frames = recorder.frames_seen()
     assert error is not None and error.kind is FaultKind.DRIVE and "no heartbeat" in str(error)
     assert_left_safe(frames)  # the drive still answers SDO: it is seen disabled
     assert session.ended is not None and session.ended.disabled
@@ -337,10 +312,10 @@ def test_a_missed_heartbeat_is_a_drive_fault(tmp_path: Path) -> None:
 
 def test_a_silent_drive_is_a_fault_and_the_session_says_it_was_not_seen_disabled(tmp_path: Path) -> None:
     name = channel()
-    recorder = CanopenRecorder(name)
+    recorder = FrameRecorder(name)
     session, error = run_session(bench(name, canopen={"heartbeat_timeout_s": 0.4, "state_timeout_s": 0.3},
                                        simulator={"cia402": {"silent_at_s": 0.5}}), tmp_path)
-    frames = recorder.close()
+    frames = recorder.frames_seen()
     assert error is not None and error.kind is FaultKind.DRIVE and "no heartbeat" in str(error)
     assert_left_safe(frames, answered=False)  # everything was still sent
     assert session.ended is not None and not session.ended.disabled
