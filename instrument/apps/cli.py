@@ -3,27 +3,51 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 import time
 import traceback
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
-from bodebench.core.summary import ResponseSummary
-from bodebench.drivers.errors import DriverError
-from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
-from bodebench.io.config import ConfigError, ExperimentConfig, load_config
-from bodebench.io.results import ResultsError, load_response
-from bodebench.sim.serve import SimulatorStartError
+# Only the standard library at the top: `bodebench --help` and argument errors import nothing else; each command
+# imports what it uses.
+if TYPE_CHECKING:
+    from bodebench.bench.procedure import PlotWriter
+    from bodebench.core.summary import ResponseSummary
+    from bodebench.io.config import ExperimentConfig
 
 
-def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False) -> int:
-    """Run every case of a bench config (``direct``: the simulated drive without a bus); the exit status."""
+def _plot_formats(text: str) -> tuple[str, ...]:
+    """``--plots``: comma-separated formats, or "none"."""
+    if text.strip().lower() == "none":
+        return ()
+    from bodebench.apps.plots import check_formats
+
+    try:
+        return check_formats(text.split(","))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _plot_writer(args: argparse.Namespace) -> PlotWriter | None:
+    """What draws each finished case: the formats ``--plots`` asked for (None: no plots)."""
+    if not args.plots:
+        return None
     from bodebench.apps.plots import write_plots
+
+    return functools.partial(write_plots, formats=args.plots)
+
+
+def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False,
+                  plots: PlotWriter | None = None) -> int:
+    """Run every case of a bench config (``direct``: the simulated drive without a bus); the exit status."""
     from bodebench.apps.progress import ProgressPrinter
     from bodebench.bench.events import CaseBegins, SessionError
     from bodebench.bench.procedure import SweepProcedure
+    from bodebench.drivers.stop_signals import StopSignal
+    from bodebench.io.results import ResultsError
 
     printer: ProgressPrinter | None = None
 
@@ -35,7 +59,7 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
         elif printer is not None:
             printer(event)
 
-    procedure = SweepProcedure(config, out, listener=listener, direct=direct, plots=write_plots,
+    procedure = SweepProcedure(config, out, listener=listener, direct=direct, plots=plots,
                                existing="resume" if resume else "refuse")
     try:
         outcomes = procedure.run()
@@ -67,8 +91,7 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
         refused = (f", {len(session.refused)} frequencies refused as not physical (not written; --resume "
                    "measures them again)" if session.refused else "")
         print(f"{outcome.case.name}: {len(outcome.response.points)} points, {len(unconverged)} not "
-              f"converged{refused}{rt} -> {outcome.directory}/response.csv "
-              f"(+ {', '.join(f.name for f in outcome.files)}); {drive}")
+              f"converged{refused}{rt} -> {outcome.directory}/response.csv{_also(outcome.files)}; {drive}")
         _print_summary(outcome.summary)
         if session.refused:
             status = 1
@@ -82,9 +105,14 @@ def _print_summary(summary: Sequence[ResponseSummary]) -> None:
             print("  " + line)
 
 
+def _also(files: Sequence[Path]) -> str:
+    return f" (+ {', '.join(f.name for f in files)})" if files else ""
+
+
 def _cause(exc: BaseException) -> str:
     """One line naming why a sweep stopped."""
     from bodebench.bench.events import SessionError
+    from bodebench.drivers.stop_signals import StopSignal
 
     if isinstance(exc, StopSignal):
         return f"interrupted ({exc.signame})"
@@ -96,15 +124,19 @@ def _cause(exc: BaseException) -> str:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from bodebench.io.config import ConfigError, load_config
+
     config = load_config(args.config)
     if not config.on_bench:
         raise ConfigError(f"{args.config}: bench: missing (bodebench run needs a bench config; "
                           "use bodebench simulate for an offline experiment)", "bench")
-    return _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet, resume=args.resume)
+    return _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet, resume=args.resume,
+                         plots=_plot_writer(args))
 
 
 def _tui(args: argparse.Namespace) -> int:
     from bodebench.apps.tui import run_tui
+    from bodebench.io.config import ConfigError, load_config
 
     config = load_config(args.config)
     if not config.on_bench:
@@ -115,7 +147,9 @@ def _tui(args: argparse.Namespace) -> int:
 
 def _sim_controller(args: argparse.Namespace) -> int:
     from bodebench.bench.connection import simulator_spec
-    from bodebench.sim.serve import serve_can, serve_serial_pty, serve_slcan_pty
+    from bodebench.io.config import ConfigError, load_config
+    from bodebench.sim.cia402_drive import ServingCanopen
+    from bodebench.sim.serve import Serving, serve_can, serve_serial_pty, serve_slcan_pty
 
     config = load_config(args.config)
     case = config.cases[0]
@@ -124,9 +158,18 @@ def _sim_controller(args: argparse.Namespace) -> int:
                           "[simulator])", "simulator")
     bench, layout = case.on_bench.bench, case.on_bench.layout
     spec = simulator_spec(case)
+    serving: Serving | ServingCanopen
     if bench.transport == "serial":
         serving, path = serve_serial_pty(spec)
         where = f"serial ({spec.framing} framing) on {path}: set [serial] port = \"{path}\""
+    elif bench.transport == "canopen":
+        if case.can is not None and case.can.interface == "slcan":
+            raise ConfigError(f"{args.config}: can.interface: the simulated CiA 402 drive is served on a python-can "
+                              "bus (virtual, udp_multicast, socketcan, ...), not as an SLCAN adapter",
+                              "can.interface")
+        serving = serve_can(spec)
+        where = (f"CiA 402 drive, CANopen node {spec.canopen.node_id if spec.canopen else '?'}, on python-can "
+                 f"{spec.can['interface']} channel {spec.can['channel']}")
     elif case.can is not None and case.can.interface == "slcan":
         serving, path = serve_slcan_pty(spec)
         where = f"SLCAN adapter on {path}: set [can] channel = \"{path}\""
@@ -157,16 +200,17 @@ def _sim_controller(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from bodebench.apps.plots import write_plots
     from bodebench.bench.events import CaseBegins, PointFinished
-    from bodebench.bench.offline import default_executor
+    from bodebench.bench.offline import ExecutorError, offline_executor
     from bodebench.bench.procedure import SweepProcedure
+    from bodebench.io.config import load_config
 
     config: ExperimentConfig = load_config(args.config)
     out = Path(args.out)
     started = time.perf_counter()
     if config.on_bench:
-        return _bench_sweeps(config, out, direct=True, quiet=args.quiet, resume=args.resume)
+        return _bench_sweeps(config, out, direct=True, quiet=args.quiet, resume=args.resume,
+                             plots=_plot_writer(args))
     done, total, name = 0, 0, ""
 
     def listener(event: object) -> None:
@@ -180,39 +224,37 @@ def _simulate(args: argparse.Namespace) -> int:
             print(f"{name}: {done}/{total}  f = {event.points[0].frequency_hz:g} Hz  {worst} periods",
                   file=sys.stderr)
 
-    executor = None if args.jobs == 1 else default_executor(args.jobs)
+    models = {case.plant.model for case in config.cases}
     try:
-        procedure = SweepProcedure(config, out, listener=listener, executor=executor, plots=write_plots,
-                                   existing="resume" if args.resume else "refuse")
-        for outcome in procedure.run():
-            unconverged = [p for p in outcome.response.points if not p.converged]
-            print(f"{outcome.case.name}: {len(outcome.response.points)} points, "
-                  f"{len(unconverged)} not converged -> {outcome.directory}/response.csv "
-                  f"(+ {', '.join(f.name for f in outcome.files)})")
-            _print_summary(outcome.summary)
-    finally:
-        if executor is not None:
-            executor.shutdown(cancel_futures=True)
+        with offline_executor(args.jobs, args.executor, models) as executor:
+            procedure = SweepProcedure(config, out, listener=listener, executor=executor, plots=_plot_writer(args),
+                                       existing="resume" if args.resume else "refuse")
+            outcomes = procedure.run()
+    except ExecutorError as exc:
+        print(f"bodebench: {exc}", file=sys.stderr)
+        return 2
+    for outcome in outcomes:
+        unconverged = [p for p in outcome.response.points if not p.converged]
+        print(f"{outcome.case.name}: {len(outcome.response.points)} points, "
+              f"{len(unconverged)} not converged -> {outcome.directory}/response.csv{_also(outcome.files)}")
+        _print_summary(outcome.summary)
     print(f"done in {time.perf_counter() - started:.1f} s")
     return 0
 
 
 def _calibrate(args: argparse.Namespace) -> int:
     from bodebench.analysis import calibration
-    from bodebench.bench.offline import default_executor
+    from bodebench.bench.offline import ExecutorError, offline_executor
 
-    if args.jobs is not None and args.jobs < 1:
-        print(f"bodebench: --jobs must be >= 1, got {args.jobs}", file=sys.stderr)
-        return 2
     out = Path(args.out) if args.out else calibration.DATA_FILE
     started = time.perf_counter()
-    executor = None if args.jobs == 1 else default_executor(args.jobs)
     try:
-        table = calibration.compute_calibration(calibration.DEFAULT_FBAR_GRID, calibration.DEFAULT_OFFSET_GRID,
-                                                executor)
-    finally:
-        if executor is not None:
-            executor.shutdown(cancel_futures=True)
+        with offline_executor(args.jobs, args.executor, ("coulomb",)) as executor:
+            table = calibration.compute_calibration(calibration.DEFAULT_FBAR_GRID, calibration.DEFAULT_OFFSET_GRID,
+                                                    executor)
+    except ExecutorError as exc:
+        print(f"bodebench: {exc}", file=sys.stderr)
+        return 2
     try:
         table.save(out)
     except OSError as exc:
@@ -231,6 +273,7 @@ def _identify(args: argparse.Namespace) -> int:
 
     from bodebench.analysis.calibration import CalibrationError, load_calibration
     from bodebench.analysis.identify import IdentificationError, format_report, identify, plot_identification
+    from bodebench.io.results import load_response
 
     directory = Path(args.results)
     response = load_response(directory)
@@ -255,7 +298,7 @@ def _identify(args: argparse.Namespace) -> int:
 
 def _plot(args: argparse.Namespace) -> int:
     from bodebench.apps.plots import plot_comparison
-    from bodebench.io.results import CSV_NAME
+    from bodebench.io.results import CSV_NAME, ResultsError, load_response
 
     responses = {}
     for given in args.results:
@@ -281,6 +324,11 @@ def _plot(args: argparse.Namespace) -> int:
     return 0
 
 
+EXECUTOR_HELP = ("run the frequencies on a Dask cluster: a scheduler address (tcp://host:8786), or local to start "
+                 "one here with --jobs workers (needs the dask extra)")
+PLOTS_HELP = "plot files per case: comma-separated png, svg, pdf, or none (default: png)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="bodebench", description=__doc__.strip().splitlines()[0] if __doc__ else "")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -292,6 +340,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--quiet", action="store_true", help="no progress lines")
     sim.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
+    sim.add_argument("--executor", default=None, metavar="SCHEDULER", help=EXECUTOR_HELP)
+    sim.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)
     sim.set_defaults(handler=_simulate)
     run = sub.add_parser("run", help="sweep a drive on the bench (CAN or serial), headless")
     run.add_argument("config", help="TOML bench file")
@@ -299,6 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="no progress display")
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
+    run.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)
     run.set_defaults(handler=_run)
     ctl = sub.add_parser("sim-controller", help="run the simulated servo controller of a bench config standalone")
     ctl.add_argument("config", help="TOML bench file with [simulator]")
@@ -312,6 +363,7 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--out", default=None, help="output file (default: the table shipped in the package)")
     cal.add_argument("--jobs", type=int, default=None,
                      help="worker processes (default: all cores; 1 runs in this process)")
+    cal.add_argument("--executor", default=None, metavar="SCHEDULER", help=EXECUTOR_HELP)
     cal.set_defaults(handler=_calibrate)
     ident = sub.add_parser("identify", help="identify the friction link (F_ct, m) from a measured response")
     ident.add_argument("results", metavar="RESULTS_DIR", help="directory holding response.csv and response.json")
@@ -339,6 +391,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``bodebench`` command; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    from bodebench.drivers.errors import DriverError
+    from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
+    from bodebench.io.config import ConfigError
+    from bodebench.io.results import ResultsError
+    from bodebench.sim.serve import SimulatorStartError
+
     try:
         if args.handler is _tui:  # the terminal UI handles its own keys and signals
             return int(args.handler(args))

@@ -1,6 +1,7 @@
 """Plots of measured frequency responses (Bode diagram, periods needed per point).
 
-Figures are drawn with matplotlib's Agg canvas (no pyplot, no GUI) and written as PNG and SVG (``formats``).
+Figures are drawn with matplotlib's Agg canvas (no pyplot, no GUI) and written as PNG (SVG or PDF on request,
+``formats``).
 matplotlib is imported inside the functions so that importing this module stays cheap.
 
 What a figure shows is what was measured:
@@ -30,7 +31,9 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 __all__ = [
+    "DEFAULT_FORMATS",
     "FORMATS",
+    "check_formats",
     "HARMONIC_COLOURS",
     "bode_figure",
     "harmonic_colour",
@@ -44,8 +47,19 @@ __all__ = [
 #: Status of a point whose measurement stopped at the period cap.
 _NOT_WITHIN_TOLERANCE = (PointStatus.CAPPED, PointStatus.NOISE_LIMITED)
 
-FORMATS = ("png", "svg")
-"""The image formats written by default, by file suffix."""
+FORMATS = ("png", "svg", "pdf")
+"""The file formats the plots can be written in (PNG raster at 120 dpi; SVG and PDF vector)."""
+
+DEFAULT_FORMATS = ("png",)
+
+
+def check_formats(formats: Sequence[str]) -> tuple[str, ...]:
+    """``formats`` lower-cased and checked against :data:`FORMATS`; ValueError names an unknown one."""
+    out = tuple(f.strip().lower() for f in formats)
+    unknown = [f for f in out if f not in FORMATS]
+    if unknown or not out:
+        raise ValueError(f"plot format {', '.join(unknown) or '(none)'} unknown; choose from {', '.join(FORMATS)}")
+    return out
 
 HARMONIC_COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b", "#e377c2")
 """The colour of harmonic k is entry k - 1 (cycled)."""
@@ -92,10 +106,10 @@ def _new_figure(rows: int, height_in: float) -> tuple[Figure, Any]:
     return fig, axes
 
 
-def _save(fig: Figure, path_stem: str | Path, formats: Sequence[str] = FORMATS) -> list[Path]:
+def _save(fig: Figure, path_stem: str | Path, formats: Sequence[str] = DEFAULT_FORMATS) -> list[Path]:
     stem = Path(path_stem)
     stem.parent.mkdir(parents=True, exist_ok=True)
-    paths = [Path(f"{stem}.{suffix}") for suffix in formats]
+    paths = [Path(f"{stem}.{suffix}") for suffix in check_formats(formats)]
     for path in paths:
         fig.savefig(path, dpi=120)
     return paths
@@ -168,8 +182,8 @@ def plot_bode(
     responses: Mapping[str, FrequencyResponse] | FrequencyResponse,
     path_stem: str | Path,
     title: str = "",
+    formats: Sequence[str] = DEFAULT_FORMATS,
     summary: Sequence[ResponseSummary] = (),
-    formats: Sequence[str] = FORMATS,
 ) -> list[Path]:
     """The Bode diagram of :func:`bode_figure`, written as ``<path_stem>.<format>`` for each of ``formats``;
     returns the paths."""
@@ -269,7 +283,7 @@ def plot_periods(
     responses: Mapping[str, FrequencyResponse] | FrequencyResponse,
     path_stem: str | Path,
     title: str = "",
-    formats: Sequence[str] = FORMATS,
+    formats: Sequence[str] = DEFAULT_FORMATS,
 ) -> list[Path]:
     """The chart of :func:`periods_figure`, written as ``<path_stem>.<format>`` for each of ``formats``; returns
     the paths."""
@@ -324,14 +338,15 @@ def periods_figure(responses: Mapping[str, FrequencyResponse] | FrequencyRespons
 
 
 def write_plots(response: FrequencyResponse, directory: Path, title: str,
-                summary: Sequence[ResponseSummary] | None = None, formats: Sequence[str] = FORMATS) -> list[Path]:
+                formats: Sequence[str] = DEFAULT_FORMATS,
+                summary: Sequence[ResponseSummary] | None = None) -> list[Path]:
     """The plots of a finished case in ``directory``: the Bode plot with the summary's figures marked
     (``summary``; None: read off ``response`` as its configuration's ``analysis.response`` says) and the periods
     each point took, each in ``formats``."""
     if summary is None:
         kind = response.config.get("analysis", {}).get("response") or "system"
         summary = summarize_response(response, kind)
-    return (plot_bode(response, directory / "bode", title, summary, formats)
+    return (plot_bode(response, directory / "bode", title, formats, summary)
             + plot_periods(response, directory / "periods", title, formats))
 
 
@@ -345,4 +360,8 @@ def plot_comparison(responses: Mapping[str, FrequencyResponse], path: str | Path
     summaries = [s for response in responses.values()
                  for s in summarize_response(response, response.config.get("analysis", {}).get("response")
                                              or "system")] if len(responses) == 1 else []
-    return _save(bode_figure(responses, title, summaries), target.with_suffix(""), (suffix,))[0]
+    try:
+        formats = check_formats((suffix,))
+    except ValueError as exc:
+        raise ValueError(f"{target}: {exc}") from None
+    return _save(bode_figure(responses, title, summaries), target.with_suffix(""), formats)[0]

@@ -238,9 +238,9 @@ def _disc_factor(dof: int, confidence: float = CONFIDENCE) -> float:
 @functools.lru_cache(maxsize=256)
 def _line_factor(dof: int, confidence: float = CONFIDENCE) -> float:
     """Two-sided Student t quantile: the 95 % half-width of one component, in standard deviations."""
-    from scipy import stats  # imported where used: it is slow to import
+    from scipy.special import stdtrit  # imported where used (scipy.stats, whose t.ppf this is, is slower still)
 
-    return float(stats.t.ppf(0.5 + confidence / 2.0, dof))
+    return float(stdtrit(dof, 0.5 + confidence / 2.0))
 
 
 _BLOCKS = 4          # quarter-blocks of the analysed record
@@ -739,14 +739,14 @@ def _mode_roots(alpha: np.ndarray) -> list[complex]:
     return [complex(v) for v in np.roots(np.concatenate([[1.0], -alpha]))]
 
 
-_SHORT_FORECAST = 64  # steps up to which the recurrence is run on Python scalars (cheaper than a filter call)
 
 
 def _forecast(last: np.ndarray, alpha: np.ndarray, limit: complex, steps: int) -> np.ndarray:
     """The next ``steps`` values of the recurrence Z(i) - Z_inf = sum_r alpha_r (Z(i-r) - Z_inf) from its last ones.
 
-    Run as a direct-form-II-transposed filter: state[m] = sum over r > m of alpha_r times the deviation r - m
-    periods back, the next deviation is state[0].
+    Run as a direct-form-II-transposed filter on Python scalars: state[m] = sum over r > m of alpha_r times the
+    deviation r - m periods back, the next deviation is state[0] (the same arithmetic as scipy.signal.lfilter,
+    without the import of scipy.signal in every process that fits a mode).
     """
     if steps == 0 or alpha.size == 0:
         return np.full(steps, limit, dtype=complex)
@@ -754,11 +754,6 @@ def _forecast(last: np.ndarray, alpha: np.ndarray, limit: complex, steps: int) -
     order = len(coef)
     past = [complex(v) - limit for v in last[::-1].tolist()]  # the most recent deviation first
     state = [sum(coef[m + k] * past[k] for k in range(order - m)) for m in range(order)]
-    if steps > _SHORT_FORECAST:
-        from scipy.signal import lfilter  # imported where used: it is slow to import
-
-        a = np.concatenate([[1.0], -alpha])
-        return limit + lfilter([1.0], a, np.zeros(steps, dtype=complex), zi=np.array(state, dtype=complex))[0]
     out = []
     for _ in range(steps):
         y = state[0]
