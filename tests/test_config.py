@@ -312,7 +312,9 @@ def test_cross_field_max_periods_must_exceed_skip_periods() -> None:
         ({"excitation": {"amplitude": 1, "frequencies_hz": [1]}}, "plant.model: missing"),
         ({"plant": {"mass": 1.0}, "excitation": {"amplitude": 1, "frequencies_hz": [1]}}, "plant.model: missing"),
         ({"plant": {"model": "lag"}}, "excitation.amplitude: missing"),
-        ({"plant": {"model": "lag"}, "excitation": {"amplitude": 1}}, "excitation.frequencies_hz: missing"),
+        ({"plant": {"model": "lag"}, "excitation": {"amplitude": 1}},
+         "excitation.frequencies_hz: missing (give frequencies_hz = [...] or frequencies = {start_hz, stop_hz, "
+         "per_decade})"),
         ({"plant": {"model": "lag"}, "excitation": {"frequencies_hz": [1]}}, "excitation.amplitude: missing"),
     ],
 )
