@@ -32,9 +32,13 @@ from .serial_framing import (
     encode_binary,
 )
 
-if os.name == "posix":
+try:  # POSIX: a tty's descriptor is read and written directly
     import fcntl
     import termios
+except ImportError:  # Windows: pyserial's own read and write
+    _DIRECT_FD = False
+else:
+    _DIRECT_FD = os.name == "posix"
 
 if TYPE_CHECKING:  # python-can is imported where a CAN port is made
     import can
@@ -538,7 +542,7 @@ class SerialPort(FramePort):
             fd = fileno()
         except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
             return None
-        return fd if isinstance(fd, int) and os.name == "posix" else None
+        return fd if isinstance(fd, int) and _DIRECT_FD else None
 
     def _close(self) -> None:
         self._ser.close()

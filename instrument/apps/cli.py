@@ -47,7 +47,7 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
             raise
         current = procedure.current
         session = current.session
-        if not isinstance(exc, (SessionError, KeyboardInterrupt)):
+        if not isinstance(exc, (SessionError, KeyboardInterrupt, SimulatorStartError, DriverError)):
             traceback.print_exc()
         kept = len(current.response.points)  # each of them saved when it was measured
         where = f"{kept} points kept in {current.directory}" if kept else "no point measured"
@@ -81,7 +81,7 @@ def _cause(exc: BaseException) -> str:
         return f"interrupted ({exc.signame})"
     if isinstance(exc, KeyboardInterrupt):
         return "interrupted"
-    if isinstance(exc, SessionError):
+    if isinstance(exc, (SessionError, SimulatorStartError, DriverError)):
         return str(exc)
     return f"error: {type(exc).__name__}: {exc}"
 

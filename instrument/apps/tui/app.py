@@ -235,7 +235,7 @@ class BodeBenchApp(App[int]):
         # sweep is aborted (setpoint to zero, drive disabled) and joined before the app ends
         self._signals: list[int] = []
         loop = asyncio.get_running_loop()
-        for signum in (signal.SIGTERM, signal.SIGHUP):
+        for signum in [getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)]:
             try:
                 loop.add_signal_handler(signum, self._stop_signal, signum)
             except (NotImplementedError, RuntimeError, ValueError):  # not the main thread: the signal stays as it is
