@@ -120,7 +120,8 @@ class Serving:
 def serve_can(spec: SimulatorSpec) -> Serving:
     """Serve on a python-can bus opened from ``spec.can`` (for ``virtual``: in this process)."""
     can = dict(spec.can)
-    port = CanPort.open(can["interface"], can.get("channel"), can.get("bitrate"), can.get("options", {}))
+    port = CanPort.open(can["interface"], can.get("channel"), can.get("bitrate"), can.get("options", {}),
+                        fd=bool(can.get("fd", False)))
     return Serving(spec.controller(), spec.wire(port))
 
 

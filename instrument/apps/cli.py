@@ -17,7 +17,8 @@ from bodebench.io.results import ResultsError, load_response
 from bodebench.sim.serve import SimulatorStartError
 
 
-def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False) -> int:
+def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False,
+                  log_bus: Path | None = None) -> int:
     """Run every case of a bench config (``direct``: the simulated drive without a bus); the exit status."""
     from bodebench.apps.plots import write_plots
     from bodebench.apps.progress import ProgressPrinter
@@ -35,7 +36,7 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
             printer(event)
 
     procedure = SweepProcedure(config, out, listener=listener, direct=direct, plots=write_plots,
-                               existing="resume" if resume else "refuse")
+                               existing="resume" if resume else "refuse", log_bus=log_bus)
     try:
         outcomes = procedure.run()
     except ResultsError as exc:  # a results directory cannot take the sweep: found before any setpoint
@@ -91,7 +92,20 @@ def _run(args: argparse.Namespace) -> int:
     if not config.on_bench:
         raise ConfigError(f"{args.config}: bench: missing (bodebench run needs a bench config; "
                           "use bodebench simulate for an offline experiment)", "bench")
-    return _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet, resume=args.resume)
+    return _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet, resume=args.resume,
+                         log_bus=_log_bus(args.log_bus))
+
+
+def _log_bus(value: str | None) -> Path | None:
+    """The --log-bus file, checked before anything is sent: its directory must exist."""
+    if value is None:
+        return None
+    path = Path(value)
+    if not path.parent.is_dir():
+        raise ResultsError(f"--log-bus {value}: no directory {path.parent}")
+    if path.is_dir():
+        raise ResultsError(f"--log-bus {value}: is a directory")
+    return path
 
 
 def _tui(args: argparse.Namespace) -> int:
@@ -101,7 +115,7 @@ def _tui(args: argparse.Namespace) -> int:
     if not config.on_bench:
         raise ConfigError(f"{args.config}: bench: missing (bodebench tui needs a bench config)", "bench")
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
-    return run_tui(config, out)
+    return run_tui(config, out, log_bus=_log_bus(args.log_bus))
 
 
 def _sim_controller(args: argparse.Namespace) -> int:
@@ -243,6 +257,39 @@ def _identify(args: argparse.Namespace) -> int:
     return status
 
 
+def _ports(args: argparse.Namespace) -> int:
+    import json
+
+    import serial.tools.list_ports
+
+    serial_ports = [{"port": p.device, "description": p.description or "", "hwid": p.hwid or ""}
+                    for p in sorted(serial.tools.list_ports.comports(), key=lambda p: p.device)]
+    can_configs: list[dict[str, object]] = []
+    if not args.no_can:
+        import can
+
+        found = can.detect_available_configs(interfaces=args.can or None)
+        can_configs = [{k: v if isinstance(v, (str, int, float, bool)) or v is None else str(v)
+                        for k, v in dict(c).items()} for c in found]
+    if args.json:
+        print(json.dumps({"serial": serial_ports, "can": can_configs}, indent=2))
+        return 0
+    print(f"serial ports (pyserial): {len(serial_ports)}")
+    for p in serial_ports:
+        print(f'  port = "{p["port"]}"    # {p["description"]}; {p["hwid"]}')
+    if args.no_can:
+        return 0
+    where = ", ".join(args.can) if args.can else "every interface"
+    print(f"CAN configurations (python-can, {where}): {len(can_configs)}")
+    for c in can_configs:
+        print("  " + ", ".join(f"{k} = {json.dumps(v)}" for k, v in c.items()))
+    return 0
+
+
+LOG_BUS_HELP = ("write the session's traffic to FILE: on CAN through python-can's Logger, the suffix picks the "
+                 "format (.asc, .blf, .log, .csv, ...); on a serial line a raw timestamped byte log")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="bodebench", description=__doc__.strip().splitlines()[0] if __doc__ else "")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -261,6 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--quiet", action="store_true", help="no progress display")
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
+    run.add_argument("--log-bus", metavar="FILE", default=None, help=LOG_BUS_HELP)
     run.set_defaults(handler=_run)
     ctl = sub.add_parser("sim-controller", help="run the simulated servo controller of a bench config standalone")
     ctl.add_argument("config", help="TOML bench file with [simulator]")
@@ -269,7 +317,14 @@ def build_parser() -> argparse.ArgumentParser:
     tui = sub.add_parser("tui", help="sweep a drive on the bench in the terminal UI")
     tui.add_argument("config", help="TOML bench file")
     tui.add_argument("--out", default=None, help="results directory (default: results/<config stem>)")
+    tui.add_argument("--log-bus", metavar="FILE", default=None, help=LOG_BUS_HELP)
     tui.set_defaults(handler=_tui)
+    ports = sub.add_parser("ports", help="list the serial ports and the CAN interfaces and channels found here")
+    ports.add_argument("--can", action="append", metavar="INTERFACE", default=None,
+                       help="search only this python-can interface (repeatable; default: every interface)")
+    ports.add_argument("--no-can", action="store_true", help="list the serial ports only")
+    ports.add_argument("--json", action="store_true", help="print JSON")
+    ports.set_defaults(handler=_ports)
     cal = sub.add_parser("calibrate", help="compute the friction link's calibration curves (identify's procedure)")
     cal.add_argument("--out", default=None, help="output file (default: the table shipped in the package)")
     cal.add_argument("--jobs", type=int, default=None,

@@ -33,6 +33,12 @@ def case_directory(config: ExperimentConfig, out: Path, case: CaseConfig) -> Pat
     return out / case.name if config.has_cases else out
 
 
+def bus_log_path(path: Path, config: ExperimentConfig, case: CaseConfig) -> Path:
+    """Where a case's bus log goes: ``path`` itself for a file without [cases], else ``path`` with the case's name
+    before its suffix (``bus.asc`` -> ``bus.<case>.asc``)."""
+    return path.with_name(f"{path.stem}.{case.name}{path.suffix}") if config.has_cases else path
+
+
 EXISTING = ("refuse", "resume", "replace")
 """What to do with results already in a case's directory: refuse to start, continue that sweep, or replace it
 (the user said so)."""
@@ -79,7 +85,8 @@ class SweepProcedure:
     direct: a bench config's simulated drive called in-process, without a bus (``bodebench simulate``);
     existing: what to do with results already in a case's directory (:data:`EXISTING`); worker_mode: where the
     bus worker runs (None: as the config says); executor: where offline frequencies run (None: in this thread,
-    in order); plots: draws each finished case (None: no plots).
+    in order); plots: draws each finished case (None: no plots); log_bus: a log of each bench case's traffic on the
+    bus (:func:`bus_log_path`; None: none).
 
     Requests from other threads (:meth:`request_abort`, :meth:`set_paused`, :meth:`request_skip`,
     :meth:`set_tolerance`) reach the running session and every case after it.
@@ -87,7 +94,8 @@ class SweepProcedure:
 
     def __init__(self, config: ExperimentConfig, out: Path, *, listener: Listener | None = None,
                  direct: bool = False, existing: str = "refuse", worker_mode: str | None = None,
-                 executor: Executor | None = None, plots: PlotWriter | None = None) -> None:
+                 executor: Executor | None = None, plots: PlotWriter | None = None, log_bus: Path | None = None
+                 ) -> None:
         self.config = config
         self.out = Path(out)
         self.listener: Listener = listener or (lambda event: None)
@@ -96,6 +104,7 @@ class SweepProcedure:
         self.worker_mode = worker_mode
         self.executor = executor
         self.plots = plots
+        self.log_bus = log_bus
         self.outcomes: list[CaseOutcome] = []
         self.current: CaseOutcome | None = None
         self._lock = threading.Lock()
@@ -218,7 +227,8 @@ class SweepProcedure:
                     ) -> SessionResult:
         from bodebench.bench.connection import plan_link
 
-        plan = plan_link(outcome.case, direct=self.direct)
+        log = "" if self.log_bus is None else str(bus_log_path(self.log_bus, self.config, outcome.case))
+        plan = plan_link(outcome.case, direct=self.direct, log=log)
         session = BenchSession(outcome.case, plan, outcome.directory if write else None, self.listener,
                                worker_mode=self.worker_mode, resume=previous)
         with self._lock:

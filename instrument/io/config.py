@@ -14,7 +14,7 @@ import os
 import re
 import tomllib
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -191,6 +191,9 @@ def _build_case(
     def key(table: str, name: str) -> str:
         return _key_path(*case_parts, table, name) if name in overrides.get(table, {}) else _key_path(table, name)
 
+    if built["bench"] is not None and built["bench"].transport == "can" and built["can"] is not None:
+        built["can"] = _resolve_can(built["can"], built["simulator"] is not None, key)
+        raw["can"] = _to_raw(built["can"])
     layout = _check_bench(built, frames, key, source)
     return CaseConfig(
         name=name,
@@ -261,6 +264,28 @@ def _parse(data: Mapping[str, Any], source: str) -> ExperimentConfig:
     return ExperimentConfig(path=Path(source), title=title, cases=built, has_cases=True)
 
 
+def _resolve_can(table: CanConfig, simulated: bool, key: Callable[[str, str], str]) -> CanConfig:
+    """``[can]`` with the interface, channel and bitrate it leaves empty taken from python-can's own configuration
+    (``can.util.load_config``: the environment's CAN_INTERFACE, CAN_CHANNEL, CAN_BITRATE, CAN_CONFIG, then
+    ~/.canrc and the other files it reads), as ``can.Bus()`` resolves them; a simulated drive keeps its own channel.
+    Raises :class:`_Fault`."""
+    if table.interface and (table.channel or simulated) and table.bitrate is not None:
+        return table
+    from bodebench.drivers.ports import resolve_can_config
+
+    try:
+        resolved = resolve_can_config(table.interface, table.channel, table.bitrate, table.context)
+    except ValueError as exc:
+        raise _Fault(key("can", "interface"), str(exc)) from None
+    interface = resolved.get("interface") or ""
+    channel = table.channel or ("" if simulated else str(resolved.get("channel") or ""))
+    bitrate = table.bitrate if table.bitrate is not None else resolved.get("bitrate")
+    if bitrate is not None and (isinstance(bitrate, bool) or not isinstance(bitrate, int) or bitrate < 1):
+        raise _Fault(key("can", "bitrate"), f"python-can's configuration gives bitrate {bitrate!r}: not a bit rate")
+    fd = table.fd or bool(resolved.get("fd", False))
+    return replace(table, interface=interface, channel=channel, bitrate=bitrate, fd=fd)
+
+
 def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, key: Callable[[str, str], str],
                  source: str) -> Layout | None:
     """Cross-table checks of a bench case; the frame layout it uses (None offline). Raises :class:`_Fault`."""
@@ -275,7 +300,8 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
         raise _Fault(key("bench", "transport"), f'"{bench.transport}" needs a [{bench.transport}] table')
     simulated = tables.get("simulator") is not None
     if isinstance(link, CanConfig) and not link.channel and not simulated:
-        raise _Fault(key("can", "channel"), "missing (only a [simulator] provides its own)")
+        raise _Fault(key("can", "channel"), "missing: not in the file, nor in python-can's configuration "
+                                            "(CAN_CHANNEL, ~/.canrc); only a [simulator] provides its own")
     if isinstance(link, SerialConfig) and not link.port and not simulated:
         raise _Fault(key("serial", "port"), "missing (only a [simulator] provides its own)")
     cpus = os.cpu_count() or 1
@@ -309,7 +335,8 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
     try:
         layout = default_layout() if frames is None else Layout.from_mapping(frames, source)
         framing = tables["serial"].framing if bench.transport == "serial" else ""
-        layout.validate(f"serial-{framing}" if framing else "can")
+        fd = bench.transport == "can" and tables["can"].fd
+        layout.validate(f"serial-{framing}" if framing else "can-fd" if fd else "can")
     except LayoutError as exc:
         text = str(exc)
         head, _, problem = text.partition(": ")
