@@ -569,7 +569,8 @@ def test_an_optional_table_is_loaded_and_overridable_per_case() -> None:
     exp = parse_config(data)
     assert exp.cases[0].can == cfg.CanConfig(interface="virtual", bitrate=500000)
     assert exp.cases[1].can is not None and exp.cases[1].can.bitrate == 250000
-    assert exp.cases[1].raw["can"] == {"interface": "virtual", "channel": "", "bitrate": 250000, "options": {}}
+    assert exp.cases[1].raw["can"] == {"interface": "virtual", "channel": "", "bitrate": 250000, "fd": False,
+                                       "context": "", "options": {}}
     # An optional table that is absent yields None.
     del data["cases"]
     del data["simulator"]
