@@ -18,7 +18,7 @@ from bodebench.sim.serve import SimulatorStartError
 
 
 def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False,
-                  log_bus: Path | None = None) -> int:
+                  log_bus: Path | None = None, keep_samples: bool = True) -> int:
     """Run every case of a bench config (``direct``: the simulated drive without a bus); the exit status."""
     from bodebench.apps.plots import write_plots
     from bodebench.apps.progress import ProgressPrinter
@@ -36,7 +36,8 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
             printer(event)
 
     procedure = SweepProcedure(config, out, listener=listener, direct=direct, plots=write_plots,
-                               existing="resume" if resume else "refuse", log_bus=log_bus)
+                               existing="resume" if resume else "refuse", log_bus=log_bus,
+                               keep_samples=keep_samples)
     try:
         outcomes = procedure.run()
     except ResultsError as exc:  # a results directory cannot take the sweep: found before any setpoint
@@ -93,7 +94,7 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.config}: bench: missing (bodebench run needs a bench config; "
                           "use bodebench simulate for an offline experiment)", "bench")
     return _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet, resume=args.resume,
-                         log_bus=_log_bus(args.log_bus))
+                         log_bus=_log_bus(args.log_bus), keep_samples=not args.no_samples)
 
 
 def _log_bus(value: str | None) -> Path | None:
@@ -171,7 +172,8 @@ def _simulate(args: argparse.Namespace) -> int:
     out = Path(args.out)
     started = time.perf_counter()
     if config.on_bench:
-        return _bench_sweeps(config, out, direct=True, quiet=args.quiet, resume=args.resume)
+        return _bench_sweeps(config, out, direct=True, quiet=args.quiet, resume=args.resume,
+                             keep_samples=not args.no_samples)
     done, total, name = 0, 0, ""
 
     def listener(event: object) -> None:
@@ -188,7 +190,7 @@ def _simulate(args: argparse.Namespace) -> int:
     executor = None if args.jobs == 1 else default_executor(args.jobs)
     try:
         procedure = SweepProcedure(config, out, listener=listener, executor=executor, plots=write_plots,
-                                   existing="resume" if args.resume else "refuse")
+                                   existing="resume" if args.resume else "refuse", keep_samples=not args.no_samples)
         for outcome in procedure.run():
             unconverged = [p for p in outcome.response.points if not p.converged]
             print(f"{outcome.case.name}: {len(outcome.response.points)} points, "
@@ -257,6 +259,62 @@ def _identify(args: argparse.Namespace) -> int:
     return status
 
 
+def _analyse(args: argparse.Namespace) -> int:
+    from bodebench.analysis.reanalyse import reanalyse
+    from bodebench.io.results import CSV_NAME, save_response
+    from bodebench.io.samples import SamplesError
+
+    directory = Path(args.results)
+    overrides: dict[str, object] = {}
+    if args.criterion is not None:
+        overrides["criterion"] = args.criterion
+    if args.tolerance is not None:
+        overrides["tolerance_percent"] = args.tolerance
+    out = Path(args.out) if args.out else None
+    if out is not None and (out / CSV_NAME).exists():
+        raise ResultsError(f"{out / CSV_NAME}: results already here; choose another --out")
+    try:
+        result = reanalyse(directory, **overrides)
+    except SamplesError as exc:
+        print(f"bodebench: {exc} (a sweep keeps its samples since bodebench 0.1; measure it again)",
+              file=sys.stderr)
+        return 2
+    stored = load_response(directory)
+    response, analysis = result.response, result.analysis
+    same = sum(1 for a, b in zip(stored.points, response.points, strict=True) if _same_point(a, b))
+    print(f"{directory}: {len(response)} points from their samples, criterion {analysis.criterion}, tolerance "
+          f"{analysis.tolerance_percent:g} %; {same} identical to the stored points")
+    if not args.quiet:
+        print(f"{'f Hz':>10} {'k':>2} {'channel':<14} {'gain dB':>11} {'phase deg':>10} {'periods':>7}  status")
+        for p in response.points:
+            print(f"{p.frequency_hz:10g} {p.harmonic:2d} {p.channel:<14} {p.gain_db:11.5f} {p.phase_deg:10.4f} "
+                  f"{p.periods:7d}  {p.status}")
+    if result.record_ended:
+        print(f"the record ended before the rule stopped at {len(result.record_ended)} frequencies (capped there): "
+              + ", ".join(f"{f:g}" for f in result.record_ended) + " Hz")
+    if out is not None:
+        from bodebench.apps.plots import write_plots
+
+        save_response(response, out)
+        files = write_plots(response, out, f"{response.case} ({analysis.criterion}, {analysis.tolerance_percent:g} %)")
+        print(f"-> {out / CSV_NAME} (+ {', '.join(f.name for f in files)})")
+    return 0
+
+
+def _same_point(a: object, b: object) -> bool:
+    """Whether two points are the same, bit for bit (NaN equal to NaN)."""
+    import dataclasses
+    import math
+
+    assert dataclasses.is_dataclass(a) and dataclasses.is_dataclass(b)
+    for x, y in zip(dataclasses.astuple(a), dataclasses.astuple(b), strict=True):  # type: ignore[arg-type]
+        if isinstance(x, float) and isinstance(y, float) and math.isnan(x) and math.isnan(y):
+            continue
+        if x != y:
+            return False
+    return True
+
+
 def _ports(args: argparse.Namespace) -> int:
     import json
 
@@ -301,6 +359,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--quiet", action="store_true", help="no progress lines")
     sim.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
+    sim.add_argument("--no-samples", action="store_true",
+                     help="do not keep the raw samples of each frequency in DIR/samples/ (analyse needs them)")
     sim.set_defaults(handler=_simulate)
     run = sub.add_parser("run", help="sweep a drive on the bench (CAN or serial), headless")
     run.add_argument("config", help="TOML bench file")
@@ -309,6 +369,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
     run.add_argument("--log-bus", metavar="FILE", default=None, help=LOG_BUS_HELP)
+    run.add_argument("--no-samples", action="store_true",
+                     help="do not keep the raw samples of each frequency in DIR/samples/ (analyse needs them)")
     run.set_defaults(handler=_run)
     ctl = sub.add_parser("sim-controller", help="run the simulated servo controller of a bench config standalone")
     ctl.add_argument("config", help="TOML bench file with [simulator]")
@@ -319,6 +381,14 @@ def build_parser() -> argparse.ArgumentParser:
     tui.add_argument("--out", default=None, help="results directory (default: results/<config stem>)")
     tui.add_argument("--log-bus", metavar="FILE", default=None, help=LOG_BUS_HELP)
     tui.set_defaults(handler=_tui)
+    ana = sub.add_parser("analyse", help="analyse a measured sweep again from its samples, without the bench")
+    ana.add_argument("results", metavar="RESULTS_DIR", help="directory holding response.csv, response.json, samples/")
+    ana.add_argument("--criterion", default=None, help="stopping rule (default: the sweep's own)")
+    ana.add_argument("--tolerance", type=float, default=None, metavar="PERCENT",
+                     help="tolerance eps in percent (default: the sweep's own)")
+    ana.add_argument("--out", default=None, help="write the new response and its plots here (default: print only)")
+    ana.add_argument("--quiet", action="store_true", help="no table of points")
+    ana.set_defaults(handler=_analyse)
     ports = sub.add_parser("ports", help="list the serial ports and the CAN interfaces and channels found here")
     ports.add_argument("--can", action="append", metavar="INTERFACE", default=None,
                        help="search only this python-can interface (repeatable; default: every interface)")

@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from dataclasses import asdict
+from pathlib import Path
 from typing import Callable, Collection, Iterator, Sequence
 
 import numpy as np
@@ -17,6 +18,7 @@ import numpy as np
 from bodebench.core.autointegration import Autointegrator
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.io.config import CaseConfig, PlantConfig
+from bodebench.io.samples import PointSamples
 from bodebench.sim.models import plant_from_config
 from bodebench.sim.plants import Plant
 
@@ -38,6 +40,13 @@ def measure_frequency(case: CaseConfig, frequency_hz: float) -> list[ResponsePoi
     rule decides at every period, so the periods reported are exactly those a
     period-by-period run would need.
     """
+    return measure_point(case, frequency_hz)
+
+
+def measure_point(case: CaseConfig, frequency_hz: float, samples_dir: str = "") -> list[ResponsePoint]:
+    """:func:`measure_frequency`; with ``samples_dir`` (a results directory) the samples the sampler was fed are
+    saved there first (:mod:`bodebench.io.samples`), by the process that measured them."""
+    keep_samples = bool(samples_dir)
     analysis = case.analysis
     plant = build_plant(case.plant)
     channel = plant.output_names.index(OUTPUT_CHANNEL)
@@ -45,8 +54,12 @@ def measure_frequency(case: CaseConfig, frequency_hz: float) -> list[ResponsePoi
     steps = analysis.steps_per_period
     h = 1.0 / (steps * frequency_hz)
     sampler = Autointegrator(frequency_hz, amplitude, (OUTPUT_CHANNEL,), analysis)
+    record = PointSamples(frequency_hz, amplitude, (OUTPUT_CHANNEL,), source="offline") if keep_samples else None
     state = plant.initial_state()
-    sampler.feed(np.array([0.0]), np.zeros((1, 1)))
+    first_t, first_y = np.array([0.0]), np.zeros((1, 1))
+    if record is not None:
+        record.add(first_t, first_y)
+    sampler.feed(first_t, first_y)
     step = 0
     batch = FIRST_BATCH_PERIODS
     while not sampler.done:
@@ -54,10 +67,15 @@ def measure_frequency(case: CaseConfig, frequency_hz: float) -> list[ResponsePoi
         n = periods * steps
         y = plant.run_sine(state, step * h, h, n, amplitude, frequency_hz)
         t = (step + 1 + np.arange(n)) * h
+        if record is not None:
+            record.add(t, y[:, channel:channel + 1])
         sampler.feed(t, y[:, channel:channel + 1])
         step += n
         batch = min(2 * batch, MAX_BATCH_PERIODS)
-    return sampler.points()
+    points = sampler.points()
+    if record is not None:
+        record.save(samples_dir)
+    return points
 
 
 def default_executor(max_workers: int | None = None) -> ProcessPoolExecutor:
@@ -67,14 +85,16 @@ def default_executor(max_workers: int | None = None) -> ProcessPoolExecutor:
 
 def sweep(case: CaseConfig, executor: Executor | None = None,
           on_point: Callable[[list[ResponsePoint]], None] | None = None,
-          measured: Sequence[ResponsePoint] = (), skip: Collection[float] = ()) -> FrequencyResponse:
+          measured: Sequence[ResponsePoint] = (), skip: Collection[float] = (),
+          samples_dir: str | Path = "") -> FrequencyResponse:
     """Measure every frequency of a case; ``on_point`` gets each frequency's points as soon as they are done.
 
     executor: where frequencies run (None: in this process, in order); ``measured``: points of an interrupted
-    sweep, kept; ``skip``: the frequencies (Hz) they complete, not measured again.
+    sweep, kept; ``skip``: the frequencies (Hz) they complete, not measured again; ``samples_dir``: the results
+    directory whose ``samples/`` gets each frequency's samples before ``on_point`` gets its points ("": none).
     """
     response = FrequencyResponse(measured, config=case.raw, case=case.name)
-    for points in _run_all(case, executor, skip):
+    for points in _run_all(case, executor, skip, str(samples_dir)):
         for p in points:
             response.add(p)
         if on_point is not None:
@@ -83,14 +103,15 @@ def sweep(case: CaseConfig, executor: Executor | None = None,
     return response
 
 
-def _run_all(case: CaseConfig, executor: Executor | None, skip: Collection[float] = ()
+def _run_all(case: CaseConfig, executor: Executor | None, skip: Collection[float] = (), samples_dir: str = ""
              ) -> Iterator[list[ResponsePoint]]:
     freqs = [f for f in case.excitation.frequencies_hz if f not in skip]
     if executor is None:
         for f in freqs:
-            yield measure_frequency(case, f)
+            yield measure_point(case, f, samples_dir)
         return
-    futures: list[Future[list[ResponsePoint]]] = [executor.submit(measure_frequency, case, f) for f in freqs]
+    futures: list[Future[list[ResponsePoint]]] = [executor.submit(measure_point, case, f, samples_dir)
+                                                  for f in freqs]
     try:
         for fut in as_completed(futures):
             yield fut.result()

@@ -86,7 +86,8 @@ class SweepProcedure:
     existing: what to do with results already in a case's directory (:data:`EXISTING`); worker_mode: where the
     bus worker runs (None: as the config says); executor: where offline frequencies run (None: in this thread,
     in order); plots: draws each finished case (None: no plots); log_bus: a log of each bench case's traffic on the
-    bus (:func:`bus_log_path`; None: none).
+    bus (:func:`bus_log_path`; None: none); keep_samples: save each frequency's raw samples in ``samples/``
+    (:mod:`bodebench.io.samples`).
 
     Requests from other threads (:meth:`request_abort`, :meth:`set_paused`, :meth:`request_skip`,
     :meth:`set_tolerance`) reach the running session and every case after it.
@@ -94,8 +95,8 @@ class SweepProcedure:
 
     def __init__(self, config: ExperimentConfig, out: Path, *, listener: Listener | None = None,
                  direct: bool = False, existing: str = "refuse", worker_mode: str | None = None,
-                 executor: Executor | None = None, plots: PlotWriter | None = None, log_bus: Path | None = None
-                 ) -> None:
+                 executor: Executor | None = None, plots: PlotWriter | None = None, log_bus: Path | None = None,
+                 keep_samples: bool = True) -> None:
         self.config = config
         self.out = Path(out)
         self.listener: Listener = listener or (lambda event: None)
@@ -105,6 +106,7 @@ class SweepProcedure:
         self.executor = executor
         self.plots = plots
         self.log_bus = log_bus
+        self.keep_samples = keep_samples
         self.outcomes: list[CaseOutcome] = []
         self.current: CaseOutcome | None = None
         self._lock = threading.Lock()
@@ -180,6 +182,9 @@ class SweepProcedure:
         merged = merge_frequency(base or FrequencyResponse(config=case.raw, case=case.name),
                                  result.response.points, frequency_hz)
         outcome.response = merged
+        if (self.keep_samples and outcome.session is not None and outcome.session.last_samples is not None
+                and result.response.points):
+            outcome.session.last_samples.save(directory)
         save_response(merged, directory)
         self._finish(outcome)
         return outcome
@@ -230,7 +235,7 @@ class SweepProcedure:
         log = "" if self.log_bus is None else str(bus_log_path(self.log_bus, self.config, outcome.case))
         plan = plan_link(outcome.case, direct=self.direct, log=log)
         session = BenchSession(outcome.case, plan, outcome.directory if write else None, self.listener,
-                               worker_mode=self.worker_mode, resume=previous)
+                               worker_mode=self.worker_mode, resume=previous, keep_samples=self.keep_samples)
         with self._lock:
             outcome.session = session
             if self._paused:
@@ -257,7 +262,7 @@ class SweepProcedure:
             self.listener(PointFinished(index, tuple(points)))
 
         return sweep(case, self.executor, on_point=on_point, measured=previous.points if previous else (),
-                     skip=measured)
+                     skip=measured, samples_dir=directory if self.keep_samples else "")
 
     def _draw(self, outcome: CaseOutcome) -> None:
         if self.plots is not None:
