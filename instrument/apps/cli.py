@@ -125,7 +125,7 @@ def _sim_controller(args: argparse.Namespace) -> int:
 
     config = load_config(args.config)
     case = config.cases[0]
-    if case.bench is None or case.simulator is None:
+    if case.bench is None or case.simulator is None or case.plant is None:
         raise ConfigError(f"{args.config}: simulator: missing (sim-controller needs [bench], [plant] and "
                           "[simulator])", "simulator")
     bench, layout = case.on_bench.bench, case.on_bench.layout

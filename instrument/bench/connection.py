@@ -104,6 +104,8 @@ def simulator_spec(case: CaseConfig, *, wire_faults: bool = True) -> SimulatorSp
     wire_faults: with the configured faults (False: none, for the in-process drive of ``bodebench simulate``)."""
     tables = case.on_bench
     bench, sim, serial, can = tables.bench, case.simulator, case.serial, case.can
+    if case.plant is None:
+        raise ConfigError(f"{case.source}: plant: missing: the simulated drive needs a [plant] table", "plant")
     timing = ControllerTiming(bench.rate_hz, bench.clock, sim.jitter if sim else 0.0,
                               sim.seed if sim else 0, bench.pacing_cpu)
     sensing = FeedbackSensing(sim.noise, sim.quantization, sim.seed) if sim else None

@@ -48,6 +48,8 @@ def measure_point(case: CaseConfig, frequency_hz: float, samples_dir: str = "") 
     saved there first (:mod:`bodebench.io.samples`), by the process that measured them."""
     keep_samples = bool(samples_dir)
     analysis = case.analysis
+    if case.plant is None:
+        raise ValueError(f"case {case.name!r} of {case.source} has no [plant] to simulate")
     plant = build_plant(case.plant)
     channel = plant.output_names.index(OUTPUT_CHANNEL)
     amplitude = case.excitation.amplitude

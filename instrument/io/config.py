@@ -103,6 +103,7 @@ class CaseConfig:
     """One validated case: base tables merged with the case's overrides.
 
     ``source``: the configuration file (relative paths in it, such as a DBC file, are taken from its directory).
+    ``plant``: the simulated plant (None for a real drive: nothing is simulated, and the saved copy has no [plant]).
     ``raw``: the merged, validated configuration as a JSON-serialisable dict (defaults filled in; plant keys the
     model does not use left out), as saved with the results. ``layout``: the frame layout of a bench case (None
     offline).
@@ -110,7 +111,7 @@ class CaseConfig:
 
     name: str
     source: Path
-    plant: PlantConfig
+    plant: PlantConfig | None
     excitation: ExcitationConfig
     analysis: AnalysisConfig
     raw: dict[str, Any] = field(hash=False, repr=False)
@@ -194,6 +195,9 @@ def _build_case(
     if built["bench"] is not None and built["bench"].transport == "can" and built["can"] is not None:
         built["can"] = _resolve_can(built["can"], built["simulator"] is not None, key)
         raw["can"] = _to_raw(built["can"])
+    if built["plant"] is None and (built["bench"] is None or built["simulator"] is not None):
+        what = "an offline experiment" if built["bench"] is None else "a simulated drive ([simulator])"
+        raise _Fault(_key_path("plant"), f"missing: {what} needs a [plant] table (only a real drive needs none)")
     layout = _check_bench(built, frames, key, source)
     return CaseConfig(
         name=name,

@@ -42,7 +42,10 @@ _HYDRAULIC = ("model", ("hydraulic",))
 
 @dataclass(frozen=True)
 class PlantConfig:
-    """The simulated plant (METHOD.md section 2); all quantities dimensionless unless stated."""
+    """The simulated plant (docs/METHOD.md section 2); all quantities dimensionless unless stated. Required where
+    something is simulated (an offline experiment, a bench config with [simulator]); a real drive needs none."""
+
+    TABLE_OPTIONAL = True
 
     model: str = field(
         metadata={
