@@ -309,7 +309,8 @@ def test_cross_field_max_periods_must_exceed_skip_periods() -> None:
 @pytest.mark.parametrize(
     ("data", "expected"),
     [
-        ({"excitation": {"amplitude": 1, "frequencies_hz": [1]}}, "plant.model: missing"),
+        ({"excitation": {"amplitude": 1, "frequencies_hz": [1]}},
+         "plant: missing: an offline experiment needs a [plant] table (only a real drive needs none)"),
         ({"plant": {"mass": 1.0}, "excitation": {"amplitude": 1, "frequencies_hz": [1]}}, "plant.model: missing"),
         ({"plant": {"model": "lag"}}, "excitation.amplitude: missing"),
         ({"plant": {"model": "lag"}, "excitation": {"amplitude": 1}}, "excitation.frequencies_hz: missing"),

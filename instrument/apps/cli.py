@@ -3,18 +3,21 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 import time
 import traceback
 from pathlib import Path
-from typing import Sequence
+from typing import Any, NoReturn, Sequence
 
 from bodebench.drivers.errors import DriverError
 from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
 from bodebench.io.config import ConfigError, ExperimentConfig, load_config
 from bodebench.io.results import ResultsError, load_response
 from bodebench.sim.serve import SimulatorStartError
+
+log = logging.getLogger("bodebench")
 
 
 def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False,
@@ -207,9 +210,6 @@ def _calibrate(args: argparse.Namespace) -> int:
     from bodebench.analysis import calibration
     from bodebench.bench.offline import default_executor
 
-    if args.jobs is not None and args.jobs < 1:
-        print(f"bodebench: --jobs must be >= 1, got {args.jobs}", file=sys.stderr)
-        return 2
     out = Path(args.out) if args.out else calibration.DATA_FILE
     started = time.perf_counter()
     executor = None if args.jobs == 1 else default_executor(args.jobs)
@@ -348,59 +348,111 @@ LOG_BUS_HELP = ("write the session's traffic to FILE: on CAN through python-can'
                  "format (.asc, .blf, .log, .csv, ...); on a serial line a raw timestamped byte log")
 
 
+def _jobs(text: str) -> int:
+    """--jobs: a whole number of worker processes, at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a whole number of worker processes, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1 (worker processes), got {value}")
+    return value
+
+
+def _version() -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version("bodebench")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """A bad option gives one line (and exit status 2), not the usage block."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: {message} (see --help)\n")
+
+
+def _common_options() -> _OneLineParser:
+    """-v and -q, the same on every subcommand."""
+    common = _OneLineParser(add_help=False)
+    group = common.add_mutually_exclusive_group()
+    group.add_argument("-v", "--verbose", action="count", default=0,
+                       help="log more: -v what bodebench does, -vv its details and those of python-can")
+    group.add_argument("-q", "--quiet", action="store_true", help="no progress display; log errors only")
+    return common
+
+
+def _configure_logging(verbose: int, quiet: bool) -> None:
+    """Log lines on stderr: warnings by default, info with -v, debug with -vv, errors only with -q. python-can's
+    own warnings (missing vendor libraries, ...) show from -v on."""
+    import logging
+
+    level = logging.ERROR if quiet else logging.WARNING if verbose == 0 else logging.INFO if verbose == 1 \
+        else logging.DEBUG
+    logging.basicConfig(level=level, format="%(name)s: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
+    logging.getLogger("can").setLevel(level if verbose >= 2 else max(level, logging.ERROR) if verbose == 0
+                                      else logging.WARNING)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="bodebench", description=__doc__.strip().splitlines()[0] if __doc__ else "")
-    sub = parser.add_subparsers(dest="command", required=True)
-    sim = sub.add_parser("simulate", help="sweep a simulated plant offline (the papers' computational experiment)")
+    parser = _OneLineParser(prog="bodebench", description=__doc__.strip().splitlines()[0] if __doc__ else "")
+    parser.add_argument("--version", action="version", version=f"bodebench {_version()}")
+    common = _common_options()
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineParser)
+
+    def add(name: str, **kwargs: Any) -> argparse.ArgumentParser:
+        return sub.add_parser(name, parents=[common], **kwargs)
+
+    sim = add("simulate", help="sweep a simulated plant offline (the papers' computational experiment)")
     sim.add_argument("config", help="TOML experiment file")
     sim.add_argument("--out", required=True, help="results directory (one sub-directory per case)")
-    sim.add_argument("--jobs", type=int, default=None,
+    sim.add_argument("--jobs", type=_jobs, default=None,
                      help="worker processes (default: all cores; 1 runs in this process)")
-    sim.add_argument("--quiet", action="store_true", help="no progress lines")
     sim.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
     sim.add_argument("--no-samples", action="store_true",
                      help="do not keep the raw samples of each frequency in DIR/samples/ (analyse needs them)")
     sim.set_defaults(handler=_simulate)
-    run = sub.add_parser("run", help="sweep a drive on the bench (CAN or serial), headless")
+    run = add("run", help="sweep a drive on the bench (CAN or serial), headless")
     run.add_argument("config", help="TOML bench file")
     run.add_argument("--out", required=True, help="results directory")
-    run.add_argument("--quiet", action="store_true", help="no progress display")
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
     run.add_argument("--log-bus", metavar="FILE", default=None, help=LOG_BUS_HELP)
     run.add_argument("--no-samples", action="store_true",
                      help="do not keep the raw samples of each frequency in DIR/samples/ (analyse needs them)")
     run.set_defaults(handler=_run)
-    ctl = sub.add_parser("sim-controller", help="run the simulated servo controller of a bench config standalone")
+    ctl = add("sim-controller", help="run the simulated servo controller of a bench config standalone")
     ctl.add_argument("config", help="TOML bench file with [simulator]")
     ctl.add_argument("--seconds", type=float, default=0.0, help="stop after this long (default: until Ctrl-C)")
     ctl.set_defaults(handler=_sim_controller)
-    tui = sub.add_parser("tui", help="sweep a drive on the bench in the terminal UI")
+    tui = add("tui", help="sweep a drive on the bench in the terminal UI")
     tui.add_argument("config", help="TOML bench file")
     tui.add_argument("--out", default=None, help="results directory (default: results/<config stem>)")
     tui.add_argument("--log-bus", metavar="FILE", default=None, help=LOG_BUS_HELP)
     tui.set_defaults(handler=_tui)
-    ana = sub.add_parser("analyse", help="analyse a measured sweep again from its samples, without the bench")
+    ana = add("analyse", help="analyse a measured sweep again from its samples, without the bench")
     ana.add_argument("results", metavar="RESULTS_DIR", help="directory holding response.csv, response.json, samples/")
     ana.add_argument("--criterion", default=None, help="stopping rule (default: the sweep's own)")
     ana.add_argument("--tolerance", type=float, default=None, metavar="PERCENT",
                      help="tolerance eps in percent (default: the sweep's own)")
     ana.add_argument("--out", default=None, help="write the new response and its plots here (default: print only)")
-    ana.add_argument("--quiet", action="store_true", help="no table of points")
     ana.set_defaults(handler=_analyse)
-    ports = sub.add_parser("ports", help="list the serial ports and the CAN interfaces and channels found here")
+    ports = add("ports", help="list the serial ports and the CAN interfaces and channels found here")
     ports.add_argument("--can", action="append", metavar="INTERFACE", default=None,
                        help="search only this python-can interface (repeatable; default: every interface)")
     ports.add_argument("--no-can", action="store_true", help="list the serial ports only")
     ports.add_argument("--json", action="store_true", help="print JSON")
     ports.set_defaults(handler=_ports)
-    cal = sub.add_parser("calibrate", help="compute the friction link's calibration curves (identify's procedure)")
+    cal = add("calibrate", help="compute the friction link's calibration curves (identify's procedure)")
     cal.add_argument("--out", default=None, help="output file (default: the table shipped in the package)")
-    cal.add_argument("--jobs", type=int, default=None,
+    cal.add_argument("--jobs", type=_jobs, default=None,
                      help="worker processes (default: all cores; 1 runs in this process)")
     cal.set_defaults(handler=_calibrate)
-    ident = sub.add_parser("identify", help="identify the friction link (F_ct, m) from a measured response")
+    ident = add("identify", help="identify the friction link (F_ct, m) from a measured response")
     ident.add_argument("results", metavar="RESULTS_DIR", help="directory holding response.csv and response.json")
     ident.add_argument("--json", action="store_true", help="print the report as JSON")
     ident.add_argument("--stiffness", type=float, default=None, help="K_p (default: the sidecar's plant.stiffness)")
@@ -420,6 +472,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``bodebench`` command; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    _configure_logging(args.verbose, args.quiet)
+    log.debug("bodebench %s: %s", _version(), " ".join(sys.argv if argv is None else ["bodebench", *argv]))
     try:
         if args.handler is _tui:  # the terminal UI handles its own keys and signals
             return int(args.handler(args))

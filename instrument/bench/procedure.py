@@ -11,6 +11,7 @@ or the offline sweep through a :class:`ResultsWriter`), and writes the plots of 
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 from collections.abc import Callable, Sequence
@@ -23,6 +24,8 @@ from bodebench.bench.session import BenchSession, SessionResult, completed_frequ
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.io.config import CaseConfig, ExperimentConfig
 from bodebench.io.results import CSV_NAME, SIDECAR_NAME, ResultsError, ResultsWriter, load_response, save_response
+
+log = logging.getLogger("bodebench.sweep")
 
 PlotWriter = Callable[[FrequencyResponse, Path, str], list[Path]]
 """Draws a finished case: (response, directory, title) -> the files written."""
@@ -205,6 +208,8 @@ class SweepProcedure:
     def _run_case(self, index: int, previous: FrequencyResponse | None) -> None:
         case = self._case(index)
         directory = self._directory(index)
+        log.info("case %s: %d frequencies -> %s%s", case.name, len(case.excitation.frequencies_hz), directory,
+                 f" (resuming after {len(previous.points)} points)" if previous else "")
         self.listener(CaseBegins(index, case.name, directory))
         outcome = CaseOutcome(index, case, directory, FrequencyResponse(config=case.raw, case=case.name))
         self.current = outcome
@@ -232,8 +237,10 @@ class SweepProcedure:
                     ) -> SessionResult:
         from bodebench.bench.connection import plan_link
 
-        log = "" if self.log_bus is None else str(bus_log_path(self.log_bus, self.config, outcome.case))
-        plan = plan_link(outcome.case, direct=self.direct, log=log)
+        bus_log = "" if self.log_bus is None else str(bus_log_path(self.log_bus, self.config, outcome.case))
+        plan = plan_link(outcome.case, direct=self.direct, log=bus_log)
+        log.info("case %s: the drive is reached %s%s", outcome.case.name, plan.where or "directly",
+                 f"; bus log {bus_log}" if bus_log else "")
         session = BenchSession(outcome.case, plan, outcome.directory if write else None, self.listener,
                                worker_mode=self.worker_mode, resume=previous, keep_samples=self.keep_samples)
         with self._lock:
