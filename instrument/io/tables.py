@@ -182,7 +182,7 @@ class ExcitationConfig:
 
 @dataclass(frozen=True)
 class AnalysisConfig:
-    """Harmonic analysis and stopping rule (METHOD.md section 1)."""
+    """Harmonic analysis and stopping rule (docs/METHOD.md section 1)."""
 
     harmonics: tuple[int, ...] = field(
         default=(1,),
