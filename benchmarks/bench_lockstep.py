@@ -8,6 +8,8 @@ setpoint at once, so the sweep runs as fast as the chain carries frames):
 - configs/sim_can.toml: python-can's virtual bus; the bus worker (a thread of the session's process) and the
   simulated drive (served from a thread of the same process) exchange frames through it.
 - configs/sim_serial.toml: binary framing on a pseudo-terminal; the simulated drive in its own process.
+- configs/sim_canopen.toml: CANopen on the virtual bus: an RPDO and a SYNC out, a TPDO back for each setpoint; the
+  simulated CiA 402 drive answers from canopen's notifier thread in the same process.
 
 Frames per second = (frames_in + frames_out of the worker's bus, from the last Health) / wall time of
 BenchSession.run (worker start and bus opening included). Target: >= 10,000 frames/s for sim_can.
@@ -35,7 +37,8 @@ from bodebench.bench.connection import plan_link  # noqa: E402
 from bodebench.bench.session import BenchSession, SessionResult  # noqa: E402
 from bodebench.io.config import load_config  # noqa: E402
 
-CONFIGS = (ROOT / "configs" / "sim_can.toml", ROOT / "configs" / "sim_serial.toml")
+CONFIGS = (ROOT / "configs" / "sim_can.toml", ROOT / "configs" / "sim_serial.toml",
+           ROOT / "configs" / "sim_canopen.toml")
 TARGET_FRAMES_PER_S = 10_000.0
 PROFILE_LINES = 25
 

@@ -192,10 +192,18 @@ class Driver:
         if self.layout.enable is not None:
             self._send(self.layout.enable, {})
 
-    def disable(self) -> None:
-        """Send the disable message (no-op when the layout has none)."""
+    counts_host_ticks = False
+    """True when ``FeedbackSample.counter`` is the host's tick after the setpoint the sample answers (the
+    counter passed to ``send_setpoint`` plus one), not the drive's own count."""
+    shutdown_account = ""
+    """What ``disable()`` did to the drive beyond the disable frame, in words (empty: nothing more)."""
+
+    def disable(self) -> bool:
+        """Send the disable message (no-op when the layout has none); True when it went out."""
         if self.layout.disable is not None:
             self._send(self.layout.disable, {})
+            return True
+        return False
 
     def heartbeat(self) -> None:
         """Send the heartbeat message (no-op when the layout has none); call every ``layout.heartbeat_period_s``."""

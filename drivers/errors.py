@@ -4,6 +4,8 @@
 - ``DriverInitError``: opening or configuring an interface failed.
 - ``DriverOperationError``: sending or receiving on an open interface failed.
 - ``DriverTimeoutError``: an interface operation did not complete within its time limit.
+- ``DriveFaultError``: the drive itself reported a fault or stopped answering its protocol (a CANopen emergency
+  message, a CiA 402 fault state, a lost heartbeat) or refused to enable.
 
 Backends catch vendor exceptions (``can.CanError`` family, ``serial.SerialException``, ``OSError``) at their
 boundary and re-raise them as one of the ``DriverError`` subclasses, with the original exception as ``__cause__``
@@ -17,6 +19,7 @@ __all__ = [
     "DriverInitError",
     "DriverOperationError",
     "DriverTimeoutError",
+    "DriveFaultError",
     "LayoutError",
 ]
 
@@ -35,6 +38,11 @@ class DriverOperationError(DriverError):
 
 class DriverTimeoutError(DriverOperationError):
     """An interface operation did not complete within its time limit."""
+
+
+class DriveFaultError(DriverOperationError):
+    """The drive reported a fault (CANopen EMCY, CiA 402 fault state), fell silent (no heartbeat) or refused to
+    enable; the message names the node and what it said."""
 
 
 class LayoutError(ValueError):

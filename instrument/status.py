@@ -33,6 +33,9 @@ class FaultKind(StrEnum):
     """A feedback sample left its [safety] window."""
     BUS = "bus"
     """The bus or the drive link failed (bus off, send errors, a worker that went away)."""
+    DRIVE = "drive"
+    """The drive reported a fault (a CANopen emergency message, a CiA 402 fault state), fell silent (no heartbeat)
+    or refused to enable."""
     ERROR = "error"
     """An unexpected error in the bus worker."""
     TIMEOUT = "timeout"

@@ -221,7 +221,10 @@ class SimulatedController:
         with self._lock:
             return self._step()
 
-    def _step(self) -> list[Frame]:
+    def advance(self) -> np.ndarray:
+        """One control period: the latest setpoint (zero while disabled) held on the plant until the next sampling
+        instant (jittered where the timing says so); the plant's outputs there. Not locked: ``tick`` and
+        ``handle`` lock around it."""
         dt = self.period
         if self.timing.jitter:
             # the sampling instant of this period moves; the next one is referenced to the nominal grid
@@ -233,6 +236,19 @@ class SimulatedController:
         y = self.plant.run_held(self.state, self._u, dt)[0]
         self.time += dt
         self.tick_count += 1
+        return y
+
+    def sensed(self, y: np.ndarray, name: str) -> float:
+        """What the drive's sensor reports of channel ``name`` (a plant output, or ``setpoint_echo``) at outputs
+        ``y``: noise and quantization applied."""
+        index = self._source(name)
+        value = float(y[index]) if index >= 0 else self.applied
+        if self.sensing is not None and self._sensing_rng is not None:
+            value = self.sensing.apply(value, self._sensing_rng)
+        return value
+
+    def _step(self) -> list[Frame]:
+        y = self.advance()
         if self.faults is not None:
             if self.faults.silent(self.time):
                 return []

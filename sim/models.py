@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
 from bodebench.sim.hydraulic import HYDRAULIC_DEFAULTS, SUBSTEPS_PER_PERIOD, ElectrohydraulicDrive
 from bodebench.sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant
 
-__all__ = ["plant_from_config"]
+__all__ = ["load_kernels", "plant_from_config"]
 
 
 def plant_from_config(model: str, *, mass: float = 1.0, stiffness: float = 1.0, friction: float = 0.0,
@@ -28,3 +30,14 @@ def plant_from_config(model: str, *, mass: float = 1.0, stiffness: float = 1.0, 
             raise ValueError(f"unknown hydraulic plant parameters {unknown}")
         return ElectrohydraulicDrive(**hydraulic, substeps_per_period=SUBSTEPS_PER_PERIOD)
     raise ValueError(f"unknown plant model {model!r}")
+
+
+def load_kernels(models: Collection[str]) -> None:
+    """Compile the step loops of ``models`` (or load them from numba's on-disk cache): a few steps of each, sine
+    and held input."""
+    import numpy as np
+
+    for model in models:
+        plant = plant_from_config(model, friction=0.1, damping_ratio=0.1)
+        plant.run_sine(plant.initial_state(), 0.0, 1e-3, 2, 1.0, 1.0)
+        plant.run_held(plant.initial_state(), np.zeros(2), 1e-3)

@@ -9,12 +9,11 @@ import can
 from bodebench.drivers.layout import default_layout
 
 
-class BusRecorder:
-    """A third node on the virtual bus that records every setpoint and enable/disable frame."""
+class FrameRecorder:
+    """A listening node on the virtual bus that keeps every frame it sees."""
 
     def __init__(self, channel: str) -> None:
         self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        self.layout = default_layout()
         self.frames: list[can.Message] = []
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -26,13 +25,26 @@ class BusRecorder:
             if msg is not None:
                 self.frames.append(msg)
 
-    def close(self) -> tuple[float, bool]:
-        """(last setpoint sent, whether a disable frame followed it)."""
+    def frames_seen(self) -> list[can.Message]:
+        """Stop listening and return every frame, those still queued when the reader stopped included."""
         self.stop.set()
         self.thread.join()
-        while (msg := self.bus.recv(0.05)) is not None:  # frames still queued when the reader stopped
+        while (msg := self.bus.recv(0.05)) is not None:
             self.frames.append(msg)
         self.bus.shutdown()
+        return self.frames
+
+
+class BusRecorder(FrameRecorder):
+    """A third node on the virtual bus that records every setpoint and enable/disable frame."""
+
+    def __init__(self, channel: str) -> None:
+        self.layout = default_layout()
+        super().__init__(channel)
+
+    def close(self) -> tuple[float, bool]:
+        """(last setpoint sent, whether a disable frame followed it)."""
+        self.frames_seen()
         sp, dis = self.layout.setpoint, self.layout.disable
         setpoints = [i for i, m in enumerate(self.frames) if m.arbitration_id == sp.id]
         last = setpoints[-1]

@@ -84,6 +84,7 @@ def offline_serial() -> FrequencyResponse:
                         frames=SERIAL_FRAMES), direct=True).response
 
 
+@pytest.mark.slow
 def test_virtual_can_agrees_with_the_offline_run(offline: FrequencyResponse, tmp_path: Path) -> None:
     session = sweep(config(), tmp_path)
     compare(session.response, offline, 0.05, 0.2)
@@ -91,12 +92,14 @@ def test_virtual_can_agrees_with_the_offline_run(offline: FrequencyResponse, tmp
     assert len(on_disk.points) == len(session.response.points) == 2 * len(FREQS)
 
 
+@pytest.mark.slow
 def test_slcan_adapter_on_a_pty_agrees_with_the_offline_run(offline: FrequencyResponse) -> None:
     session = sweep(config(can={"interface": "slcan", "channel": ""}))
     compare(session.response, offline, 0.05, 0.2)
     assert "slcan" in session.plan.where
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("framing", ["binary", "ascii"])
 def test_serial_on_a_pty_agrees_with_the_offline_run(offline_serial: FrequencyResponse, framing: str) -> None:
     session = sweep(config(bench={"transport": "serial"}, can=None, serial={"framing": framing},
@@ -104,6 +107,7 @@ def test_serial_on_a_pty_agrees_with_the_offline_run(offline_serial: FrequencyRe
     compare(session.response, offline_serial, 0.05, 0.2)
 
 
+@pytest.mark.slow
 def test_jittered_sampling_with_timestamps_agrees(offline_serial: FrequencyResponse) -> None:
     """Sampling instants jitter by +-5 % of the period; the controller's timestamps say when each sample was
     taken and the sampler integrates on them. Jitter is noise, so the tolerance is 0.05 % here."""
@@ -114,6 +118,7 @@ def test_jittered_sampling_with_timestamps_agrees(offline_serial: FrequencyRespo
     compare(session.response, offline_serial, 0.05, 0.2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("pacing_cpu", [None, 0])
 def test_realtime_clock_over_a_serial_pty_agrees_with_lockstep(pacing_cpu: int | None) -> None:
     """A short run on the wall clock: the drive, in its own process behind a pty, ticks at 1 kHz on its own clock;

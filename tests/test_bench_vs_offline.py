@@ -45,6 +45,7 @@ def held_over_continuous(num: list[float], den: list[float], frequency_hz: float
     return complex(held / (np.polyval(num, 1j * w) / np.polyval(den, 1j * w)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("plant", sorted(PLANTS))
 def test_the_bench_chain_measures_what_the_offline_experiment_computes(tmp_path: Path, plant: str) -> None:
     table, num, den = PLANTS[plant]

@@ -40,10 +40,12 @@ def bodebench(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(cmd + list(args), cwd=cwd, capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.slow
 def test_simulate_writes_one_directory_per_case(tmp_path: Path) -> None:
     cfg = tmp_path / "cases.toml"
     cfg.write_text(CONFIG)
-    proc = bodebench("simulate", str(cfg), "--out", str(tmp_path / "out"), "--jobs", "2", cwd=tmp_path)
+    proc = bodebench("simulate", str(cfg), "--out", str(tmp_path / "out"), "--jobs", "2", "--plots", "png,svg",
+                     cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     for case, zeta in (("light", 0.05), ("heavy", 0.7)):
         d = tmp_path / "out" / case

@@ -61,6 +61,7 @@ def command() -> list[str]:
     return [exe] if exe else [sys.executable, "-m", "bodebench"]
 
 
+@pytest.mark.slow
 def test_run_command_sweeps_the_simulated_can_bench(tmp_path: Path) -> None:
     cfg = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
     text = cfg.read_text().replace("frequencies_hz = [2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 15, 20, 30, 50]",
@@ -91,6 +92,7 @@ def test_run_refuses_an_offline_config(tmp_path: Path) -> None:
     assert "paper2013.toml" in proc.stderr and "bench" in proc.stderr and "Traceback" not in proc.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum, group", [(signal.SIGINT, True), (signal.SIGTERM, False), (signal.SIGTERM, True),
                                            (signal.SIGHUP, True)],
                          ids=["ctrl-c", "sigterm-to-the-process", "sigterm-to-the-group", "sighup"])
@@ -160,6 +162,7 @@ def test_results_that_cannot_be_written_are_found_before_the_first_setpoint(tmp_
         "Not a directory; nothing was sent to the drive"]
 
 
+@pytest.mark.slow
 def test_a_write_failure_mid_sweep_stops_safely_and_keeps_every_point_on_disk(tmp_path: Path) -> None:
     """Files may not grow past a limit (RLIMIT_FSIZE, as a full disk would refuse them): response.csv hits it
     mid-sweep. One line says so; every point saved before is on disk, whole; the drive was zeroed and disabled."""

@@ -685,6 +685,7 @@ bad_values = st.one_of(
 )
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=valid_configs(), pick=st.integers(min_value=0), bad=bad_values, element=st.booleans())
 def test_mutated_config_fails_cleanly_naming_the_key(data: dict[str, Any], pick: int, bad: Any, element: bool) -> None:

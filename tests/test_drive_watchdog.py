@@ -85,6 +85,7 @@ def _kill_host_mid_sweep(tmp_path: Path, drive_text: str, host_for: Callable[[st
     return _drive_events("".join(lines)), lines[-1]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bench, pattern", [(SERIAL_BENCH, r'port = "([^"]+)"'), (CAN_BENCH, r'channel = "([^"]+)"')],
                          ids=["serial", "can-slcan"])
 def test_kill_9_of_the_host_leaves_the_drive_zeroed_and_disabled(tmp_path: Path, bench: str, pattern: str) -> None:
@@ -141,6 +142,7 @@ def _paused_sweep(frames: dict, channel: str, resume: bool) -> tuple[int, int, l
     return serving.controller.watchdog_trips, beats, events
 
 
+@pytest.mark.slow
 def test_the_heartbeat_keeps_a_paused_sweep_from_tripping_the_drive() -> None:
     trips, beats, events = _paused_sweep(CAN_FRAMES, "watchdog-fed", resume=True)
     assert trips == 0, events

@@ -34,6 +34,7 @@ def _session(data: dict, out: Path | None, trigger) -> BenchSession:  # type: ig
     return session
 
 
+@pytest.mark.slow
 def test_an_exception_in_the_session_zeroes_and_disables_and_is_not_called_complete(tmp_path: Path) -> None:
     recorder = BusRecorder("exit-listener")
 
@@ -64,6 +65,7 @@ def test_an_exception_in_the_bus_worker_zeroes_and_disables() -> None:
     assert session.ended is not None and session.ended.drive_state() == "drive left at setpoint 0, disabled"
 
 
+@pytest.mark.slow
 def test_a_serial_drive_that_dies_is_reported_as_not_zeroed_with_its_watchdog() -> None:
     """The drive's process is killed mid-sweep: its end of the pty is gone, so no zero setpoint can reach it. The
     session says so, with the last setpoint that did go out and what the drive's own watchdog does."""

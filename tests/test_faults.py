@@ -64,6 +64,7 @@ def offline_serial():
     return session.response
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, faults, counted", [
     ("drop 1 %", {"drop": 0.01}, lambda h: h.bus.lost_samples + h.bus.incomplete_samples),
     # a tenth of the samples missing is heavy noise: measured to 0.2 % (0.017 dB), still inside the comparison
@@ -84,6 +85,7 @@ def test_frame_faults_on_can_complete_with_correct_figures(offline_can, name: st
     assert counted(health.health) > 0, f"{name}: not counted in {health.health}"
 
 
+@pytest.mark.slow
 def test_random_bytes_on_the_serial_line_are_survived(offline_serial) -> None:
     session, health, error = run(serial_config({"garbage": 0.1}))
     assert error is None
@@ -91,6 +93,7 @@ def test_random_bytes_on_the_serial_line_are_survived(offline_serial) -> None:
     assert health.health.bus.resyncs > 0  # runs of garbage between frames, counted
 
 
+@pytest.mark.slow
 def test_a_jumping_counter_is_realigned(offline_can) -> None:
     session, health, error = run(can_config("faults-jump", {"counter_jump_at": 1500, "counter_jump_by": 300}))
     assert error is None
@@ -98,6 +101,7 @@ def test_a_jumping_counter_is_realigned(offline_can) -> None:
     assert health.health.counter_anomalies >= 3
 
 
+@pytest.mark.slow
 def test_nan_and_infinity_in_float_frames_are_dropped(offline_can) -> None:
     session, health, error = run(can_config("faults-nan", {"nan": 0.01}))
     assert error is None

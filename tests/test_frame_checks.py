@@ -181,6 +181,7 @@ def _offline(data: dict[str, Any]):  # type: ignore[no-untyped-def]
     return session.response
 
 
+@pytest.mark.slow
 def test_a_second_node_sending_random_feedback_frames_is_rejected_and_the_sweep_is_right() -> None:
     frames = _crc_layout_mapping()
     data = config(can={"channel": "checks-adversary"}, frames=frames, analysis=FIRST,
@@ -206,6 +207,7 @@ def _serial(faults: dict[str, Any]) -> dict[str, Any]:
                   safety={"feedback_limits": {"position": [-0.5, 0.5]}})
 
 
+@pytest.mark.slow
 def test_valid_crc_random_serial_frames_are_rejected_and_the_sweep_is_right() -> None:
     offline = _offline(_serial({}))
     session, health = _run(_serial({"forged": 0.02}))
@@ -213,6 +215,7 @@ def test_valid_crc_random_serial_frames_are_rejected_and_the_sweep_is_right() ->
     assert health.bus.rejected["crc"] > 0
 
 
+@pytest.mark.slow
 def test_truncated_serial_frames_cost_a_sample_each_and_the_sweep_is_right() -> None:
     offline = _offline(_serial({}))
     session, health = _run(_serial({"truncated": 0.02}))

@@ -334,6 +334,7 @@ def noisy(response: FrequencyResponse, relative_sigma: float, seed: int) -> Freq
     return FrequencyResponse(out, response.config, response.case)
 
 
+@pytest.mark.slow
 def test_noise_widens_the_intervals_and_they_cover_the_truth(pool: Executor) -> None:
     fbar, f_n, relative_sigma, seeds = 0.85, 12.0, 0.01, range(8)
     response = measured(pool, fbar, f_n, "arbitrary")

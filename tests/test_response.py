@@ -467,15 +467,19 @@ def _check_images(paths: list[Path], stem: Path) -> None:
 
 def test_plot_bode_writes_png_and_svg(tmp_path: Path) -> None:
     stem = tmp_path / "plots" / "bode"
-    paths = plot_bode({"zeta 0.05": _second_order("a", 0.05), "zeta 0.5": _second_order("b", 0.5)}, stem, "Bode")
+    paths = plot_bode({"zeta 0.05": _second_order("a", 0.05), "zeta 0.5": _second_order("b", 0.5)}, stem, "Bode",
+                      formats=("png", "svg"))
     _check_images(paths, stem)
-    single = plot_bode(_second_order("one", 0.2), tmp_path / "single")
+    single = plot_bode(_second_order("one", 0.2), tmp_path / "single", formats=("png", "svg"))
     _check_images(single, tmp_path / "single")
+    assert plot_bode(_second_order("one", 0.2), tmp_path / "default") == [tmp_path / "default.png"]
 
 
 def test_plot_periods_writes_png_and_svg(tmp_path: Path) -> None:
     stem = tmp_path / "periods"
-    _check_images(plot_periods({"a": _second_order("a", 0.05)}, stem, title="Periods"), stem)
+    _check_images(plot_periods({"a": _second_order("a", 0.05)}, stem, title="Periods", formats=("PNG", "svg")), stem)
+    with pytest.raises(ValueError, match="plot format jpg unknown"):
+        plot_periods({"a": _second_order("a", 0.05)}, stem, formats=("png", "jpg"))
 
 
 def test_plots_reject_empty_input(tmp_path: Path) -> None:

@@ -36,6 +36,7 @@ def measured_rows(directory: Path) -> list[str]:
     return (directory / "response.csv").read_text().splitlines()[1:]
 
 
+@pytest.mark.slow
 def test_kill_9_then_resume_keeps_every_converged_point(tmp_path: Path) -> None:
     cfg = small_config(tmp_path)
     out = tmp_path / "out"
@@ -69,6 +70,7 @@ def test_kill_9_then_resume_keeps_every_converged_point(tmp_path: Path) -> None:
     assert all(p.converged for p in response.points)
 
 
+@pytest.mark.slow
 def test_resume_refuses_results_of_another_configuration(tmp_path: Path) -> None:
     cfg = small_config(tmp_path)
     out = tmp_path / "out"
@@ -113,6 +115,7 @@ def offline_text() -> str:
     return SERIAL_BENCH.split("[bench]")[0].format(freqs="[3, 5, 8, 12]")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["offline", "bench"])
 def test_simulate_refuses_to_overwrite_and_resumes(tmp_path: Path, kind: str) -> None:
     """``bodebench simulate`` of an offline experiment and of a bench config's drive: finished results are not

@@ -395,6 +395,7 @@ def battery(family: str) -> list[tuple[Plant, float, float, np.ndarray | None]]:
     return cases
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("setting", list(NOISE_SETTINGS))
 @pytest.mark.parametrize("family", ["linear", "lag", "friction"])
 def test_the_screened_rule_stops_where_the_every_period_rule_stops(family: str, setting: str) -> None:
@@ -432,3 +433,33 @@ def test_the_screened_rule_stops_where_the_every_period_rule_stops(family: str, 
         assert "extrapolated" in methods and "settled mean" in methods
     if setting == "noisy tight" and family != "lag":
         assert NOISE_LIMITED in statuses
+
+
+def test_modal_forecast_is_the_recurrence_as_scipy_filters_it() -> None:
+    """The modal fit's forecast against scipy.signal.lfilter running the same recurrence: bit for bit."""
+    from scipy.signal import lfilter
+
+    from bodebench.core.rules import _forecast
+
+    rng = np.random.default_rng(7)
+    for _ in range(100):
+        order = int(rng.integers(1, 4))
+        alpha = rng.uniform(-0.6, 0.6, order)
+        last = rng.normal(size=order) + 1j * rng.normal(size=order)
+        limit = complex(rng.normal(), rng.normal())
+        steps = int(rng.integers(1, 2000))
+        past = [complex(v) - limit for v in last[::-1]]
+        zi = np.array([sum(alpha[m + k] * past[k] for k in range(order - m)) for m in range(order)], dtype=complex)
+        expected = limit + lfilter([1.0], np.concatenate([[1.0], -alpha]), np.zeros(steps, dtype=complex), zi=zi)[0]
+        assert np.array_equal(_forecast(last, alpha, limit, steps), expected)
+
+
+def test_student_t_factor_is_scipy_stats_quantile() -> None:
+    from scipy import stats
+
+    from bodebench.core.rules import _line_factor
+
+    for dof in (1, 2, 3, 5, 7, 10, 31, 100, 1000, 100_000):
+        for confidence in (0.9, 0.95, 0.99):
+            assert _line_factor(dof, confidence) == pytest.approx(float(stats.t.ppf(0.5 + confidence / 2, dof)),
+                                                                  rel=1e-12)

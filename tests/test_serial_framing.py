@@ -135,6 +135,7 @@ def reference_deframe(stream: bytes) -> list[tuple[int, int, bytes]]:
     return out
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(
     frames=frames_strategy(),

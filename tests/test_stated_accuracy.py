@@ -126,6 +126,7 @@ def jitter_loss(jitter: float, frequency_hz: float, rate_hz: float) -> float:
     return wa * wa / 3
 
 
+@pytest.mark.slow
 def test_sampling_jitter_costs_periods_not_the_sweep() -> None:
     """Jitter of 0.3 sample periods on a counter time base is noise on every sample (and, through the held
     setpoints, on the plant's input). Over seeds, the fundamental converges and its 95 % interval holds the

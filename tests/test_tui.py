@@ -332,6 +332,7 @@ def table_states(app: BodeBenchApp) -> list[str]:
     return [str(table.get_cell(key, "state")) for key in app.model.rows]
 
 
+@pytest.mark.slow
 @pytest.mark.asyncio
 async def test_start_runs_the_sweep_and_the_screen_follows(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     gate = Gate(monkeypatch, (3.0, 4))
@@ -356,7 +357,7 @@ async def test_start_runs_the_sweep_and_the_screen_follows(tmp_path: Path, monke
         on_disk = load_response(out)
         assert sorted((p.frequency_hz, p.harmonic) for p in on_disk.points) == sorted(
             (f, k) for f in FREQS for k in (1, 3))
-        assert (out / "bode.png").exists() and (out / "periods.svg").exists()
+        assert (out / "bode.png").exists() and (out / "periods.png").exists()
         for p in on_disk.points:  # the table shows what is on disk
             row = app.model.rows[row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel)]
             assert str(app.w_table.get_cell(row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel),
@@ -367,6 +368,7 @@ async def test_start_runs_the_sweep_and_the_screen_follows(tmp_path: Path, monke
     assert app.return_value == 0
 
 
+@pytest.mark.slow
 @pytest.mark.asyncio
 async def test_pause_skip_and_remeasure_during_a_sweep(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     gate = Gate(monkeypatch, (3.0, 1), (8.0, 1))
@@ -400,6 +402,7 @@ async def test_pause_skip_and_remeasure_during_a_sweep(tmp_path: Path, monkeypat
         assert sorted(p.frequency_hz for p in on_disk.points) == [3.0, 3.0, 20.0, 20.0]  # the latest 3 Hz only
 
 
+@pytest.mark.slow
 @pytest.mark.asyncio
 async def test_abort_leaves_a_zero_setpoint_and_keeps_the_measured_points(tmp_path: Path,
                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
@@ -428,6 +431,7 @@ async def test_abort_leaves_a_zero_setpoint_and_keeps_the_measured_points(tmp_pa
     assert sorted(p.frequency_hz for p in kept.points) == [3.0, 3.0]
 
 
+@pytest.mark.slow
 @pytest.mark.asyncio
 async def test_tolerance_remeasure_after_the_sweep_save_and_overlay(tmp_path: Path) -> None:
     config = write_bench_config(tmp_path, channel_name(), freqs=(3.0, 20.0))
@@ -594,6 +598,7 @@ def test_snapshots_of_the_main_screens(snap_compare, tmp_path: Path, size: tuple
 # -------------------------------------------------------------------------------------------- the command
 
 
+@pytest.mark.slow
 def test_the_command_in_tmux(tmp_path: Path) -> None:
     tmux = shutil.which("tmux")
     assert tmux is not None, "tmux is needed (apt-get install tmux)"

@@ -3,30 +3,54 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import os
 import sys
 import time
 import traceback
 from pathlib import Path
-from typing import Any, NoReturn, Sequence
+from typing import TYPE_CHECKING, Any, NoReturn, Sequence
 
-from bodebench.drivers.errors import DriverError
-from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
-from bodebench.io.config import ConfigError, ExperimentConfig, load_config
-from bodebench.io.results import ResultsError, load_response
-from bodebench.sim.serve import SimulatorStartError
+# Only the standard library at the top: `bodebench --help` and argument errors import nothing else; each command
+# imports what it uses.
+if TYPE_CHECKING:
+    from bodebench.bench.procedure import PlotWriter
+    from bodebench.io.config import ExperimentConfig
 
 log = logging.getLogger("bodebench")
 
+def _plot_formats(text: str) -> tuple[str, ...]:
+    """``--plots``: comma-separated formats, or "none"."""
+    if text.strip().lower() == "none":
+        return ()
+    from bodebench.apps.plots import check_formats
+
+    try:
+        return check_formats(text.split(","))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _plot_writer(args: argparse.Namespace) -> PlotWriter | None:
+    """What draws each finished case: the formats ``--plots`` asked for (None: no plots)."""
+    if not args.plots:
+        return None
+    from bodebench.apps.plots import write_plots
+
+    return functools.partial(write_plots, formats=args.plots)
+
 
 def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False,
-                  log_bus: Path | None = None, keep_samples: bool = True) -> int:
+                  plots: PlotWriter | None = None, log_bus: Path | None = None, keep_samples: bool = True) -> int:
     """Run every case of a bench config (``direct``: the simulated drive without a bus); the exit status."""
-    from bodebench.apps.plots import write_plots
     from bodebench.apps.progress import ProgressPrinter
     from bodebench.bench.events import CaseBegins, SessionError
     from bodebench.bench.procedure import SweepProcedure
+    from bodebench.drivers.errors import DriverError
+    from bodebench.drivers.stop_signals import StopSignal
+    from bodebench.io.results import ResultsError
+    from bodebench.sim.serve import SimulatorStartError
 
     printer: ProgressPrinter | None = None
 
@@ -38,7 +62,7 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
         elif printer is not None:
             printer(event)
 
-    procedure = SweepProcedure(config, out, listener=listener, direct=direct, plots=write_plots,
+    procedure = SweepProcedure(config, out, listener=listener, direct=direct, plots=plots,
                                existing="resume" if resume else "refuse", log_bus=log_bus,
                                keep_samples=keep_samples)
     try:
@@ -71,16 +95,22 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
         refused = (f", {len(session.refused)} frequencies refused as not physical (not written; --resume "
                    "measures them again)" if session.refused else "")
         print(f"{outcome.case.name}: {len(outcome.response.points)} points, {len(unconverged)} not "
-              f"converged{refused}{rt} -> {outcome.directory}/response.csv "
-              f"(+ {', '.join(f.name for f in outcome.files)}); {drive}")
+              f"converged{refused}{rt} -> {outcome.directory}/response.csv{_also(outcome.files)}; {drive}")
         if session.refused:
             status = 1
     return status
 
 
+def _also(files: Sequence[Path]) -> str:
+    return f" (+ {', '.join(f.name for f in files)})" if files else ""
+
+
 def _cause(exc: BaseException) -> str:
     """One line naming why a sweep stopped."""
     from bodebench.bench.events import SessionError
+    from bodebench.drivers.errors import DriverError
+    from bodebench.drivers.stop_signals import StopSignal
+    from bodebench.sim.serve import SimulatorStartError
 
     if isinstance(exc, StopSignal):
         return f"interrupted ({exc.signame})"
@@ -92,16 +122,21 @@ def _cause(exc: BaseException) -> str:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from bodebench.io.config import ConfigError, load_config
+
     config = load_config(args.config)
     if not config.on_bench:
         raise ConfigError(f"{args.config}: bench: missing (bodebench run needs a bench config; "
                           "use bodebench simulate for an offline experiment)", "bench")
     return _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet, resume=args.resume,
-                         log_bus=_log_bus(args.log_bus), keep_samples=not args.no_samples)
+                         plots=_plot_writer(args), log_bus=_log_bus(args.log_bus),
+                         keep_samples=not args.no_samples)
 
 
 def _log_bus(value: str | None) -> Path | None:
     """The --log-bus file, checked before anything is sent: its directory must exist."""
+    from bodebench.io.results import ResultsError
+
     if value is None:
         return None
     path = Path(value)
@@ -114,6 +149,7 @@ def _log_bus(value: str | None) -> Path | None:
 
 def _tui(args: argparse.Namespace) -> int:
     from bodebench.apps.tui import run_tui
+    from bodebench.io.config import ConfigError, load_config
 
     config = load_config(args.config)
     if not config.on_bench:
@@ -124,7 +160,9 @@ def _tui(args: argparse.Namespace) -> int:
 
 def _sim_controller(args: argparse.Namespace) -> int:
     from bodebench.bench.connection import simulator_spec
-    from bodebench.sim.serve import serve_can, serve_serial_pty, serve_slcan_pty
+    from bodebench.io.config import ConfigError, load_config
+    from bodebench.sim.cia402_drive import ServingCanopen
+    from bodebench.sim.serve import Serving, serve_can, serve_serial_pty, serve_slcan_pty
 
     config = load_config(args.config)
     case = config.cases[0]
@@ -133,9 +171,18 @@ def _sim_controller(args: argparse.Namespace) -> int:
                           "[simulator])", "simulator")
     bench, layout = case.on_bench.bench, case.on_bench.layout
     spec = simulator_spec(case)
+    serving: Serving | ServingCanopen
     if bench.transport == "serial":
         serving, path = serve_serial_pty(spec)
         where = f"serial ({spec.framing} framing) on {path}: set [serial] port = \"{path}\""
+    elif bench.transport == "canopen":
+        if case.can is not None and case.can.interface == "slcan":
+            raise ConfigError(f"{args.config}: can.interface: the simulated CiA 402 drive is served on a python-can "
+                              "bus (virtual, udp_multicast, socketcan, ...), not as an SLCAN adapter",
+                              "can.interface")
+        serving = serve_can(spec)
+        where = (f"CiA 402 drive, CANopen node {spec.canopen.node_id if spec.canopen else '?'}, on python-can "
+                 f"{spec.can['interface']} channel {spec.can['channel']}")
     elif case.can is not None and case.can.interface == "slcan":
         serving, path = serve_slcan_pty(spec)
         where = f"SLCAN adapter on {path}: set [can] channel = \"{path}\""
@@ -166,17 +213,17 @@ def _sim_controller(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from bodebench.apps.plots import write_plots
     from bodebench.bench.events import CaseBegins, PointFinished
-    from bodebench.bench.offline import default_executor
+    from bodebench.bench.offline import ExecutorError, offline_executor
     from bodebench.bench.procedure import SweepProcedure
+    from bodebench.io.config import load_config
 
     config: ExperimentConfig = load_config(args.config)
     out = Path(args.out)
     started = time.perf_counter()
     if config.on_bench:
         return _bench_sweeps(config, out, direct=True, quiet=args.quiet, resume=args.resume,
-                             keep_samples=not args.no_samples)
+                             plots=_plot_writer(args), keep_samples=not args.no_samples)
     done, total, name = 0, 0, ""
 
     def listener(event: object) -> None:
@@ -190,35 +237,37 @@ def _simulate(args: argparse.Namespace) -> int:
             print(f"{name}: {done}/{total}  f = {event.points[0].frequency_hz:g} Hz  {worst} periods",
                   file=sys.stderr)
 
-    executor = None if args.jobs == 1 else default_executor(args.jobs)
+    models = {case.plant.model for case in config.cases if case.plant is not None}
     try:
-        procedure = SweepProcedure(config, out, listener=listener, executor=executor, plots=write_plots,
-                                   existing="resume" if args.resume else "refuse", keep_samples=not args.no_samples)
-        for outcome in procedure.run():
-            unconverged = [p for p in outcome.response.points if not p.converged]
-            print(f"{outcome.case.name}: {len(outcome.response.points)} points, "
-                  f"{len(unconverged)} not converged -> {outcome.directory}/response.csv "
-                  f"(+ {', '.join(f.name for f in outcome.files)})")
-    finally:
-        if executor is not None:
-            executor.shutdown(cancel_futures=True)
+        with offline_executor(args.jobs, args.executor, models) as executor:
+            procedure = SweepProcedure(config, out, listener=listener, executor=executor, plots=_plot_writer(args),
+                                       existing="resume" if args.resume else "refuse",
+                                       keep_samples=not args.no_samples)
+            outcomes = procedure.run()
+    except ExecutorError as exc:
+        print(f"bodebench: {exc}", file=sys.stderr)
+        return 2
+    for outcome in outcomes:
+        unconverged = [p for p in outcome.response.points if not p.converged]
+        print(f"{outcome.case.name}: {len(outcome.response.points)} points, "
+              f"{len(unconverged)} not converged -> {outcome.directory}/response.csv{_also(outcome.files)}")
     print(f"done in {time.perf_counter() - started:.1f} s")
     return 0
 
 
 def _calibrate(args: argparse.Namespace) -> int:
     from bodebench.analysis import calibration
-    from bodebench.bench.offline import default_executor
+    from bodebench.bench.offline import ExecutorError, offline_executor
 
     out = Path(args.out) if args.out else calibration.DATA_FILE
     started = time.perf_counter()
-    executor = None if args.jobs == 1 else default_executor(args.jobs)
     try:
-        table = calibration.compute_calibration(calibration.DEFAULT_FBAR_GRID, calibration.DEFAULT_OFFSET_GRID,
-                                                executor)
-    finally:
-        if executor is not None:
-            executor.shutdown(cancel_futures=True)
+        with offline_executor(args.jobs, args.executor, ("coulomb",)) as executor:
+            table = calibration.compute_calibration(calibration.DEFAULT_FBAR_GRID, calibration.DEFAULT_OFFSET_GRID,
+                                                    executor)
+    except ExecutorError as exc:
+        print(f"bodebench: {exc}", file=sys.stderr)
+        return 2
     try:
         table.save(out)
     except OSError as exc:
@@ -237,6 +286,7 @@ def _identify(args: argparse.Namespace) -> int:
 
     from bodebench.analysis.calibration import CalibrationError, load_calibration
     from bodebench.analysis.identify import IdentificationError, format_report, identify, plot_identification
+    from bodebench.io.results import load_response
 
     directory = Path(args.results)
     response = load_response(directory)
@@ -261,7 +311,7 @@ def _identify(args: argparse.Namespace) -> int:
 
 def _analyse(args: argparse.Namespace) -> int:
     from bodebench.analysis.reanalyse import reanalyse
-    from bodebench.io.results import CSV_NAME, save_response
+    from bodebench.io.results import CSV_NAME, ResultsError, load_response, save_response
     from bodebench.io.samples import SamplesError
 
     directory = Path(args.results)
@@ -296,7 +346,8 @@ def _analyse(args: argparse.Namespace) -> int:
         from bodebench.apps.plots import write_plots
 
         save_response(response, out)
-        files = write_plots(response, out, f"{response.case} ({analysis.criterion}, {analysis.tolerance_percent:g} %)")
+        files = write_plots(response, out, f"{response.case} ({analysis.criterion}, {analysis.tolerance_percent:g} %)",
+                            formats=args.plots)
         print(f"-> {out / CSV_NAME} (+ {', '.join(f.name for f in files)})")
     return 0
 
@@ -395,6 +446,9 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
     logging.basicConfig(level=level, format="%(name)s: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
     logging.getLogger("can").setLevel(level if verbose >= 2 else max(level, logging.ERROR) if verbose == 0
                                       else logging.WARNING)
+EXECUTOR_HELP = ("run the frequencies on a Dask cluster: a scheduler address (tcp://host:8786), or local to start "
+                 "one here with --jobs workers (needs the dask extra)")
+PLOTS_HELP = "plot files per case: comma-separated png, svg, pdf, or none (default: png)"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -413,6 +467,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="worker processes (default: all cores; 1 runs in this process)")
     sim.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
+    sim.add_argument("--executor", default=None, metavar="SCHEDULER", help=EXECUTOR_HELP)
+    sim.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)
     sim.add_argument("--no-samples", action="store_true",
                      help="do not keep the raw samples of each frequency in DIR/samples/ (analyse needs them)")
     sim.set_defaults(handler=_simulate)
@@ -421,6 +477,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", required=True, help="results directory")
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
+    run.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)
     run.add_argument("--log-bus", metavar="FILE", default=None, help=LOG_BUS_HELP)
     run.add_argument("--no-samples", action="store_true",
                      help="do not keep the raw samples of each frequency in DIR/samples/ (analyse needs them)")
@@ -440,6 +497,7 @@ def build_parser() -> argparse.ArgumentParser:
     ana.add_argument("--tolerance", type=float, default=None, metavar="PERCENT",
                      help="tolerance eps in percent (default: the sweep's own)")
     ana.add_argument("--out", default=None, help="write the new response and its plots here (default: print only)")
+    ana.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)
     ana.set_defaults(handler=_analyse)
     ports = add("ports", help="list the serial ports and the CAN interfaces and channels found here")
     ports.add_argument("--can", action="append", metavar="INTERFACE", default=None,
@@ -451,6 +509,7 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--out", default=None, help="output file (default: the table shipped in the package)")
     cal.add_argument("--jobs", type=_jobs, default=None,
                      help="worker processes (default: all cores; 1 runs in this process)")
+    cal.add_argument("--executor", default=None, metavar="SCHEDULER", help=EXECUTOR_HELP)
     cal.set_defaults(handler=_calibrate)
     ident = add("identify", help="identify the friction link (F_ct, m) from a measured response")
     ident.add_argument("results", metavar="RESULTS_DIR", help="directory holding response.csv and response.json")
@@ -472,6 +531,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``bodebench`` command; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    from bodebench.drivers.errors import DriverError
+    from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
+    from bodebench.io.config import ConfigError
+    from bodebench.io.results import ResultsError
+    from bodebench.sim.serve import SimulatorStartError
+
     _configure_logging(args.verbose, args.quiet)
     log.debug("bodebench %s: %s", _version(), " ".join(sys.argv if argv is None else ["bodebench", *argv]))
     try:

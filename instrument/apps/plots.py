@@ -1,12 +1,12 @@
 """Plots of measured frequency responses (Bode diagram, periods needed per point).
 
-Figures are drawn with matplotlib's Agg canvas (no pyplot, no GUI) and written as PNG and SVG.
+Figures are drawn with matplotlib's Agg canvas (no pyplot, no GUI) and written as PNG (SVG or PDF on request).
 matplotlib is imported inside the functions so that importing this module stays cheap.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -18,7 +18,7 @@ from bodebench.status import PointStatus
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["plot_bode", "plot_periods", "write_plots"]
+__all__ = ["DEFAULT_FORMATS", "FORMATS", "check_formats", "plot_bode", "plot_periods", "write_plots"]
 
 #: Status of a point whose measurement stopped at the period cap.
 _NOT_WITHIN_TOLERANCE = (PointStatus.CAPPED, PointStatus.NOISE_LIMITED)
@@ -58,12 +58,27 @@ def _new_figure(rows: int, height_in: float) -> tuple[Figure, Any]:
     return fig, axes
 
 
-def _save(fig: Figure, path_stem: str | Path) -> list[Path]:
+FORMATS = ("png", "svg", "pdf")
+"""The file formats the plots can be written in (PNG raster at 120 dpi; SVG and PDF vector)."""
+
+DEFAULT_FORMATS = ("png",)
+
+
+def check_formats(formats: Sequence[str]) -> tuple[str, ...]:
+    """``formats`` lower-cased and checked against :data:`FORMATS`; ValueError names an unknown one."""
+    out = tuple(f.strip().lower() for f in formats)
+    unknown = [f for f in out if f not in FORMATS]
+    if unknown or not out:
+        raise ValueError(f"plot format {', '.join(unknown) or '(none)'} unknown; choose from {', '.join(FORMATS)}")
+    return out
+
+
+def _save(fig: Figure, path_stem: str | Path, formats: Sequence[str]) -> list[Path]:
     stem = Path(path_stem)
     stem.parent.mkdir(parents=True, exist_ok=True)
-    paths = [Path(f"{stem}.png"), Path(f"{stem}.svg")]
-    fig.savefig(paths[0], dpi=120)
-    fig.savefig(paths[1])
+    paths = [Path(f"{stem}.{fmt}") for fmt in check_formats(formats)]
+    for path in paths:
+        fig.savefig(path, dpi=120)
     return paths
 
 
@@ -90,11 +105,13 @@ def plot_bode(
     responses: Mapping[str, FrequencyResponse] | FrequencyResponse,
     path_stem: str | Path,
     title: str = "",
+    formats: Sequence[str] = DEFAULT_FORMATS,
 ) -> list[Path]:
     """Bode diagram: gain (dB) over phase (degrees, unwrapped per curve) against log frequency (Hz).
 
     One curve per (case label, harmonic, channel); hollow markers for points that did not converge; error bars
-    from ``gain_db_ci`` and ``phase_ci_deg`` where finite. Writes ``<path_stem>.png`` and ``<path_stem>.svg``
+    from ``gain_db_ci`` and ``phase_ci_deg`` where finite. Writes ``<path_stem>.<format>`` for each of
+    ``formats``
     and returns both paths.
     """
     from matplotlib.lines import Line2D
@@ -137,18 +154,20 @@ def plot_bode(
     ax_gain.legend(handles, labels, fontsize="small")
     if title:
         fig.suptitle(title)
-    return _save(fig, path_stem)
+    return _save(fig, path_stem, formats)
 
 
 def plot_periods(
     responses: Mapping[str, FrequencyResponse] | FrequencyResponse,
     path_stem: str | Path,
     title: str = "",
+    formats: Sequence[str] = DEFAULT_FORMATS,
 ) -> list[Path]:
     """Periods integrated per point against log frequency (Hz), log y axis; one curve per (case label, harmonic).
 
     Where several channels share a frequency the largest period count is shown. Points with status ``capped``
-    or ``noise_limited`` are marked with a cross. Writes ``<path_stem>.png`` and ``<path_stem>.svg`` and returns
+    or ``noise_limited`` are marked with a cross. Writes ``<path_stem>.<format>`` for each of
+    ``formats`` and returns
     both paths.
     """
     from matplotlib.lines import Line2D
@@ -189,9 +208,12 @@ def plot_periods(
     ax.legend(handles, labels, fontsize="small")
     if title:
         ax.set_title(title)
-    return _save(fig, path_stem)
+    return _save(fig, path_stem, formats)
 
 
-def write_plots(response: FrequencyResponse, directory: Path, title: str) -> list[Path]:
-    """The plots of a finished case in ``directory``: the Bode plot and the periods each point took."""
-    return plot_bode(response, directory / "bode", title) + plot_periods(response, directory / "periods", title)
+def write_plots(response: FrequencyResponse, directory: Path, title: str,
+                formats: Sequence[str] = DEFAULT_FORMATS) -> list[Path]:
+    """The plots of a finished case in ``directory``: the Bode plot and the periods each point took, in each of
+    ``formats``."""
+    return (plot_bode(response, directory / "bode", title, formats)
+            + plot_periods(response, directory / "periods", title, formats))

@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
+from bodebench.drivers.canopen_link import CanopenDriver, CanopenSetup
+from bodebench.drivers.driver import Driver
 from bodebench.drivers.layout import Layout
 from bodebench.drivers.ports import CanPort, FramePort, SerialPort
 from bodebench.io.config import CaseConfig, ConfigError
@@ -45,6 +47,28 @@ class CanLink:
                 r.close()
             raise
         return port, self.layout, resources
+
+
+@dataclass(frozen=True)
+class CanopenLink:
+    """A CiA 402 drive on a python-can bus, driven by ``CanopenDriver``; ``simulator``: serve the simulated CiA 402
+    drive on the same bus from the worker's process."""
+
+    interface: str
+    channel: str
+    bitrate: int | None
+    options: dict[str, Any]
+    setup: CanopenSetup
+    layout: Layout
+    simulator: SimulatorSpec | None = None
+
+    def __call__(self) -> tuple[FramePort, Layout, list[Any]]:
+        link = CanLink(self.interface, self.channel, self.bitrate, self.options, self.layout, self.simulator)
+        return link()
+
+    def make_driver(self, port: FramePort, layout: Layout) -> Driver:
+        """The driver the bus worker uses on ``port``."""
+        return CanopenDriver(port, self.setup, layout)
 
 
 @dataclass(frozen=True)
@@ -114,8 +138,9 @@ def simulator_spec(case: CaseConfig, *, wire_faults: bool = True) -> SimulatorSp
         can_map = {"interface": can.interface, "channel": can.channel or "bodebench", "bitrate": can.bitrate,
                    "fd": can.fd, "options": dict(can.options)}
     faults = sim.faults if sim is not None and wire_faults else None
+    cia402 = sim.cia402 if sim is not None and wire_faults and sim.cia402.any else None
     return SimulatorSpec(asdict(case.plant), tables.layout, timing, serial.framing if serial else "binary", can_map,
-                         faults if faults is not None and faults.any else None, sensing)
+                         faults if faults is not None and faults.any else None, sensing, case.canopen_setup, cia402)
 
 
 def plan_link(case: CaseConfig, *, direct: bool = False, log: str = "") -> LinkPlan:
@@ -133,10 +158,23 @@ def plan_link(case: CaseConfig, *, direct: bool = False, log: str = "") -> LinkP
             raise ConfigError(f"{case.source}: simulator.faults: fault injection needs a bus; bodebench simulate runs "
                               "the drive in-process (use bodebench run, or remove [simulator.faults])",
                               "simulator.faults")
+        if sim is not None and sim.cia402.any:
+            raise ConfigError(f"{case.source}: simulator.cia402: drive faults need a bus; bodebench simulate runs "
+                              "the drive in-process (use bodebench run, or remove [simulator.cia402])",
+                              "simulator.cia402")
         transport = (f"serial-{serial.framing}" if bench.transport == "serial" and serial
                      else "can-fd" if case.can is not None and case.can.fd else "can")
         return LinkPlan(DirectLink(simulator_spec(case, wire_faults=False), transport), layout,
                         where="in-process")
+    if bench.transport == "canopen":
+        can = case.can
+        assert can is not None and case.canopen_setup is not None  # the loader made sure
+        channel = can.channel or "bodebench"
+        spec = simulator_spec(case) if simulated else None
+        co_link = CanopenLink(can.interface, channel, can.bitrate, dict(can.options), case.canopen_setup, layout,
+                              spec)
+        return LinkPlan(co_link, layout, where=f"CANopen node {case.canopen_setup.node_id} on {can.interface} "
+                                            f"channel {channel}")
     if bench.transport == "can":
         can = case.can
         assert can is not None  # the loader made sure: transport "can" needs a [can] table

@@ -78,7 +78,9 @@ class SessionEnded:
     """How the sweep ended and what the drive was last sent: ``last_setpoint`` (NaN: unknown, the worker did not
     report), whether a zero setpoint and the disable frame went out after every other setpoint, whether the bus
     worker reported at all (``reported``) and how many frames it sent; ``has_disable``: the layout has a disable
-    frame; ``drive_watchdog_s``: the drive's own watchdog time (0: the layout declares none)."""
+    frame; ``drive_watchdog_s``: the drive's own watchdog time (0: the layout declares none); ``shutdown``: what
+    the driver did beyond the disable frame and what the drive then reported (a CANopen drive's quick stop,
+    disable voltage and NMT pre-operational)."""
 
     reason: str
     completed: bool
@@ -89,6 +91,7 @@ class SessionEnded:
     reported: bool = True
     has_disable: bool = True
     drive_watchdog_s: float = 0.0
+    shutdown: str = ""
 
     def drive_state(self) -> str:
         """What the drive was actually sent, in words (the last line of a command)."""
@@ -99,6 +102,10 @@ class SessionEnded:
             return f"the bus worker ended without reporting: the drive's state is unknown; {watchdog}"
         if self.frames_out == 0:
             return "nothing was sent to the drive"
+        if self.shutdown:
+            zero = ("drive left at setpoint 0" if self.zero_sent else
+                    f"could not send the zero setpoint (the last setpoint out was {self.last_setpoint:g})")
+            return f"{zero}, {'seen disabled' if self.disabled else 'NOT seen disabled'}: {self.shutdown}"
         if not self.zero_sent:
             return (f"could not send the zero setpoint: the last setpoint that went out was {self.last_setpoint:g}"
                     f"{'' if self.disabled else ', no disable frame sent'}; {watchdog}")

@@ -7,11 +7,13 @@ others, so frequencies run in parallel on any ``concurrent.futures.Executor``
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from contextlib import contextmanager, nullcontext
 from dataclasses import asdict
 from pathlib import Path
-from typing import Callable, Collection, Iterator, Sequence
+from typing import Any, Callable, Collection, Iterator, Sequence
 
 import numpy as np
 
@@ -80,9 +82,80 @@ def measure_point(case: CaseConfig, frequency_hz: float, samples_dir: str = "") 
     return points
 
 
-def default_executor(max_workers: int | None = None) -> ProcessPoolExecutor:
-    """A process pool over the machine's cores (frequencies are CPU-bound and independent)."""
-    return ProcessPoolExecutor(max_workers=max_workers or os.cpu_count() or 1)
+def default_executor(max_workers: int | None = None, models: Collection[str] = ()) -> ProcessPoolExecutor:
+    """A process pool over the machine's cores (frequencies are CPU-bound and independent).
+
+    models: plant models whose compiled step loops each worker loads before its first task, one worker at a time,
+    so that on a machine with no compiled copy yet they are compiled once (by the first worker, into numba's
+    on-disk cache) rather than once per worker."""
+    if not models:
+        return ProcessPoolExecutor(max_workers=max_workers or os.cpu_count() or 1)
+    context = multiprocessing.get_context()
+    return ProcessPoolExecutor(max_workers=max_workers or os.cpu_count() or 1, mp_context=context,
+                               initializer=_load_kernels, initargs=(context.Lock(), tuple(sorted(models))))
+
+
+def _load_kernels(lock: Any, models: tuple[str, ...]) -> None:
+    from bodebench.sim.models import load_kernels
+
+    with lock if lock is not None else nullcontext():
+        load_kernels(models)
+
+
+class ExecutorError(Exception):
+    """An executor asked for cannot be had (Dask not installed, no scheduler at the address)."""
+
+
+@contextmanager
+def offline_executor(jobs: int | None = None, scheduler: str | None = None,
+                     models: Collection[str] = ()) -> Iterator[Executor | None]:
+    """The executor an offline sweep runs on, shut down (queued work cancelled) when the block ends.
+
+    scheduler: a Dask scheduler's address (``tcp://host:8786``), or "local" for a Dask cluster started here with
+    ``jobs`` single-threaded worker processes; None: a process pool of ``jobs`` workers (None: one per core), or no
+    executor at all for ``jobs == 1`` (this process, in order). models: plant models whose compiled step loops the
+    workers load first (see :func:`default_executor`)."""
+    if jobs is not None and jobs < 1:
+        raise ExecutorError(f"--jobs must be >= 1, got {jobs}")
+    if scheduler is None:
+        if jobs == 1:
+            yield None
+            return
+        pool = default_executor(jobs, models)
+        try:
+            yield pool
+        finally:
+            pool.shutdown(cancel_futures=True)
+        return
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise ExecutorError("a Dask executor needs dask.distributed: pip install 'bodebench[dask]'") from None
+    cluster = None
+    try:
+        if scheduler == "local":
+            cluster = LocalCluster(n_workers=jobs or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                                   dashboard_address=None)
+            client = Client(cluster)
+        else:
+            client = Client(scheduler, timeout=10)
+    except (OSError, TimeoutError) as exc:
+        if cluster is not None:
+            cluster.close()
+        raise ExecutorError(f"no Dask scheduler at {scheduler}: {exc}") from None
+    try:
+        if models:  # compiled by one worker (into the shared on-disk cache) before the others load them
+            client.submit(_load_kernels, None, tuple(sorted(models)), pure=False).result()
+            client.run(_load_kernels, None, tuple(sorted(models)))
+        executor = client.get_executor(pure=False)
+        try:
+            yield executor
+        finally:
+            executor.shutdown(wait=False)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
 
 
 def sweep(case: CaseConfig, executor: Executor | None = None,
@@ -96,27 +169,45 @@ def sweep(case: CaseConfig, executor: Executor | None = None,
     directory whose ``samples/`` gets each frequency's samples before ``on_point`` gets its points ("": none).
     """
     response = FrequencyResponse(measured, config=case.raw, case=case.name)
-    for points in _run_all(case, executor, skip, str(samples_dir)):
+    for _, points in measure_cases((case,), executor, (skip,), (str(samples_dir),)):
         for p in points:
             response.add(p)
         if on_point is not None:
             on_point(points)
-    response.points.sort(key=lambda p: (p.channel, p.harmonic, p.frequency_hz))
+    sort_points(response)
     return response
 
 
-def _run_all(case: CaseConfig, executor: Executor | None, skip: Collection[float] = (), samples_dir: str = ""
-             ) -> Iterator[list[ResponsePoint]]:
-    freqs = [f for f in case.excitation.frequencies_hz if f not in skip]
+def sort_points(response: FrequencyResponse) -> None:
+    """Order ``response``'s points by channel, harmonic and frequency (the order of a finished sweep's file)."""
+    response.points.sort(key=lambda p: (p.channel, p.harmonic, p.frequency_hz))
+
+
+def measure_cases(cases: Sequence[CaseConfig], executor: Executor | None = None,
+                  skip: Sequence[Collection[float]] = (), samples_dirs: Sequence[str] = ()
+                  ) -> Iterator[tuple[int, list[ResponsePoint]]]:
+    """Every frequency of every case, all on one executor: (case index, that frequency's points), in the order they
+    are done (None: in this process, case by case, frequency by frequency).
+
+    skip: per case, the frequencies (Hz) not to measure. samples_dirs: per case, the results directory whose
+    ``samples/`` gets each frequency's samples, written by the process that measured them before its points are
+    yielded ("" or absent: none). Frequencies not yet started are cancelled when the caller stops iterating."""
+    tasks = [(i, f) for i, case in enumerate(cases) for f in case.excitation.frequencies_hz
+             if not (i < len(skip) and f in skip[i])]
+
+    def where(i: int) -> str:
+        return samples_dirs[i] if i < len(samples_dirs) else ""
+
     if executor is None:
-        for f in freqs:
-            yield measure_point(case, f, samples_dir)
+        for i, f in tasks:
+            yield i, measure_point(cases[i], f, where(i))
         return
-    futures: list[Future[list[ResponsePoint]]] = [executor.submit(measure_point, case, f, samples_dir)
-                                                  for f in freqs]
+    futures: dict[Future[list[ResponsePoint]], int] = {executor.submit(measure_point, cases[i], f, where(i)): i
+                                                       for i, f in tasks}
     try:
         for fut in as_completed(futures):
-            yield fut.result()
+            yield futures[fut], fut.result()
     finally:
         for fut in futures:
-            fut.cancel()
+            if not fut.done():
+                fut.cancel()

@@ -15,7 +15,7 @@ import logging
 import math
 import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import Executor
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -166,6 +166,9 @@ class SweepProcedure:
         that case's outcome."""
         indices = list(range(len(self.config.cases))) if cases is None else list(cases)
         previous = {i: previous_run(self._directory(i), self.config.cases[i], self.existing) for i in indices}
+        if all(self.config.cases[i].bench is None for i in indices):
+            self._offline_cases(indices, previous)
+            return self.outcomes
         for i in indices:
             if self._abort:
                 break
@@ -206,6 +209,9 @@ class SweepProcedure:
         return case_directory(self.config, self.out, self.config.cases[index])
 
     def _run_case(self, index: int, previous: FrequencyResponse | None) -> None:
+        if self.config.cases[index].bench is None:
+            self._offline_cases([index], {index: previous})
+            return
         case = self._case(index)
         directory = self._directory(index)
         log.info("case %s: %d frequencies -> %s%s", case.name, len(case.excitation.frequencies_hz), directory,
@@ -214,10 +220,6 @@ class SweepProcedure:
         outcome = CaseOutcome(index, case, directory, FrequencyResponse(config=case.raw, case=case.name))
         self.current = outcome
         self.outcomes.append(outcome)
-        if case.bench is None:
-            outcome.response = self._offline_case(case, directory, previous)
-            self._finish(outcome)
-            return
         try:
             result = self._bench_case(outcome, previous, write=True)
         except BaseException:
@@ -252,29 +254,83 @@ class SweepProcedure:
         outcome.result = session.run()
         return outcome.result
 
-    def _offline_case(self, case: CaseConfig, directory: Path, previous: FrequencyResponse | None
-                      ) -> FrequencyResponse:
-        from bodebench.bench.offline import sweep
+    def _offline_cases(self, indices: Sequence[int], previous: dict[int, FrequencyResponse | None]) -> None:
+        """Simulated plants: every frequency of every case in ``indices`` on the one executor, each point appended
+        to its case's file as it is done; events case by case (a later case's points, done early, are announced
+        when its turn comes); each case's plots drawn on the executor too, while later cases are measured."""
+        from bodebench.bench.offline import measure_cases, sort_points
 
-        measured = (completed_frequencies(previous, tuple({p.channel for p in previous.points}),
-                                          case.analysis.harmonics) if previous else set())
-        writer = ResultsWriter(directory, case.name, case.raw, resume=previous is not None)
-        frequencies = case.excitation.frequencies_hz
+        cases = [self._case(i) for i in indices]
+        outcomes: list[CaseOutcome] = []
+        skips: list[set[float]] = []
+        for i, case in zip(indices, cases, strict=True):
+            before = previous[i]
+            outcomes.append(CaseOutcome(i, case, self._directory(i), FrequencyResponse(
+                before.points if before else (), config=case.raw, case=case.name)))
+            skips.append(completed_frequencies(before, tuple({q.channel for q in before.points}),
+                                               case.analysis.harmonics) if before else set())
+        writers = [ResultsWriter(o.directory, o.case.name, o.case.raw, resume=previous[o.index] is not None)
+                   for o in outcomes]
+        remaining = [sum(f not in skip for f in case.excitation.frequencies_hz)
+                     for case, skip in zip(cases, skips, strict=True)]
+        waiting: list[list[list[ResponsePoint]]] = [[] for _ in cases]
+        drawing: list[tuple[CaseOutcome, Future[list[Path]] | None]] = []
+        turn = -1
 
-        def on_point(points: list[ResponsePoint]) -> None:
-            writer.append(points)
-            index = frequencies.index(points[0].frequency_hz)
-            self.listener(PointStarted(index, points[0].frequency_hz, case.analysis.tolerance_percent,
-                                       case.analysis.criterion))
-            self.listener(PointFinished(index, tuple(points)))
+        def advance() -> None:
+            """Finish the cases whose every frequency is done, in order, and begin the next one."""
+            nonlocal turn
+            while turn < len(outcomes) and (turn < 0 or remaining[turn] == 0):
+                if turn >= 0:
+                    sort_points(outcomes[turn].response)
+                    drawing.append((outcomes[turn], self._submit_plots(outcomes[turn])))
+                turn += 1
+                if turn < len(outcomes):
+                    outcome = outcomes[turn]
+                    self.listener(CaseBegins(outcome.index, outcome.case.name, outcome.directory))
+                    self.current = outcome
+                    self.outcomes.append(outcome)
+                    for points in waiting[turn]:
+                        self._announce(outcome.case, points)
 
-        return sweep(case, self.executor, on_point=on_point, measured=previous.points if previous else (),
-                     skip=measured, samples_dir=directory if self.keep_samples else "")
+        advance()
+        samples_dirs = [str(o.directory) if self.keep_samples else "" for o in outcomes]
+        for k, points in measure_cases(cases, self.executor, skips, samples_dirs):
+            writers[k].append(points)
+            for point in points:
+                outcomes[k].response.add(point)
+            if k == turn:
+                self._announce(cases[k], points)
+            else:
+                waiting[k].append(points)
+            remaining[k] -= 1
+            advance()
+            if self._abort:
+                break
+        for outcome, future in drawing:
+            if future is not None:
+                outcome.files = tuple(future.result())
+            self.listener(CaseSaved(outcome.index, outcome.response, outcome.directory, outcome.files))
+
+    def _announce(self, case: CaseConfig, points: list[ResponsePoint]) -> None:
+        index = case.excitation.frequencies_hz.index(points[0].frequency_hz)
+        self.listener(PointStarted(index, points[0].frequency_hz, case.analysis.tolerance_percent,
+                                   case.analysis.criterion))
+        self.listener(PointFinished(index, tuple(points)))
+
+    def _submit_plots(self, outcome: CaseOutcome) -> Future[list[Path]] | None:
+        """Draw ``outcome``'s plots on the executor (None: drawn here, now, or no plots wanted)."""
+        if self.plots is None or self.executor is None:
+            self._draw(outcome)
+            return None
+        return self.executor.submit(self.plots, outcome.response, outcome.directory, self._title(outcome))
 
     def _draw(self, outcome: CaseOutcome) -> None:
         if self.plots is not None:
-            title = outcome.case.name or self.config.title
-            outcome.files = tuple(self.plots(outcome.response, outcome.directory, title))
+            outcome.files = tuple(self.plots(outcome.response, outcome.directory, self._title(outcome)))
+
+    def _title(self, outcome: CaseOutcome) -> str:
+        return outcome.case.name or self.config.title
 
     def _finish(self, outcome: CaseOutcome) -> None:
         self._draw(outcome)

@@ -188,7 +188,7 @@ class BenchSession:
                                       stopped.disabled if stopped else False,
                                       stopped.zero_sent if stopped else False, stopped.frames_out if stopped else 0,
                                       stopped is not None, layout.disable is not None,
-                                      layout.drive_watchdog_s)
+                                      layout.drive_watchdog_s, stopped.shutdown if stopped else "")
             self.listener(self.ended)
         rt = self.last_health.round_trip_s if self.last_health else math.nan
         return SessionResult(self.response, completed, reason, stopped.last_setpoint if stopped else math.nan,

@@ -6,7 +6,8 @@ the lockstep clock) and exchanges only small typed messages with the session
 over a pipe: commands in, sample batches and bus health out. Whatever ends it
 (a stop, an abort, a trip, an exception, Ctrl-C, the session vanishing), its
 last act on the bus is a zero setpoint and, where the layout has one, the
-disable frame.
+disable frame (a CANopen drive: quick stop, disable voltage, NMT
+pre-operational).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from bodebench.drivers.driver import BusHealth, Driver, FeedbackSample
-from bodebench.drivers.errors import DriverError
+from bodebench.drivers.errors import DriveFaultError, DriverError
 from bodebench.drivers.layout import SETPOINT_ECHO
 from bodebench.drivers.scheduling import keep_to, lower_timer_slack, pacing_cpu, request_fifo
 from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
@@ -118,7 +119,7 @@ class Health:
 @dataclass(frozen=True)
 class Fault:
     """A trip or error; the worker has already zeroed and disabled the drive. kind: watchdog, feedback_limit,
-    bus, error."""
+    bus, drive, error."""
 
     kind: str
     message: str
@@ -127,13 +128,16 @@ class Fault:
 @dataclass(frozen=True)
 class Stopped:
     """The worker's last message: the last setpoint that went out, whether a zero setpoint went out after every
-    other (``zero_sent``), whether the disable frame went out, and how many frames reached the bus at all."""
+    other (``zero_sent``), whether the disable frame went out (a CANopen drive: whether it was seen disabled), how
+    many frames reached the bus at all, and what the driver did to take the drive out of operation beyond the
+    disable frame (``shutdown``, in words; empty for the frame layouts)."""
 
     reason: str
     last_setpoint: float
     disabled: bool
     zero_sent: bool = False
     frames_out: int = 0
+    shutdown: str = ""
 
 
 # --------------------------------------------------------------------------------------------------- configuration
@@ -155,7 +159,8 @@ class WorkerSpec:
     """Everything the worker needs, picklable: how to open the link (``open_link`` returns (port, layout,
     resources to close)), the pacing, the time base and the limits."""
 
-    open_link: Any  # a picklable callable () -> tuple[FramePort, Layout, list[closeable]]
+    open_link: Any  # a picklable callable () -> tuple[FramePort, Layout, list[closeable]]; with a make_driver(port,
+    # layout) method where the drive needs a driver of its own (CANopen)
     rate_hz: float
     clock: str
     timebase: str
@@ -404,7 +409,9 @@ class BusWorker:
             if base != "receive":
                 raise _Trip("bus", f"feedback without the {base} the time base needs")
         if self.offset is None:
-            if answered_tick is not None:
+            if base == "counter" and self.driver is not None and self.driver.counts_host_ticks:
+                self.offset = 0.0  # the driver dates each sample by the host tick it answers (CANopen SYNC)
+            elif answered_tick is not None:
                 # lockstep: the controller's clock runs a whole number of periods ahead of the session's,
                 # so round the offset to periods (a jittered first sample must not shift the whole timeline)
                 self.offset = round((raw - (answered_tick + 1) * self.h) / self.h) * self.h
@@ -555,7 +562,12 @@ class BusWorker:
                         granted.append(f"CPU {cpu}")
                     self.scheduling = ", ".join(granted) or self.scheduling
             port, self.layout, self.resources = self.spec.open_link()
-            self.driver = Driver(port, self.layout)
+            make_driver = getattr(self.spec.open_link, "make_driver", None)
+            try:
+                self.driver = make_driver(port, self.layout) if make_driver is not None else Driver(port, self.layout)
+            except BaseException:
+                port.close()
+                raise
             self.layout_channels = self.layout.channels
             if SETPOINT_ECHO in self.layout_channels:
                 self._echo_index = self.layout_channels.index(SETPOINT_ECHO)
@@ -607,6 +619,9 @@ class BusWorker:
         except _Trip as trip:
             reason = f"{trip.kind}: {trip}"
             self._report(Fault(trip.kind, str(trip)))
+        except DriveFaultError as exc:
+            reason = f"drive: {exc}"
+            self._report(Fault("drive", str(exc)))
         except DriverError as exc:
             reason = f"bus: {exc}"
             self._report(Fault("bus", str(exc)))
@@ -623,7 +638,8 @@ class BusWorker:
             except _Trip:
                 pass
             frames_out = self.driver.port.frames_out if self.driver is not None else 0
-            self._report(Stopped(reason, self.last_sent, disabled, zero_sent, frames_out))
+            shutdown = self.driver.shutdown_account if self.driver is not None else ""
+            self._report(Stopped(reason, self.last_sent, disabled, zero_sent, frames_out, shutdown))
             self._close()
 
     def _report(self, message: object) -> None:
@@ -634,7 +650,7 @@ class BusWorker:
 
     def _make_safe(self) -> tuple[bool, bool]:
         """Zero setpoint (slewed if a rate limit asks for it) and disable; (whether the zero setpoint went out,
-        whether the disable frame went out)."""
+        whether the disable frame went out, or the drive was seen disabled)."""
         if self.driver is None:
             return False, False
         zero_sent = disabled = False
@@ -654,8 +670,7 @@ class BusWorker:
                 self._send(0.0)
                 self.tick += 1
                 zero_sent = True
-            self.driver.disable()
-            disabled = self.layout.disable is not None
+            disabled = self.driver.disable()
         except Exception:  # noqa: BLE001 - the bus may be what failed; nothing more can be done on it
             pass
         return zero_sent, disabled

@@ -66,9 +66,9 @@ class PeriodIntegrator:
         self._t_last: np.ndarray = np.empty(1)
         self._u_last: np.ndarray = np.empty(1)
         self._p_last: np.ndarray = np.empty(1, dtype=np.int64)
-        self._y_last: np.ndarray = np.empty((1, self.n_channels))
-        self._ws_last: np.ndarray = np.empty((1, self.n_channels, n_h))
-        self._wc_last: np.ndarray = np.empty((1, self.n_channels, n_h))
+        self._y_last: np.ndarray = np.empty((self.n_channels, 1))
+        self._ws_last: np.ndarray = np.empty((self.n_channels, n_h, 1))
+        self._wc_last: np.ndarray = np.empty((self.n_channels, n_h, 1))
         self._acc_p: np.ndarray = np.zeros((self.n_channels, n_h))
         self._acc_q: np.ndarray = np.zeros((self.n_channels, n_h))
 
@@ -146,23 +146,25 @@ class PeriodIntegrator:
         f = self.frequency_hz
         u_new = (t_arr - self.t0) * f  # time since t0 in periods
         fl_new = np.floor(u_new)
+        # Arrays run with the sample axis last (contiguous), (channel, harmonic, sample) where both apply.
         # Phase from the fractional part of u keeps the argument small on long runs.
-        phase = (_TWO_PI * (u_new - fl_new))[:, None] * self._k[None, :]
+        phase = self._k[:, None] * (_TWO_PI * (u_new - fl_new))[None, :]
         # Periods before period 1 (index -1 and below) are all merged into index -1 and later discarded.
         p_new = np.maximum(fl_new, -1.0).astype(np.int64)
-        ws_new = y_arr[:, :, None] * np.sin(phase)[:, None, :]
-        wc_new = y_arr[:, :, None] * np.cos(phase)[:, None, :]
+        y_new = np.ascontiguousarray(y_arr.T)
+        ws_new = y_new[:, None, :] * np.sin(phase)[None, :, :]
+        wc_new = y_new[:, None, :] * np.cos(phase)[None, :, :]
 
         if self._has_last:
             tt = np.concatenate((self._t_last, t_arr))
             uu = np.concatenate((self._u_last, u_new))
             pp = np.concatenate((self._p_last, p_new))
-            yy = np.concatenate((self._y_last, y_arr))
-            ws = np.concatenate((self._ws_last, ws_new))
-            wc = np.concatenate((self._wc_last, wc_new))
+            yy = np.concatenate((self._y_last, y_new), axis=-1)
+            ws = np.concatenate((self._ws_last, ws_new), axis=-1)
+            wc = np.concatenate((self._wc_last, wc_new), axis=-1)
             acc_p, acc_q = self._acc_p, self._acc_q
         else:
-            tt, uu, pp, yy, ws, wc = t_arr, u_new, p_new, y_arr, ws_new, wc_new
+            tt, uu, pp, yy, ws, wc = t_arr, u_new, p_new, y_new, ws_new, wc_new
             acc_p = np.zeros_like(self._acc_p)
             acc_q = np.zeros_like(self._acc_q)
 
@@ -170,9 +172,9 @@ class PeriodIntegrator:
         self._t_last = tt[-1:].copy()
         self._u_last = uu[-1:].copy()
         self._p_last = pp[-1:].copy()
-        self._y_last = yy[-1:].copy()
-        self._ws_last = ws[-1:].copy()
-        self._wc_last = wc[-1:].copy()
+        self._y_last = yy[:, -1:].copy()
+        self._ws_last = ws[..., -1:].copy()
+        self._wc_last = wc[..., -1:].copy()
 
         n_pts = tt.shape[0]
         if n_pts < 2:
@@ -185,12 +187,11 @@ class PeriodIntegrator:
 
         if n_edges == 0:
             # Whole chunk inside the current period: one trapezoid sum, no output.
-            w = du[:, None, None]
-            self._acc_p = acc_p + (w * (ws[:-1] + ws[1:])).sum(axis=0)
-            self._acc_q = acc_q + (w * (wc[:-1] + wc[1:])).sum(axis=0)
+            self._acc_p = acc_p + ((ws[..., :-1] + ws[..., 1:]) * du).sum(axis=-1)
+            self._acc_q = acc_q + ((wc[..., :-1] + wc[..., 1:]) * du).sum(axis=-1)
             return self._empty()
 
-        sums_p, sums_q, first_period = self._integrate_with_edges(uu, pp, yy, ws, wc, du, n_cross, n_edges)
+        sums_p, sums_q, first_period = self._integrate_with_edges(uu, pp, yy, ws, wc, du, n_cross)
         sums_p[0] += acc_p
         sums_q[0] += acc_q
 
@@ -212,61 +213,61 @@ class PeriodIntegrator:
         wc: np.ndarray,
         du: np.ndarray,
         n_cross: np.ndarray,
-        n_edges: int,
     ) -> tuple[np.ndarray, np.ndarray, int]:
-        """Split segments at period edges and sum the trapezoids of every period touched.
+        """Sum the trapezoids of every period touched, segments that cross a period edge split at it.
 
-        Returns per-period sums (rows for period indices first_period .. pp[-1], 0-based) of P and Q.
+        ``yy`` (channel, sample), ``ws``/``wc`` (channel, harmonic, sample). Returns per-period sums of P and Q,
+        (period, channel, harmonic) for period indices first_period .. pp[-1] (0-based), and first_period.
         """
-        n_pts = uu.shape[0]
-        n_seg = n_pts - 1
-        seg_idx = np.arange(n_seg)
+        first = int(pp[0])
+        n_c, n_h = ws.shape[0], ws.shape[1]
+        sums_p = np.zeros((n_c, n_h, int(pp[-1]) - first + 1))
+        sums_q = np.zeros_like(sums_p)
 
-        # Knots: the samples, plus one virtual sample per period edge, in time order.
-        before = np.zeros(n_seg, dtype=np.int64)
-        np.cumsum(n_cross[:-1], out=before[1:])  # edges in earlier segments
-        pos_samples = np.arange(n_pts, dtype=np.int64)
-        pos_samples[1:] += np.cumsum(n_cross)
-        edge_seg = np.repeat(seg_idx, n_cross)
-        rank = np.arange(n_edges, dtype=np.int64) - before[edge_seg]
-        edge_period = pp[edge_seg] + 1 + rank  # edge e opens 0-based period e
-        pos_edges = pos_samples[edge_seg] + 1 + rank
+        # Segments inside one period, summed per period (a segment's period is the one its first sample is in;
+        # they come in order, so groups of equal periods are runs).
+        seg_p = (ws[..., :-1] + ws[..., 1:]) * du
+        seg_q = (wc[..., :-1] + wc[..., 1:]) * du
+        crossing = np.flatnonzero(n_cross)
+        seg_p[..., crossing] = 0.0
+        seg_q[..., crossing] = 0.0
+        seg_period = pp[:-1]
+        starts = np.concatenate(([0], np.flatnonzero(np.diff(seg_period)) + 1))
+        rows = seg_period[starts] - first
+        sums_p[..., rows] = np.add.reduceat(seg_p, starts, axis=-1)
+        sums_q[..., rows] = np.add.reduceat(seg_q, starts, axis=-1)
 
-        ua = uu[edge_seg]
-        alpha = (edge_period - ua) / (uu[edge_seg + 1] - ua)  # fraction of the segment before the edge
-        ya = yy[edge_seg]
-        y_edge = ya + alpha[:, None] * (yy[edge_seg + 1] - ya)
+        # A segment crossing edges pp+1 .. pp+n: a virtual sample at each edge, linearly interpolated (there
+        # sin(2 pi k e) = 0 and cos(2 pi k e) = 1); the piece before the first edge ends the segment's first
+        # period, the piece after the last begins the next sample's, and whole periods lie between edges.
+        # Each period gets at most one piece of each kind, so no sum below adds twice into one period.
+        i = crossing
+        ua, span, seg_du = uu[i], uu[i + 1] - uu[i], du[i]
+        ya, dy = yy[:, i], yy[:, i + 1] - yy[:, i]
 
-        n_knots = n_pts + n_edges
-        n_c, n_h = ws.shape[1], ws.shape[2]
-        knot_s = np.zeros((n_knots, n_c, n_h))
-        knot_c = np.empty((n_knots, n_c, n_h))
-        knot_s[pos_samples] = ws  # sin(2 pi k e) = 0 at the edges
-        knot_c[pos_samples] = wc
-        knot_c[pos_edges] = y_edge[:, :, None]  # cos(2 pi k e) = 1 at the edges
+        def at_edge(edge: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            """(fraction of the segment before the edge, the interpolated sample (channel, edge)) for the edges
+            ``edge`` of the crossing segments ``seg``."""
+            alpha = (edge - ua[seg]) / span[seg]
+            return alpha, ya[:, seg] + alpha * dy[:, seg]
 
-        lam = np.zeros(n_knots)  # position of each knot within its segment, as a fraction
-        lam[pos_edges] = alpha
-        knot_seg = np.empty(n_knots, dtype=np.int64)
-        knot_seg[pos_samples[:-1]] = seg_idx
-        knot_seg[pos_samples[-1]] = n_seg - 1
-        knot_seg[pos_edges] = edge_seg
-        knot_period = np.empty(n_knots, dtype=np.int64)
-        knot_period[pos_samples] = pp
-        knot_period[pos_edges] = edge_period
+        every = np.arange(i.size)
+        a_first, y_first = at_edge(pp[i] + 1.0, every)
+        a_last, y_last = at_edge((pp[i] + n_cross[i]).astype(np.float64), every)
+        head = a_first * seg_du
+        tail = (1.0 - a_last) * seg_du
+        sums_p[..., pp[i] - first] += ws[..., i] * head
+        sums_q[..., pp[i] - first] += (wc[..., i] + y_first[:, None, :]) * head
+        sums_p[..., pp[i + 1] - first] += ws[..., i + 1] * tail
+        sums_q[..., pp[i + 1] - first] += (y_last[:, None, :] + wc[..., i + 1]) * tail
 
-        # Piece q runs from knot q to knot q + 1; a piece ending at a sample ends its segment (fraction 1).
-        lam_end = lam[1:].copy()
-        lam_end[pos_samples[1:] - 1] = 1.0
-        length = (lam_end - lam[:-1]) * du[knot_seg[:-1]]
-
-        w = length[:, None, None]
-        piece_p = w * (knot_s[:-1] + knot_s[1:])
-        piece_q = w * (knot_c[:-1] + knot_c[1:])
-
-        piece_period = knot_period[:-1]
-        # Every period from the first to the last one appears, in order, so group starts index periods.
-        starts = np.concatenate(([0], np.flatnonzero(np.diff(piece_period)) + 1))
-        sums_p = np.add.reduceat(piece_p, starts, axis=0)
-        sums_q = np.add.reduceat(piece_q, starts, axis=0)
-        return sums_p, sums_q, int(piece_period[0])
+        many = np.flatnonzero(n_cross[i] > 1)  # segments longer than a period (sampling slower than f)
+        if many.size:
+            counts = n_cross[i[many]] - 1
+            seg = np.repeat(many, counts)
+            offsets = np.repeat(np.cumsum(counts) - counts, counts)
+            lo = pp[i[seg]] + 1 + (np.arange(seg.size) - offsets)  # each whole period opens at edge lo
+            a_lo, y_lo = at_edge(lo.astype(np.float64), seg)
+            a_hi, y_hi = at_edge(lo + 1.0, seg)
+            sums_q[..., lo - first] += (y_lo + y_hi)[:, None, :] * ((a_hi - a_lo) * seg_du[seg])
+        return np.moveaxis(sums_p, -1, 0), np.moveaxis(sums_q, -1, 0), first

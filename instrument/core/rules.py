@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -237,9 +238,9 @@ def _disc_factor(dof: int, confidence: float = CONFIDENCE) -> float:
 @functools.lru_cache(maxsize=256)
 def _line_factor(dof: int, confidence: float = CONFIDENCE) -> float:
     """Two-sided Student t quantile: the 95 % half-width of one component, in standard deviations."""
-    from scipy import stats  # imported where used: it is slow to import
+    from scipy.special import stdtrit  # imported where used (scipy.stats, whose t.ppf this is, is slower still)
 
-    return float(stats.t.ppf(0.5 + confidence / 2.0, dof))
+    return float(stdtrit(dof, 0.5 + confidence / 2.0))
 
 
 _BLOCKS = 4          # quarter-blocks of the analysed record
@@ -738,14 +739,14 @@ def _mode_roots(alpha: np.ndarray) -> list[complex]:
     return [complex(v) for v in np.roots(np.concatenate([[1.0], -alpha]))]
 
 
-_SHORT_FORECAST = 64  # steps up to which the recurrence is run on Python scalars (cheaper than a filter call)
 
 
 def _forecast(last: np.ndarray, alpha: np.ndarray, limit: complex, steps: int) -> np.ndarray:
     """The next ``steps`` values of the recurrence Z(i) - Z_inf = sum_r alpha_r (Z(i-r) - Z_inf) from its last ones.
 
-    Run as a direct-form-II-transposed filter: state[m] = sum over r > m of alpha_r times the deviation r - m
-    periods back, the next deviation is state[0].
+    Run as a direct-form-II-transposed filter on Python scalars: state[m] = sum over r > m of alpha_r times the
+    deviation r - m periods back, the next deviation is state[0] (the same arithmetic as scipy.signal.lfilter,
+    without the import of scipy.signal in every process that fits a mode).
     """
     if steps == 0 or alpha.size == 0:
         return np.full(steps, limit, dtype=complex)
@@ -753,11 +754,6 @@ def _forecast(last: np.ndarray, alpha: np.ndarray, limit: complex, steps: int) -
     order = len(coef)
     past = [complex(v) - limit for v in last[::-1].tolist()]  # the most recent deviation first
     state = [sum(coef[m + k] * past[k] for k in range(order - m)) for m in range(order)]
-    if steps > _SHORT_FORECAST:
-        from scipy.signal import lfilter  # imported where used: it is slow to import
-
-        a = np.concatenate([[1.0], -alpha])
-        return limit + lfilter([1.0], a, np.zeros(steps, dtype=complex), zi=np.array(state, dtype=complex))[0]
     out = []
     for _ in range(steps):
         y = state[0]
@@ -818,6 +814,7 @@ def _two_mode_fit_may_pass(hist: SeriesHistory, s: int, w: int, e: float, floor:
 
 _TABLE_SPAN = 1024  # periods whose settled screen is worked out at once
 _TABLE_AHEAD = 16   # periods the history must hold beyond the one checked for a table to pay
+_TABLE_FITS = 16    # scheduled fits in a table's stretch for their screens to be worked out at once
 
 
 class _ScreenTable:
@@ -826,35 +823,34 @@ class _ScreenTable:
     Per period: the reference (the channel's scale, output units) at and above which a converged verdict is
     possible (conv), the open interval (low, high) and the bound below which (below) a noise-limited one is;
     and the quarter-block statistics and lag-1 correlation the settled estimate then takes. The same
-    necessary conditions as :meth:`AdaptiveRule._settled_may_stop`, solved for the reference.
+    necessary conditions as :meth:`AdaptiveRule._settled_may_stop`, solved for the reference. fit: for the
+    periods ``fits`` lists (the modal fit's schedule), the reference at and above which the two-mode fit's
+    screen passes (None where the schedule has too few in the stretch to pay).
     """
 
-    __slots__ = ("hist", "first", "last", "conv", "low", "high", "below", "m2", "m3", "m4", "within", "lag")
+    __slots__ = ("hist", "first", "last", "conv", "low", "high", "below", "m2", "m3", "m4", "within", "lag", "fit")
 
-    def __init__(self, hist: SeriesHistory, skip: int, first: int, last: int, e: float, budget: float) -> None:
+    def __init__(self, hist: SeriesHistory, skip: int, first: int, last: int, e: float, budget: float,
+                 fits: Sequence[int] = (), fit_window: int = 0) -> None:
         self.hist, self.first, self.last = hist, first, last
         n = np.arange(first, last + 1)
         length = (n - skip) // _BLOCKS
-        start = n - _BLOCKS * length
-        e1 = start + length
-        e2 = e1 + length
-        e3 = e2 + length
+        edges = n - _BLOCKS * length + length * np.arange(_BLOCKS + 1)[:, None]  # block edges, one row each
         size = length.astype(float)
         cum, cum2, z0 = hist._cum, hist._cum2, hist._first
-        c0, c1, c2, c3, c4 = cum[start], cum[e1], cum[e2], cum[e3], cum[n]
-        means = [_divide(hi - lo, size) for lo, hi in ((c0, c1), (c1, c2), (c2, c3), (c3, c4))]
-        within = np.zeros(n.size)
-        for (lo, hi), m in zip(((e1, e2), (e2, e3), (e3, n)), means[1:], strict=True):
-            scatter = cum2[hi] - cum2[lo] - size * np.abs(m - z0) ** 2
-            within += np.maximum(scatter, 0.0)
+        c = cum[edges]
+        means = _divide(c[1:] - c[:-1], size)  # the four block means
+        sq = cum2[edges[1:]]
+        within = np.maximum((sq[1:] - sq[:-1]) - size * np.abs(means[1:] - z0) ** 2, 0.0).sum(axis=0)
         # |lag-1 autocorrelation| over blocks 2-4, as SeriesHistory.lag_correlation
+        e1 = edges[1]
         span = 3 * length
-        shift = _divide(c4 - c1, span.astype(float)) - z0
-        inner = c4 - cum[e1 + 1] - z0 * (span - 1)
-        outer = cum[n - 1] - c1 - z0 * (span - 1)
+        shift = _divide(c[4] - c[1], span.astype(float)) - z0
+        inner = c[4] - cum[e1 + 1] - z0 * (span - 1)
+        outer = cum[n - 1] - c[1] - z0 * (span - 1)
         cov = (hist._lag[n] - hist._lag[e1 + 1]) - inner * np.conj(shift) - shift * np.conj(outer) \
             + (span - 1) * np.abs(shift) ** 2
-        spread = np.maximum(cum2[n] - cum2[e1] - span * np.abs(shift) ** 2, 0.0)
+        spread = np.maximum(sq[3] - sq[0] - span * np.abs(shift) ** 2, 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
             lag = np.where(spread > 0.0, np.abs(cov) / spread, np.nan)
             r = np.clip(np.nan_to_num(lag - 2.0 / np.sqrt(3 * size), nan=0.0), 0.0, 0.99)
@@ -862,8 +858,8 @@ class _ScreenTable:
             disc2 = dof * ((1.0 - CONFIDENCE) ** (-2.0 / dof) - 1.0)  # the disc factor squared
             var = within / dof
             low = disc2 * var / size * (1.0 + r) / (1.0 - r)
-            a3 = np.abs((means[1] + means[2] + means[3]) / 3)
-            a2 = np.abs((means[2] + means[3]) / 2)
+            a3 = np.abs(means[1:].sum(axis=0) / 3)
+            a2 = np.abs(means[2:].sum(axis=0) / 2)
             d3 = np.abs(means[3] - means[2])
             scale = e * RESOLUTION  # the tolerance floor per unit reference
             # converged: the tolerance at the value of the last three (two) blocks must reach the half-width
@@ -879,13 +875,11 @@ class _ScreenTable:
             top2 = np.sqrt(2.0 * n * high / budget) * _SLACK2
             bottom2 = 3.0 * d3 / _SLACK2
             empty = e * a2 >= top2
-            open_below = e * a2 > bottom2
-            low2 = np.where(empty, np.inf, np.where(open_below, -np.inf, bottom2 / scale))
+            low2 = np.where(empty, np.inf, np.where(e * a2 > bottom2, -np.inf, bottom2 / scale))
             high2 = np.where(empty, -np.inf, top2 / scale)
             top3 = np.sqrt(n * high / (3.0 * budget)) * _SLACK2
-            largest = np.maximum.reduce([np.abs(m) for m in means])
             still = (d3 * d3 <= _DRIFT_SIGMAS ** 2 * 2.0 * _WHITE_RATIO * var / size * _SLACK2) \
-                | (d3 <= _ROUND_OFF * largest * _SLACK)
+                | (d3 <= _ROUND_OFF * np.abs(means).max(axis=0) * _SLACK)
             below = np.where(still & (e * a3 < top3), top3 / scale, -np.inf)
         white = (n - skip >= _MIN_NOISE_EVIDENCE) & (lag <= _WHITE_LAG)
         low2[~white] = np.inf
@@ -894,10 +888,47 @@ class _ScreenTable:
         self.conv, self.low, self.high, self.below = conv.tolist(), low2.tolist(), high2.tolist(), below.tolist()
         self.m2, self.m3, self.m4 = means[1].tolist(), means[2].tolist(), means[3].tolist()
         self.within, self.lag = within.tolist(), lag.tolist()
+        self.fit: dict[int, float] | None = None
+        if len(fits) >= _TABLE_FITS:
+            periods = np.array(fits)
+            self.fit = dict(zip(fits, _two_mode_fit_floors(hist, skip, periods, fit_window, e).tolist(), strict=True))
+
+
+def _two_mode_fit_floors(hist: SeriesHistory, skip: int, n: np.ndarray, min_window: int, e: float) -> np.ndarray:
+    """For each period n, the least reference at which :func:`_two_mode_fit_may_pass` holds for the first window
+    of the fit made at n (-inf: at any), worked out for all n at once."""
+    w = np.maximum(min_window, (n - skip) // 4)
+    s = np.maximum(n - 2 * w, 0)
+    rows = w - 2
+    end = s + w
+    cum, cum2, lag, lag2, z0 = hist._cum, hist._cum2, hist._lag, hist._lag2, hist._first
+    d0 = cum[end] - cum[s + 2] - rows * z0
+    d1 = cum[end - 1] - cum[s + 1] - rows * z0
+    d2 = cum[end - 2] - cum[s] - rows * z0
+    g00 = cum2[end] - cum2[s + 2] - np.abs(d0) ** 2 / rows
+    g11 = cum2[end - 1] - cum2[s + 1] - np.abs(d1) ** 2 / rows
+    g22 = cum2[end - 2] - cum2[s] - np.abs(d2) ** 2 / rows
+    g01 = (lag[end] - lag[s + 2]).real - (d0 * np.conj(d1)).real / rows
+    g12 = (lag[end - 1] - lag[s + 1]).real - (d1 * np.conj(d2)).real / rows
+    g02 = (lag2[end] - lag2[s + 2]).real - (d0 * np.conj(d2)).real / rows
+    total = cum2[end]
+    err_d = 4.0 * end * _EPS * (end * abs(z0) + np.sqrt(end * total))
+    err = 2.0 * (8.0 * end * _EPS * total + (2.0 * np.sqrt(rows * total) * err_d + err_d * err_d) / rows)
+    level = np.abs(d0 / rows + z0) + 2.0 * np.abs(d1 / rows + z0) + np.abs(d2 / rows + z0)
+    det = g11 * g22 - g12 * g12
+    with np.errstate(divide="ignore", invalid="ignore"):
+        explained = (g22 * g01 * g01 - 2.0 * g12 * g01 * g02 + g11 * g02 * g02) / det
+        lowest = g00 - explained - 16.0 * err - 1e-7 * (np.abs(g00) + np.abs(explained))
+        need = np.sqrt(np.maximum(lowest, 0.0) / (2 * rows)) / _SLACK  # the limit the residual needs, less a margin
+        always = (rows < 5) | ~np.isfinite(g00 + g11 + g22 + g01 + g12 + g02 + err + level + lowest) \
+            | (g00 <= w * (2.0 * _ROUND_OFF * level) ** 2 + 16.0 * err) \
+            | ~((g11 > 0.0) & (g22 > 0.0) & (det > 1e-6 * g11 * g22)) \
+            | (lowest <= 0.0) | (0.5 * e * level / (1.0 - e) >= need)
+        return np.where(always, -np.inf, need / (2.0 * e * RESOLUTION))
 
 
 def _divide(z: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """z / d for complex z and real d, part by part (as Python divides a complex by a real)."""
+    """z / d for complex z and real d (broadcast), part by part (as Python divides a complex by a real)."""
     out = np.empty(z.shape, dtype=complex)
     out.real = z.real / d
     out.imag = z.imag / d
@@ -957,8 +988,14 @@ class AdaptiveRule(StoppingRule):
             return None
         e = self.eps / 100.0
         screened = self.screened and e < 1.0
-        if screened and self.modes == 2 and not _two_mode_fit_may_pass(hist, n - 2 * w, w, e, RESOLUTION * reference):
-            return None
+        if screened and self.modes == 2:
+            table = self._table
+            floor = table.fit.get(n) if table is not None and table.fit is not None and table.hist is hist else None
+            if floor is not None:
+                if reference < floor:
+                    return None
+            elif not _two_mode_fit_may_pass(hist, n - 2 * w, w, e, RESOLUTION * reference):
+                return None
         z = hist.values
         first = extrapolate_modes(z[n - 2 * w:n - w], self.modes, predict=w)
         if first is None:
@@ -1005,8 +1042,16 @@ class AdaptiveRule(StoppingRule):
         if table is None or table.hist is not hist or not table.first <= n <= table.last:
             table = None
             if hist.n - n >= _TABLE_AHEAD:
-                table = self._table = _ScreenTable(hist, self.skip, n, min(hist.n, n + _TABLE_SPAN - 1),
-                                                   self.eps / 100.0, _HOPELESS * self.max_periods / _SLACK)
+                e = self.eps / 100.0
+                last = min(hist.n, n + _TABLE_SPAN - 1)
+                fits = []
+                if self.modes == 2 and e < 1.0:  # the periods the fit's schedule reaches in the stretch
+                    period = max(self._next_extrapolation, n)
+                    while period <= last:
+                        fits.append(period)
+                        period += max(1, (period - self.skip) // 32)
+                table = self._table = _ScreenTable(hist, self.skip, n, last, e, _HOPELESS * self.max_periods / _SLACK,
+                                                   fits, self.min_window)
         if table is None:
             q = _quarters(hist, self.skip, n)
             possible, lag = self._settled_may_stop(hist, q, reference)

@@ -18,6 +18,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from bodebench.drivers.canopen_link import STATUSWORD, CanopenSetup, load_od, resolve_object
+from bodebench.drivers.cia402 import TARGET_OBJECTS
+from bodebench.drivers.codec import COUNTER, TIMESTAMP
 from bodebench.drivers.errors import LayoutError
 from bodebench.drivers.layout import Layout, default_layout
 from bodebench.io.schema import (
@@ -41,6 +44,7 @@ from bodebench.io.tables import (
     AnalysisConfig,
     BenchConfig,
     CanConfig,
+    CanopenConfig,
     ExcitationConfig,
     PlantConfig,
     SafetyConfig,
@@ -52,6 +56,7 @@ __all__ = [
     "AnalysisConfig",
     "BenchConfig",
     "CanConfig",
+    "CanopenConfig",
     "CaseConfig",
     "ConfigError",
     "ExcitationConfig",
@@ -76,6 +81,7 @@ TABLES: dict[str, type] = {
     "analysis": AnalysisConfig,
     "bench": BenchConfig,
     "can": CanConfig,
+    "canopen": CanopenConfig,
     "serial": SerialConfig,
     "safety": SafetyConfig,
     "simulator": SimulatorConfig,
@@ -85,7 +91,9 @@ TABLES: dict[str, type] = {
 FRAMES = "frames"
 """The [frames] table: checked by :meth:`bodebench.drivers.Layout.from_mapping`, its only validator."""
 
-_BENCH_ONLY = ("can", "serial", FRAMES, "safety", "simulator")
+_BENCH_ONLY = ("can", "canopen", "serial", FRAMES, "safety", "simulator")
+SIMULATED_DRIVE_EDS = Path(__file__).resolve().parent.parent / "data" / "cia402_sim.eds"
+"""The EDS of the simulated CiA 402 drive (package data), the default ``canopen.eds`` of a simulated bench."""
 _TOP_LEVEL_KEYS = ("title", "cases")
 
 
@@ -106,7 +114,8 @@ class CaseConfig:
     ``plant``: the simulated plant (None for a real drive: nothing is simulated, and the saved copy has no [plant]).
     ``raw``: the merged, validated configuration as a JSON-serialisable dict (defaults filled in; plant keys the
     model does not use left out), as saved with the results. ``layout``: the frame layout of a bench case (None
-    offline).
+    offline); on transport canopen the layout of its PDOs, and ``canopen_setup`` the [canopen] table resolved
+    against the device's EDS.
     """
 
     name: str
@@ -121,6 +130,8 @@ class CaseConfig:
     safety: SafetyConfig | None = None
     simulator: SimulatorConfig | None = None
     layout: Layout | None = field(default=None, compare=False, repr=False)
+    canopen: CanopenConfig | None = None
+    canopen_setup: CanopenSetup | None = field(default=None, compare=False, repr=False)
 
     @property
     def on_bench(self) -> BenchTables:
@@ -192,13 +203,13 @@ def _build_case(
     def key(table: str, name: str) -> str:
         return _key_path(*case_parts, table, name) if name in overrides.get(table, {}) else _key_path(table, name)
 
-    if built["bench"] is not None and built["bench"].transport == "can" and built["can"] is not None:
+    if built["bench"] is not None and built["bench"].transport in ("can", "canopen") and built["can"] is not None:
         built["can"] = _resolve_can(built["can"], built["simulator"] is not None, key)
         raw["can"] = _to_raw(built["can"])
     if built["plant"] is None and (built["bench"] is None or built["simulator"] is not None):
         what = "an offline experiment" if built["bench"] is None else "a simulated drive ([simulator])"
         raise _Fault(_key_path("plant"), f"missing: {what} needs a [plant] table (only a real drive needs none)")
-    layout = _check_bench(built, frames, key, source)
+    layout, setup = _check_bench(built, frames, key, source)
     return CaseConfig(
         name=name,
         source=Path(source),
@@ -212,6 +223,8 @@ def _build_case(
         safety=built["safety"],
         simulator=built["simulator"],
         layout=layout,
+        canopen=built["canopen"],
+        canopen_setup=setup,
     )
 
 
@@ -291,17 +304,28 @@ def _resolve_can(table: CanConfig, simulated: bool, key: Callable[[str, str], st
 
 
 def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, key: Callable[[str, str], str],
-                 source: str) -> Layout | None:
-    """Cross-table checks of a bench case; the frame layout it uses (None offline). Raises :class:`_Fault`."""
+                 source: str) -> tuple[Layout | None, CanopenSetup | None]:
+    """Cross-table checks of a bench case; the frame layout it uses (None offline) and, on transport canopen, the
+    resolved [canopen] table. Raises :class:`_Fault`."""
     bench: BenchConfig | None = tables.get("bench")
     if bench is None:
         for name in _BENCH_ONLY:
             if tables.get(name) is not None or (name == FRAMES and frames is not None):
                 raise _Fault(name, "needs a [bench] table")
-        return None
+        return None, None
     link = tables.get(bench.transport)
     if link is None:
         raise _Fault(key("bench", "transport"), f'"{bench.transport}" needs a [{bench.transport}] table')
+    setup: CanopenSetup | None = None
+    if bench.transport == "canopen":
+        link = tables.get("can")
+        if link is None:
+            raise _Fault(key("bench", "transport"), '"canopen" needs a [can] table (the bus the drive is on)')
+        if frames is not None:
+            raise _Fault(FRAMES, "not used on transport canopen: the PDOs come from [canopen]")
+        setup = _canopen_setup(tables["canopen"], tables.get("simulator") is not None, key, source)
+    elif tables.get("canopen") is not None:
+        raise _Fault("canopen", f'only used with bench.transport = "canopen" (not "{bench.transport}")')
     simulated = tables.get("simulator") is not None
     if isinstance(link, CanConfig) and not link.channel and not simulated:
         raise _Fault(key("can", "channel"), "missing: not in the file, nor in python-can's configuration "
@@ -337,7 +361,10 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
                                  f"{f:g} Hz: the sine's slew 2*pi*f*A = {2 * math.pi * f * amplitude:g} exceeds "
                                  f"safety.max_rate ({safety.max_rate:g})")
     try:
-        layout = default_layout() if frames is None else Layout.from_mapping(frames, source)
+        if setup is not None:
+            layout = setup.layout()
+        else:
+            layout = default_layout() if frames is None else Layout.from_mapping(frames, source)
         framing = tables["serial"].framing if bench.transport == "serial" else ""
         fd = bench.transport == "can" and tables["can"].fd
         layout.validate(f"serial-{framing}" if framing else "can-fd" if fd else "can")
@@ -364,10 +391,60 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
         raise _Fault(key("analysis", "harmonics"), "two-channel mode (bench.reference_channel) needs "
                                                            "harmonic 1")
     if bench.timebase == "counter" and not layout.has_counter:
-        raise _Fault(key("bench", "timebase"), "counter: the feedback frames carry no counter")
+        raise _Fault(key("bench", "timebase"), "counter: the feedback frames carry no counter"
+                     + (" (map a sample counter object as canopen.actual.counter)" if setup is not None else ""))
     if bench.timebase == "timestamp" and not layout.has_timestamp:
         raise _Fault(key("bench", "timebase"), "timestamp: the feedback frames carry no timestamp_us")
-    return layout
+    return layout, setup
+
+
+def _canopen_setup(table: CanopenConfig, simulated: bool, key: Callable[[str, str], str],
+                   source: str) -> CanopenSetup:
+    """The [canopen] table resolved against its EDS (objects by index or name, PDO sizes); raises :class:`_Fault`."""
+    if table.eds:
+        eds = Path(table.eds)
+        if not eds.is_absolute():
+            eds = Path(source).parent / eds
+    elif simulated:
+        eds = SIMULATED_DRIVE_EDS
+    else:
+        raise _Fault(key("canopen", "eds"), "missing: the drive's EDS or DCF file (only a [simulator] brings its own)")
+    try:
+        od = load_od(eds, table.node_id)
+    except ValueError as exc:
+        raise _Fault(key("canopen", "eds"), str(exc)) from None
+    for index, what in ((0x1400 + table.rpdo - 1, "rpdo"), (0x1800 + table.tpdo - 1, "tpdo")):
+        if index not in od or (index + 0x200) not in od:
+            raise _Fault(key("canopen", what), f"the EDS has no PDO {getattr(table, what)} (objects 0x{index:04X} "
+                                               f"and 0x{index + 0x200:04X})")
+    for index, name in ((STATUSWORD, "statusword"), (0x6040, "controlword"), (0x6060, "modes of operation"),
+                        (0x6061, "modes of operation display")):
+        if index not in od:
+            raise _Fault(key("canopen", "eds"), f"the EDS has no {name} (0x{index:04X}): not a CiA 402 drive")
+    try:
+        setpoint = resolve_object(od, table.setpoint or f"0x{TARGET_OBJECTS[table.mode]:04X}")
+    except ValueError as exc:
+        raise _Fault(key("canopen", "setpoint"), str(exc)) from None
+    actual_table = table.actual or {"position": "0x6064"}
+    actual = []
+    for channel, text in actual_table.items():
+        try:
+            ref = resolve_object(od, text)
+        except ValueError as exc:
+            raise _Fault(f"{key('canopen', 'actual')}.{channel}", str(exc)) from None
+        if channel == COUNTER and ref.type not in ("uint8", "uint16"):
+            raise _Fault(f"{key('canopen', 'actual')}.{channel}",
+                         f"{ref} is {ref.type}: a sample counter must be UNSIGNED8 or UNSIGNED16")
+        if channel == TIMESTAMP and not ref.type.startswith("uint"):
+            raise _Fault(f"{key('canopen', 'actual')}.{channel}", f"{ref} is {ref.type}: a timestamp is unsigned")
+        scale = float(table.actual_scale.get(channel, 1.0)) if channel not in (COUNTER, TIMESTAMP) else 1.0
+        actual.append((channel, ref, scale))
+    size = 2 + sum(ref.size for _, ref, _ in actual)
+    if size > 8:
+        raise _Fault(key("canopen", "actual"), f"the statusword and these objects take {size} bytes: a TPDO carries 8")
+    return CanopenSetup(table.node_id, str(eds), table.mode, setpoint, table.setpoint_scale, tuple(actual),
+                        table.rpdo, table.tpdo, table.sync, table.heartbeat_ms, table.heartbeat_timeout_s,
+                        table.state_timeout_s, table.fault_reset)
 
 
 def parse_config(data: Mapping[str, Any], source: str = "<config>") -> ExperimentConfig:

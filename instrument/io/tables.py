@@ -13,13 +13,16 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from bodebench.core.rules import CRITERIA
+from bodebench.drivers.cia402 import MODES
 from bodebench.io.schema import FieldError
+from bodebench.sim.cia402_drive import Cia402Faults
 from bodebench.sim.faults import FaultConfig
 
 __all__ = [
     "AnalysisConfig",
     "BenchConfig",
     "CanConfig",
+    "CanopenConfig",
     "ExcitationConfig",
     "PlantConfig",
     "SafetyConfig",
@@ -27,7 +30,7 @@ __all__ = [
     "SimulatorConfig",
 ]
 
-TRANSPORTS = ("can", "serial")
+TRANSPORTS = ("can", "serial", "canopen")
 CLOCKS = ("lockstep", "realtime")
 TIMEBASES = ("counter", "timestamp", "receive")
 MIN_SAMPLES_PER_PERIOD = 8  # of the highest harmonic measured
@@ -216,7 +219,8 @@ class BenchConfig:
 
     TABLE_OPTIONAL = True
 
-    transport: str = field(metadata={"choices": TRANSPORTS, "doc": "bus to the drive: can or serial"})
+    transport: str = field(metadata={"choices": TRANSPORTS, "doc": "bus to the drive: can, serial, or canopen "
+                                                                   "(a CiA 402 drive on the [can] bus)"})
     rate_hz: float = field(metadata={"min": 0, "min_exclusive": True,
                                      "doc": "setpoint and feedback sample rate of the drive controller, Hz"})
     clock: str = field(default="lockstep", metadata={
@@ -273,6 +277,62 @@ class CanConfig:
 
 
 @dataclass(frozen=True)
+class CanopenConfig:
+    """A CANopen (CiA 402) drive on the [can] bus: its node, EDS and the objects the sweep uses."""
+
+    TABLE_OPTIONAL = True
+
+    node_id: int = field(metadata={"min": 1, "max": 127, "doc": "the drive's CANopen node id"})
+    eds: str = field(default="", metadata={
+        "doc": "the drive's EDS or DCF file (relative to the config file); empty with [simulator]: the simulated "
+               "drive's shipped EDS"})
+    mode: str = field(default="csp", metadata={
+        "choices": tuple(MODES), "doc": "mode of operation: csp, csv, cst (cyclic synchronous position, velocity, "
+                                       "torque), pv, tq (profile velocity, torque)"})
+    setpoint: str = field(default="", metadata={
+        "doc": "the object the RPDO carries: index[:subindex] or EDS name; empty: the mode's target object "
+               "(0x607A, 0x60FF or 0x6071)"})
+    setpoint_scale: float = field(default=1.0, metadata={"nonzero": True,
+                                                         "doc": "setpoint units per count of the setpoint object"})
+    actual: dict = field(default_factory=dict, metadata={
+        "doc": "channel = object the TPDO carries after the statusword, in order (counter: a sample counter, "
+               "timestamp_us: a controller time); empty: position = 0x6064"})
+    actual_scale: dict = field(default_factory=dict, metadata={
+        "doc": "channel = its units per count (default 1)"})
+    rpdo: int = field(default=1, metadata={"min": 1, "max": 4, "doc": "the RPDO that carries the setpoint"})
+    tpdo: int = field(default=1, metadata={"min": 1, "max": 4, "doc": "the TPDO that carries the actual values"})
+    sync: str = field(default="produce", metadata={
+        "choices": ("produce", "consume"),
+        "doc": "produce: the host sends SYNC after each setpoint; consume: another node produces it"})
+    heartbeat_ms: int = field(default=100, metadata={
+        "min": 0, "max": 65535, "doc": "producer heartbeat time written to 0x1017, ms (0: left as the drive has it)"})
+    heartbeat_timeout_s: float = field(default=0.5, metadata={
+        "min": 0, "min_exclusive": True, "doc": "a drive heartbeat missing this long is a fault, s"})
+    state_timeout_s: float = field(default=1.0, metadata={
+        "min": 0, "min_exclusive": True, "doc": "longest wait for an SDO answer or a state change, s"})
+    fault_reset: bool = field(default=False, metadata={
+        "doc": "a drive found in fault is reset (controlword bit 7) instead of refused"})
+
+    def validate(self, where: Callable[[str], str]) -> None:
+        """The scales and the heartbeat; raises :class:`FieldError`."""
+        for table, name in ((self.actual, "actual"), (self.actual_scale, "actual_scale")):
+            for channel, value in table.items():
+                ok = isinstance(value, str) and value.strip() if name == "actual" else (
+                    isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+                    and value != 0)
+                if not ok:
+                    expected = "an object: index[:subindex] or EDS name" if name == "actual" else \
+                        "a finite non-zero number"
+                    raise FieldError(name, f"{channel}: expected {expected}, got {value!r}")
+        for channel in self.actual_scale:
+            if channel not in (self.actual or {"position": ""}):
+                raise FieldError("actual_scale", f"{channel}: not a channel of canopen.actual")
+        if self.heartbeat_ms and self.heartbeat_timeout_s <= self.heartbeat_ms / 1000:
+            raise FieldError("heartbeat_timeout_s", f"must be longer than the heartbeat period "
+                                                    f"({where('heartbeat_ms')} = {self.heartbeat_ms} ms)")
+
+
+@dataclass(frozen=True)
 class SerialConfig:
     """Serial line (pyserial)."""
 
@@ -326,3 +386,5 @@ class SimulatorConfig:
     seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of the jitter and the noise"})
     faults: FaultConfig = field(default_factory=FaultConfig, metadata={
         "doc": "fault injection on the wire and in the drive (drivers/PROTOCOL.md section 7)"})
+    cia402: Cia402Faults = field(default_factory=Cia402Faults, metadata={
+        "doc": "faults of the simulated CiA 402 drive (transport canopen)"})

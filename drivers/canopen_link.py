@@ -1,0 +1,547 @@
+"""A CANopen (CiA 402) drive as the instrument's ``Driver``: SDO configuration, PDOs, SYNC, heartbeat and EMCY over
+the same python-can bus the other CAN links use (the ``canopen`` package speaks SDO and NMT).
+
+``CanopenSetup`` is the resolved ``[canopen]`` table (objects looked up in the device's EDS); its ``layout()`` is the
+frame layout of the cyclic PDOs, so the sample assembly, counter checks and bus health of ``Driver`` apply to
+them unchanged. ``CanopenDriver`` adds the drive's life cycle:
+
+- ``enable()``: NMT pre-operational, heartbeat producer time (0x1017), the PDO mapping (RPDO: the setpoint object;
+  TPDO: statusword, actual values, counter; both synchronous), the mode of operation (0x6060, checked in 0x6061),
+  NMT operational, then shutdown, switch on, enable operation, each checked in the statusword;
+- ``send_setpoint()``: the RPDO, then SYNC (when the host produces it);
+- ``receive()``: TPDO samples; an EMCY, a statusword that leaves "operation enabled", a heartbeat missing for
+  ``heartbeat_timeout_s`` or an NMT state other than operational raise ``DriveFaultError``;
+- ``disable()``: quick stop, disable voltage, NMT pre-operational; returns whether the drive was seen disabled,
+  and ``shutdown_account`` says what was done and seen.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from .cia402 import CONTROLWORD, MODES, Command, State, decode_statusword
+from .codec import COUNTER, TIMESTAMP, Message, Signal
+from .driver import Driver, FeedbackSample
+from .errors import DriveFaultError, DriverOperationError, LayoutError
+from .layout import Layout
+from .ports import Frame, FramePort
+
+if TYPE_CHECKING:
+    import canopen
+
+__all__ = ["CanopenDriver", "CanopenSetup", "ObjectRef", "load_od", "resolve_object"]
+
+STATUSWORD = 0x6041
+CONTROLWORD_OBJECT = 0x6040
+MODES_OF_OPERATION = 0x6060
+MODES_DISPLAY = 0x6061
+HEARTBEAT_PRODUCER = 0x1017
+SYNC_COB_ID = 0x80
+NMT_OPERATIONAL = 5
+_SYNC_MEMORY = 4096
+"""SYNCs whose host ticks are remembered (4 s at 1 kHz): a sample answering an older one is dated by the latest."""
+NMT_STATES = {0: "boot-up", 4: "stopped", 5: "operational", 127: "pre-operational"}
+
+# CANopen data types (CiA 301) -> signal types of drivers.codec
+_SIGNAL_TYPES = {0x2: "int8", 0x3: "int16", 0x4: "int32", 0x5: "uint8", 0x6: "uint16", 0x7: "uint32",
+                 0x8: "float32", 0x11: "float64"}
+_SIZES = {"int8": 1, "uint8": 1, "int16": 2, "uint16": 2, "int32": 4, "uint32": 4, "float32": 4, "float64": 8}
+
+
+@dataclass(frozen=True)
+class ObjectRef:
+    """One object of the device: ``index``, ``subindex``, its EDS ``name`` and signal ``type``."""
+
+    index: int
+    subindex: int
+    name: str
+    type: str
+
+    @property
+    def size(self) -> int:
+        """Bytes the object takes in a PDO."""
+        return _SIZES[self.type]
+
+    @property
+    def bits(self) -> int:
+        """Bits the object takes in a PDO."""
+        return 8 * self.size
+
+    def __str__(self) -> str:
+        return f"0x{self.index:04X}:{self.subindex:02X} ({self.name})"
+
+
+def load_od(path: str | Path, node_id: int) -> canopen.ObjectDictionary:
+    """The object dictionary of an EDS or DCF file; ValueError with the reason when it cannot be read."""
+    import canopen
+
+    try:
+        return canopen.import_od(str(path), node_id)
+    except (OSError, ValueError, KeyError) as exc:
+        raise ValueError(f"cannot read the EDS {str(path)!r}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - a malformed file raises whatever its parser hits
+        raise ValueError(f"cannot read the EDS {str(path)!r}: {type(exc).__name__}: {exc}") from None
+
+
+def resolve_object(od: canopen.ObjectDictionary, text: str) -> ObjectRef:
+    """The object ``text`` names: "0x607A", "0x607A:0" (index:subindex, hex or decimal) or its EDS name (a
+    sub-object as "Record name.Sub name"). ValueError saying why when the EDS has no such numeric object."""
+    from canopen.objectdictionary import ODArray, ODRecord, ODVariable
+
+    text = text.strip()
+    obj: Any
+    lookup: Any = od
+    head, sep, tail = text.partition(":")
+    try:
+        index = int(head, 0)
+    except ValueError:
+        index = None
+    if index is not None:
+        try:
+            subindex = int(tail, 0) if sep else 0
+        except ValueError:
+            raise ValueError(f"{text!r}: subindex {tail!r} is not a number") from None
+        if index not in od:
+            raise ValueError(f"{text!r}: the EDS has no object 0x{index:04X}")
+        obj = lookup[index]
+        if isinstance(obj, (ODRecord, ODArray)):
+            if subindex not in obj:
+                raise ValueError(f"{text!r}: object 0x{index:04X} has no subindex {subindex}")
+            obj = obj[subindex]
+        elif sep and subindex != 0:
+            raise ValueError(f"{text!r}: object 0x{index:04X} is a variable (subindex 0 only)")
+    else:
+        record, dot, member = text.partition(".")
+        try:
+            obj = lookup[text] if text in od or not dot else lookup[record][member]
+        except KeyError:
+            raise ValueError(f"{text!r}: no object of that name in the EDS") from None
+    if not isinstance(obj, ODVariable):
+        raise ValueError(f"{text!r}: {obj.name!r} is a record or array: name one of its sub-objects")
+    kind = _SIGNAL_TYPES.get(obj.data_type or 0)
+    if kind is None:
+        raise ValueError(f"{text!r}: {obj.name!r} is not a number a PDO can carry (data type "
+                         f"0x{obj.data_type or 0:X})")
+    return ObjectRef(obj.index, obj.subindex, obj.name, kind)
+
+
+@dataclass(frozen=True)
+class CanopenSetup:
+    """A resolved ``[canopen]`` table: everything the host and a simulated drive need, picklable.
+
+    node_id: 1..127; eds: path of the EDS/DCF file; mode: a key of ``cia402.MODES``; setpoint: the object the RPDO
+    carries, ``setpoint_scale`` setpoint units per count; actual: (channel, object, units per count) in TPDO order
+    after the statusword (the channel ``counter`` is the sample counter, ``timestamp_us`` a controller time);
+    rpdo, tpdo: PDO numbers 1..4 (COB-IDs of the predefined connection set); sync: "produce" (a SYNC after each
+    setpoint) or "consume" (another node produces it); heartbeat_ms: producer heartbeat time written to 0x1017 (0:
+    left as the drive has it); heartbeat_timeout_s: a heartbeat missing this long is a fault; state_timeout_s:
+    how long each SDO answer and each state change may take; fault_reset: a drive found in fault is reset
+    (controlword bit 7) instead of refused."""
+
+    node_id: int
+    eds: str
+    mode: str
+    setpoint: ObjectRef
+    setpoint_scale: float
+    actual: tuple[tuple[str, ObjectRef, float], ...]
+    rpdo: int = 1
+    tpdo: int = 1
+    sync: str = "produce"
+    heartbeat_ms: int = 100
+    heartbeat_timeout_s: float = 0.5
+    state_timeout_s: float = 1.0
+    fault_reset: bool = False
+
+    @property
+    def rpdo_cob_id(self) -> int:
+        """COB-ID of the setpoint RPDO."""
+        return 0x200 + 0x100 * (self.rpdo - 1) + self.node_id
+
+    @property
+    def tpdo_cob_id(self) -> int:
+        """COB-ID of the feedback TPDO."""
+        return 0x180 + 0x100 * (self.tpdo - 1) + self.node_id
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        """The measured channels of the TPDO (counter and timestamp left out)."""
+        return tuple(name for name, _, _ in self.actual if name not in (COUNTER, TIMESTAMP))
+
+    def layout(self) -> Layout:
+        """The cyclic PDOs as a frame layout: the RPDO carries "setpoint"; the TPDO the statusword (bytes 0-1, read
+        by the driver itself) and then each actual value as a channel. LayoutError naming the problem."""
+        setpoint = Message(f"RPDO{self.rpdo}", self.rpdo_cob_id,
+                           signals=(Signal("setpoint", 0, self.setpoint.type, scale=self.setpoint_scale),))
+        signals = []
+        at = 2
+        for name, ref, scale in self.actual:
+            signals.append(Signal(name, at, ref.type, scale=scale))
+            at += ref.size
+        if at > 8:
+            raise LayoutError(f"TPDO{self.tpdo}: statusword and actual values take {at} bytes, more than 8")
+        feedback = Message(f"TPDO{self.tpdo}", self.tpdo_cob_id, signals=tuple(signals))
+        layout = Layout(setpoint, (feedback,))
+        layout.validate("can")
+        return layout
+
+
+def _port_network(port: FramePort) -> canopen.Network:
+    """A canopen network for the SDO client and NMT master that sends through ``port`` (so the port counts every
+    frame); received frames are handed to it with ``notify``."""
+    import canopen
+
+    class PortNetwork(canopen.Network):
+        def send_message(self, can_id: int, data: Any, remote: bool = False) -> None:
+            if remote:
+                raise DriverOperationError(f"{port.name}: remote frames are not sent")
+            port.send(Frame(can_id, bytes(data), can_id > 0x7FF))
+
+        def send_periodic(self, can_id: int, data: Any, period: float, remote: bool = False) -> Any:
+            raise DriverOperationError(f"{port.name}: periodic CANopen messages are not sent by the host")
+
+    return PortNetwork(None)
+
+
+class CanopenDriver(Driver):
+    """A CiA 402 drive behind ``setup`` on ``port`` (a CAN port), with the cyclic PDOs of ``setup.layout()``."""
+
+    def __init__(self, port: FramePort, setup: CanopenSetup, layout: Layout | None = None) -> None:
+        import canopen
+
+        super().__init__(port, layout if layout is not None else setup.layout())
+        self.setup = setup
+        self.od = load_od(setup.eds, setup.node_id)
+        self.network = _port_network(port)
+        self.node = canopen.RemoteNode(setup.node_id, self.od)
+        self.node.sdo.RESPONSE_TIMEOUT = min(setup.state_timeout_s, 1.0)
+        self.network.add_node(self.node)
+        self.network.subscribe(0x700 + setup.node_id, self._on_heartbeat)
+        self.shutdown_account = ""
+        self.start_account = ""
+        self._lock = threading.Lock()
+        self._last_heartbeat: float | None = None  # time.monotonic() when the latest heartbeat was taken in
+        self._nmt_state: int | None = None
+        self._status: int | None = None  # the latest statusword (TPDO or SDO)
+        self._left: str | None = None  # why the drive left operation enabled during the sweep
+        self._cyclic = False
+        self._pump: threading.Thread | None = None
+        self._pumping = threading.Event()
+        self._pump_error: BaseException | None = None
+        self._sync_ticks = [0] * _SYNC_MEMORY  # the host tick of each SYNC sent, by SYNC number modulo the memory
+        self._syncs_sent = 0
+        self._first_counter: int | None = None
+
+    # ----------------------------------------------------------------------------------------------------------
+    # frames in
+    def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if data:
+            with self._lock:
+                self._last_heartbeat = time.monotonic()
+                self._nmt_state = data[0] & 0x7F
+
+    def _dispatch(self, frame: Frame) -> list[FeedbackSample]:
+        """Take one received frame: the TPDO becomes samples (in the cyclic phase); every other frame goes to
+        canopen (SDO answers, EMCY, heartbeat)."""
+        if frame.is_error:
+            return []
+        if frame.id == self.setup.tpdo_cob_id and not frame.extended:
+            if len(frame.data) >= 2:
+                word = int.from_bytes(frame.data[:2], "little")
+                self._status = word
+                state = decode_statusword(word)
+                if self._cyclic and state is not State.OPERATION_ENABLED and self._left is None:
+                    self._left = f"statusword 0x{word:04X} ({state or 'undefined'})"
+            return self._dated(self.feed([frame])) if self._cyclic else []
+        self.network.notify(frame.id, bytearray(frame.data), frame.timestamp)
+        return []
+
+    def _pump_loop(self) -> None:
+        try:
+            while self._pumping.is_set():
+                for frame in self.port.recv(0.01):
+                    self._dispatch(frame)
+        except BaseException as exc:  # noqa: BLE001 - reported by the SDO call waiting on it
+            self._pump_error = exc
+
+    @contextmanager
+    def _pumped(self) -> Iterator[None]:
+        """Frames received in a thread of their own while SDO transfers wait for their answers."""
+        self._pump_error = None
+        self._pumping.set()
+        self._pump = threading.Thread(target=self._pump_loop, name="canopen-rx", daemon=True)
+        self._pump.start()
+        try:
+            yield
+        finally:
+            self._pumping.clear()
+            self._pump.join(timeout=2.0)
+            self._pump = None
+
+    # ----------------------------------------------------------------------------------------------------------
+    # SDO and NMT
+    def _where(self) -> str:
+        return f"CANopen node {self.setup.node_id}"
+
+    def _variable(self, index: int, subindex: int) -> Any:
+        """The object dictionary entry of ``index``:``subindex``."""
+        obj: Any = self.od[index]
+        return obj[subindex] if not hasattr(obj, "data_type") else obj
+
+    def _sdo_write(self, index: int, subindex: int, value: int | float, what: str) -> None:
+        from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+        try:
+            self.node.sdo.download(index, subindex, self._variable(index, subindex).encode_raw(value))
+        except SdoAbortedError as exc:
+            raise DriveFaultError(f"{self._where()}: writing {what} (0x{index:04X}:{subindex:02X}) = {value!r} "
+                                  f"was refused: {exc}") from None
+        except SdoCommunicationError as exc:
+            raise DriveFaultError(f"{self._where()}: no SDO answer writing {what} (0x{index:04X}:{subindex:02X}): "
+                                  f"{exc}{self._pump_note()}") from None
+
+    def _sdo_read(self, index: int, subindex: int, what: str) -> int | float:
+        from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+        try:
+            value = self._variable(index, subindex).decode_raw(self.node.sdo.upload(index, subindex))
+        except SdoAbortedError as exc:
+            raise DriveFaultError(f"{self._where()}: reading {what} (0x{index:04X}:{subindex:02X}) was refused: "
+                                  f"{exc}") from None
+        except SdoCommunicationError as exc:
+            raise DriveFaultError(f"{self._where()}: no SDO answer reading {what} (0x{index:04X}:{subindex:02X}): "
+                                  f"{exc}{self._pump_note()}") from None
+        if not isinstance(value, (int, float)):
+            raise DriveFaultError(f"{self._where()}: {what} (0x{index:04X}) is not a number")
+        return value
+
+    def _pump_note(self) -> str:
+        return f" (receiving failed: {self._pump_error})" if self._pump_error is not None else ""
+
+    def _nmt(self, code: int) -> None:
+        self.network.send_message(0, bytes([code, self.setup.node_id]))
+
+    def _read_status(self) -> int:
+        word = int(self._sdo_read(STATUSWORD, 0, "statusword"))
+        self._status = word
+        return word
+
+    def _command(self, command: Command, targets: tuple[State, ...], timeout: float) -> tuple[int, State | None]:
+        """Write the controlword of ``command`` and wait up to ``timeout`` s for one of ``targets``; the last
+        statusword and its state."""
+        self._sdo_write(CONTROLWORD_OBJECT, 0, CONTROLWORD[command], "controlword")
+        deadline = time.monotonic() + timeout
+        while True:
+            word = self._read_status()
+            state = decode_statusword(word)
+            if state in targets or time.monotonic() >= deadline:
+                return word, state
+            time.sleep(0.002)
+
+    def _wait_heartbeat(self, timeout: float, state: int | None = None) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with self._lock:
+                seen, current = self._last_heartbeat, self._nmt_state
+            if seen is not None and (state is None or current == state):
+                return True
+            time.sleep(0.005)
+        return False
+
+    # ----------------------------------------------------------------------------------------------------------
+    # the life cycle
+    def enable(self) -> None:
+        """Configure the drive and bring it to "operation enabled" (the module docstring lists the steps);
+        DriveFaultError naming the step and what the drive reported when it does not get there."""
+        s = self.setup
+        steps: list[str] = []
+        with self._pumped():
+            self._nmt(0x80)
+            steps.append("NMT pre-operational")
+            if s.heartbeat_ms:
+                self._sdo_write(HEARTBEAT_PRODUCER, 0, s.heartbeat_ms, "producer heartbeat time")
+            wait = max(s.heartbeat_timeout_s, 3 * s.heartbeat_ms / 1000)
+            if not self._wait_heartbeat(wait):
+                raise DriveFaultError(f"{self._where()}: no heartbeat (COB-ID 0x{0x700 + s.node_id:X}) within "
+                                      f"{wait:g} s")
+            word = self._read_status()
+            if decode_statusword(word) in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+                if not s.fault_reset:
+                    raise DriveFaultError(f"{self._where()} is in fault (statusword 0x{word:04X}); clear the cause, "
+                                          "or set canopen.fault_reset = true to reset it")
+                self._sdo_write(CONTROLWORD_OBJECT, 0, 0, "controlword")
+                word, state = self._command(Command.FAULT_RESET, (State.SWITCH_ON_DISABLED,), s.state_timeout_s)
+                if state is not State.SWITCH_ON_DISABLED:
+                    raise DriveFaultError(f"{self._where()}: fault reset did not clear the fault (statusword "
+                                          f"0x{word:04X}, {state or 'undefined'})")
+                steps.append("fault reset")
+            self._map_pdos()
+            steps.append(f"RPDO{s.rpdo} {s.setpoint}, TPDO{s.tpdo} statusword"
+                         + "".join(f", {ref}" for _, ref, _ in s.actual) + ", synchronous")
+            mode = MODES[s.mode]
+            self._sdo_write(MODES_OF_OPERATION, 0, mode, "modes of operation")
+            deadline = time.monotonic() + s.state_timeout_s
+            while (shown := self._sdo_read(MODES_DISPLAY, 0, "modes of operation display")) != mode:
+                if time.monotonic() >= deadline:
+                    raise DriveFaultError(f"{self._where()} does not run mode {s.mode} ({mode}): modes of operation "
+                                          f"display 0x6061 reads {shown}")
+                time.sleep(0.002)
+            steps.append(f"mode {s.mode} ({mode})")
+            self._sdo_write(s.setpoint.index, s.setpoint.subindex, 0, s.setpoint.name)
+            self._nmt(0x01)
+            if not self._wait_heartbeat(wait, NMT_OPERATIONAL):
+                raise DriveFaultError(f"{self._where()}: did not report NMT operational within {wait:g} s")
+            steps.append("NMT operational")
+            for command, target in ((Command.SHUTDOWN, State.READY_TO_SWITCH_ON),
+                                    (Command.SWITCH_ON, State.SWITCHED_ON),
+                                    (Command.ENABLE_OPERATION, State.OPERATION_ENABLED)):
+                word, state = self._command(command, (target, State.FAULT), s.state_timeout_s)
+                if state is not target:
+                    raise DriveFaultError(f"{self._where()} did not reach '{target}' within {s.state_timeout_s:g} s "
+                                          f"of controlword 0x{CONTROLWORD[command]:04X} ({command}): statusword "
+                                          f"0x{word:04X} ({state or 'undefined'})")
+                steps.append(str(command))
+        self.start_account = ", ".join(steps)
+        self._left = None
+        self._first_counter = None
+        self._syncs_sent = 0
+        self._cyclic = True
+
+    def _map_pdos(self) -> None:
+        """Write the RPDO and TPDO mapping of ``setup`` (synchronous transmission) with SDO."""
+        from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+        s = self.setup
+        rpdo = self.node.rpdo[s.rpdo]
+        tpdo = self.node.tpdo[s.tpdo]
+        try:
+            rpdo.clear()
+            rpdo.add_variable(s.setpoint.index, s.setpoint.subindex, s.setpoint.bits)
+            rpdo.cob_id, rpdo.trans_type, rpdo.enabled = s.rpdo_cob_id, 1, True
+            rpdo.save()
+            tpdo.clear()
+            tpdo.add_variable(STATUSWORD, 0, 16)
+            for _, ref, _ in s.actual:
+                tpdo.add_variable(ref.index, ref.subindex, ref.bits)
+            tpdo.cob_id, tpdo.trans_type, tpdo.enabled = s.tpdo_cob_id, 1, True
+            tpdo.save()
+        except (SdoAbortedError, SdoCommunicationError) as exc:
+            raise DriveFaultError(f"{self._where()}: mapping RPDO{s.rpdo}/TPDO{s.tpdo} failed: {exc}"
+                                  f"{self._pump_note()}") from None
+
+    def send_setpoint(self, value: float, counter: int = 0) -> None:
+        """The setpoint RPDO, then SYNC when the host produces it (the drive applies the setpoint on SYNC).
+        ``counter``: the host's tick of this setpoint; a sample is dated by the SYNC it answers (below)."""
+        super().send_setpoint(value, counter)
+        if self.setup.sync == "produce":
+            self.port.send(Frame(SYNC_COB_ID, b""))
+            self._sync_ticks[self._syncs_sent % _SYNC_MEMORY] = counter
+            self._syncs_sent += 1
+            self._update_health()
+
+    @property
+    def counts_host_ticks(self) -> bool:  # type: ignore[override]
+        """With host-produced SYNC, samples are dated by the host tick of the SYNC they answer (``_dated``)."""
+        return self.setup.sync == "produce"
+
+    def _dated(self, samples: list[FeedbackSample]) -> list[FeedbackSample]:
+        """With host-produced SYNC, each sample's counter becomes the host tick that follows the SYNC it answers:
+        the drive's counter advances once a SYNC, so its step from the first sample counts SYNCs. Ticks the host
+        skipped (a stalled pacing loop) then do not shift the time base, as the drive's cycle is the SYNC."""
+        if self.setup.sync != "produce":
+            return samples
+        out = []
+        for sample in samples:
+            if sample.counter is None:
+                out.append(sample)
+                continue
+            if self._first_counter is None:
+                self._first_counter = sample.counter
+            n = sample.counter - self._first_counter
+            if not 0 <= n < self._syncs_sent or self._syncs_sent - n > _SYNC_MEMORY:
+                self._first_counter = sample.counter - (self._syncs_sent - 1)  # lost track: the latest SYNC
+                n = self._syncs_sent - 1
+            tick = self._sync_ticks[n % _SYNC_MEMORY]
+            out.append(dataclasses.replace(sample, counter=tick + 1))
+        return out
+
+    def receive(self, timeout: float) -> list[FeedbackSample]:
+        """TPDO samples within ``timeout`` s (as ``Driver.receive``); DriveFaultError when the drive reported a fault
+        (EMCY, a statusword out of "operation enabled"), its heartbeat is missing or it left NMT operational."""
+        if not isinstance(timeout, (int, float)) or not timeout >= 0:
+            raise ValueError(f"receive timeout must be a number >= 0 s, got {timeout!r}")
+        deadline = time.monotonic() + timeout
+        samples: list[FeedbackSample] = []
+        try:
+            while True:
+                for frame in self.port.recv(max(0.0, deadline - time.monotonic())):
+                    samples.extend(self._dispatch(frame))
+                self._check()
+                if samples or time.monotonic() >= deadline:
+                    return samples
+        finally:
+            self._update_health()
+
+    def _check(self) -> None:
+        """Raise DriveFaultError for a fault the drive has shown."""
+        active = list(self.node.emcy.active)
+        if active:
+            e = active[-1]
+            raise DriveFaultError(f"{self._where()}: EMCY 0x{e.code:04X} ({e.get_desc() or 'no description'}), "
+                                  f"error register 0x{e.register:02X}")
+        if self._left is not None:
+            raise DriveFaultError(f"{self._where()} left operation enabled: {self._left}")
+        limit = self.setup.heartbeat_timeout_s
+        with self._lock:
+            seen, state = self._last_heartbeat, self._nmt_state
+        if seen is not None and time.monotonic() - seen > limit:
+            while frames := self.port.recv(0.0):  # heartbeats waiting in the queue count
+                for frame in frames:
+                    self._dispatch(frame)
+            with self._lock:
+                seen, state = self._last_heartbeat, self._nmt_state
+            if seen is not None and time.monotonic() - seen > limit:
+                raise DriveFaultError(f"{self._where()}: no heartbeat for {time.monotonic() - seen:.3g} s "
+                                      f"(canopen.heartbeat_timeout_s = {limit:g} s)")
+        if state is not None and state != NMT_OPERATIONAL:
+            raise DriveFaultError(f"{self._where()} reports NMT state {NMT_STATES.get(state, state)} in its heartbeat")
+
+    def disable(self) -> bool:
+        """Quick stop, disable voltage, NMT pre-operational (each tried even when an earlier one failed); True when
+        the drive was then seen "switch on disabled" (or in fault, its power stage off). ``shutdown_account`` says
+        what was done and seen."""
+        self._cyclic = False
+        steps: list[str] = []
+        seen: State | None = None
+        if self.port.closed:
+            self.shutdown_account = "the bus was closed: no quick stop, disable voltage or NMT command sent"
+            return False
+        with self._pumped():
+            for command, targets in ((Command.QUICK_STOP, (State.QUICK_STOP_ACTIVE, State.SWITCH_ON_DISABLED,
+                                                           State.FAULT)),
+                                     (Command.DISABLE_VOLTAGE, (State.SWITCH_ON_DISABLED, State.FAULT))):
+                try:
+                    word, seen = self._command(command, targets, self.setup.state_timeout_s)
+                    steps.append(f"{command} (controlword 0x{CONTROLWORD[command]:04X}): statusword 0x{word:04X} "
+                                 f"({seen or 'undefined'})")
+                except DriverOperationError as exc:
+                    seen = None
+                    steps.append(f"{command} (controlword 0x{CONTROLWORD[command]:04X}) not confirmed: {exc}")
+            try:
+                self._nmt(0x80)
+                steps.append("NMT pre-operational sent")
+            except DriverOperationError as exc:
+                steps.append(f"NMT pre-operational not sent: {exc}")
+        self.shutdown_account = "; ".join(steps)
+        return seen in (State.SWITCH_ON_DISABLED, State.FAULT)
+
+    def close(self) -> None:
+        """Close the port."""
+        self._pumping.clear()
+        super().close()

@@ -1,0 +1,310 @@
+"""A simulated CiA 402 servo drive: a canopen ``LocalNode`` (the shipped EDS, or any with the same objects) around a
+``SimulatedController``'s plant.
+
+What it honours, as a drive does:
+
+- NMT: it boots pre-operational (boot-up message), exchanges PDOs only while operational, and produces its
+  heartbeat at the producer time the host writes to 0x1017;
+- the PDO mapping the host writes over SDO: on NMT start it reads its RPDO and TPDO mapping objects, applies the
+  setpoint object of an RPDO received before each SYNC, and sends every enabled synchronous TPDO after it;
+- SYNC: each SYNC holds the latest setpoint over one control period on the plant (``SimulatedController.advance``)
+  and samples the actual values at its end, so a lockstep host gets the same zero-order-hold record as from the
+  other simulated links;
+- the power state machine (``drivers.cia402``): the plant gets a zero setpoint unless "operation enabled";
+- faults (``Cia402Faults``): it refuses to enable, sends an EMCY and goes to fault, stops its heartbeat, or falls
+  silent altogether, at a given controller time.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from bodebench.drivers.canopen_link import (
+    CONTROLWORD_OBJECT,
+    MODES_DISPLAY,
+    MODES_OF_OPERATION,
+    STATUSWORD,
+    SYNC_COB_ID,
+    CanopenSetup,
+    load_od,
+)
+from bodebench.drivers.cia402 import MODES, Command, State, command_of, next_state, statusword
+from bodebench.drivers.codec import COUNTER
+from bodebench.sim.controller import SimulatedController
+
+if TYPE_CHECKING:
+    import canopen
+
+__all__ = ["Cia402Faults", "SimulatedCia402Drive", "ServingCanopen", "serve_canopen"]
+
+SAMPLE_COUNTER = 0x2000
+"""The shipped EDS's sample counter (UNSIGNED16): control periods stepped."""
+ERROR_CODE = 0x603F
+
+
+@dataclass(frozen=True)
+class Cia402Faults:
+    """Faults of the simulated CiA 402 drive (times in s of controller time; 0: never).
+
+    refuse_enable: the drive stays "switched on" when told to enable operation. emcy_at_s, emcy_code: from then on
+    the drive is in fault, having sent an EMCY with this error code. heartbeat_stops_at_s: its heartbeat stops (the
+    PDOs go on). silent_at_s: it answers nothing more (no heartbeat, PDO or SDO).
+    """
+
+    refuse_enable: bool = field(default=False, metadata={"doc": "never reach operation enabled"})
+    emcy_at_s: float = field(default=0.0, metadata={"min": 0, "doc": "EMCY and fault at this controller time, s"})
+    emcy_code: int = field(default=0x2310, metadata={"min": 0x1000, "max": 0xFFFF,
+                                                     "doc": "error code of that EMCY (0x2310: continuous "
+                                                            "overcurrent)"})
+    heartbeat_stops_at_s: float = field(default=0.0, metadata={"min": 0, "doc": "heartbeat stops, s"})
+    silent_at_s: float = field(default=0.0, metadata={"min": 0, "doc": "the drive falls silent, s"})
+
+    @property
+    def any(self) -> bool:
+        """True when any fault is configured."""
+        return self.refuse_enable or bool(self.emcy_at_s or self.heartbeat_stops_at_s or self.silent_at_s)
+
+
+class SimulatedCia402Drive:
+    """The drive's object dictionary, state machine and SYNC handling around ``controller`` (whose layout is
+    ``setup.layout()``), on a canopen network given to ``attach``. Each change of state goes to ``on_event``."""
+
+    def __init__(self, controller: SimulatedController, setup: CanopenSetup, faults: Cia402Faults | None = None,
+                 on_event: Callable[[str], None] | None = None) -> None:
+        self.controller = controller
+        self.setup = setup
+        self.faults = faults if faults is not None and faults.any else None
+        self.on_event = on_event or (lambda text: None)
+        self.state = State.SWITCH_ON_DISABLED
+        controller.enabled = False
+        self.mode = 0
+        self.error_code = 0
+        self.syncs = 0
+        self.silent = False
+        self.transitions: list[tuple[State, State]] = []
+        self._controlword = 0
+        self._heartbeat_stopped = False
+        self._rpdos: list[Any] = []
+        self._tpdos: list[Any] = []
+        self._channel_of: dict[tuple[int, int], tuple[str, float]] = {
+            (ref.index, ref.subindex): (name, scale) for name, ref, scale in setup.actual}
+        self._setpoint_key = (setup.setpoint.index, setup.setpoint.subindex)
+        self._setpoint_raw: float = 0
+        self._lock = threading.Lock()
+        self.node: canopen.LocalNode | None = None
+        self.network: canopen.Network | None = None
+
+    # ----------------------------------------------------------------------------------------------------------
+    def attach(self, network: canopen.Network) -> None:
+        """Create the local node on ``network`` and boot it (boot-up message, then pre-operational)."""
+        import canopen
+
+        node = canopen.LocalNode(self.setup.node_id, load_od(self.setup.eds, self.setup.node_id))
+        node.add_read_callback(self._on_read)
+        node.add_write_callback(self._on_write)
+        network.add_node(node)
+        network.subscribe(0, self._on_nmt)  # after the node's own NMT handler
+        network.subscribe(SYNC_COB_ID, self._on_sync)
+        self.node, self.network = node, network
+        node.nmt.send_command(0x81)  # reset node: boot-up message
+        node.nmt.send_command(0x80)  # pre-operational (the heartbeat starts here if 0x1017 is set)
+
+    @property
+    def nmt_state(self) -> str:
+        """The node's NMT state."""
+        assert self.node is not None
+        return self.node.nmt.state
+
+    def _go(self, state: State, why: str) -> None:
+        if state is self.state:
+            return
+        self.transitions.append((self.state, state))
+        self.on_event(f"{state} ({why})")
+        self.state = state
+        enabled = state is State.OPERATION_ENABLED
+        if not enabled and self.controller.setpoint != 0.0:
+            self.on_event(f"setpoint zeroed (was {self.controller.setpoint:g})")
+        self.controller.enabled = enabled
+        if not enabled:
+            self.controller.setpoint = 0.0
+
+    # ----------------------------------------------------------------------------------------------------------
+    # object dictionary
+    def _on_read(self, index: int, subindex: int, od: Any) -> int | None:
+        if index == STATUSWORD:
+            return statusword(self.state, warning=self.error_code != 0)
+        if index == MODES_DISPLAY:
+            return self.mode
+        if index == ERROR_CODE:
+            return self.error_code
+        if index == SAMPLE_COUNTER:
+            return self.controller.tick_count % (1 << 16)
+        return None
+
+    def _on_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
+        from canopen.sdo import SdoAbortedError
+
+        if index == CONTROLWORD_OBJECT:
+            word = int.from_bytes(data, "little")
+            command = command_of(word, self._controlword)
+            self._controlword = word
+            self._command(command, word)
+        elif index == MODES_OF_OPERATION:
+            mode = int.from_bytes(data, "little", signed=True)
+            if mode not in MODES.values():
+                raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
+            self.mode = mode
+        elif (index, subindex) == self._setpoint_key:
+            self._setpoint_raw = od.decode_raw(data)
+
+    def _command(self, command: Command | None, word: int) -> None:
+        new = next_state(self.state, command)
+        if command is Command.FAULT_RESET and self.state is State.FAULT:
+            self.error_code = 0
+            assert self.node is not None
+            self.node.emcy.reset()
+        if new is State.OPERATION_ENABLED and self.faults is not None and self.faults.refuse_enable:
+            self.on_event(f"refuses to enable operation (controlword 0x{word:04X})")
+            return
+        self._go(new, f"controlword 0x{word:04X}")
+
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if self.silent or len(data) < 2 or data[1] not in (0, self.setup.node_id):
+            return
+        if self.nmt_state == "OPERATIONAL":
+            self._read_pdos()
+            self.on_event("NMT operational")
+        else:
+            self._rpdos, self._tpdos = [], []
+            if self.state is State.OPERATION_ENABLED:
+                self._go(State.SWITCH_ON_DISABLED, f"left NMT operational: {self.nmt_state.lower()}")
+            self.on_event(f"NMT {self.nmt_state.lower()}")
+
+    def _read_pdos(self) -> None:
+        """The RPDOs and TPDOs the mapping objects now describe (enabled ones only)."""
+        assert self.node is not None
+        self.node.rpdo.read()
+        self.node.tpdo.read()
+        rpdos: Any = self.node.rpdo.map
+        tpdos: Any = self.node.tpdo.map
+        self._rpdos = [m for m in rpdos.values() if m.enabled and m.map]
+        self._tpdos = [m for m in tpdos.values() if m.enabled and m.map and 1 <= m.trans_type <= 240]
+
+    # ----------------------------------------------------------------------------------------------------------
+    # SYNC
+    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if self.silent or self.nmt_state != "OPERATIONAL":
+            return
+        with self._lock:
+            self._sync()
+
+    def _sync(self) -> None:
+        assert self.node is not None
+        c = self.controller
+        f = self.faults
+        if f is not None and self._due(f.silent_at_s):
+            self._fall_silent()
+            return
+        if f is not None and not self._heartbeat_stopped and self._due(f.heartbeat_stops_at_s):
+            self._heartbeat_stopped = True
+            self.node.nmt.stop_heartbeat()
+            self.on_event("heartbeat stopped")
+        for rpdo in self._rpdos:
+            for var in rpdo.map:
+                if (var.index, var.subindex) == self._setpoint_key and rpdo.is_received:
+                    self._setpoint_raw = var.raw
+        value = float(self._setpoint_raw) * self.setup.setpoint_scale
+        c.setpoint = value if self.state is State.OPERATION_ENABLED and math.isfinite(value) else 0.0
+        c.enabled = self.state is State.OPERATION_ENABLED
+        y = c.advance()
+        self.syncs += 1
+        if f is not None and f.emcy_at_s and self.error_code == 0 and self.state is not State.FAULT \
+                and self._due(f.emcy_at_s):
+            self.error_code = f.emcy_code
+            self.node.emcy.send(f.emcy_code, 0x03)  # error register: generic error, current
+            self.on_event(f"EMCY 0x{f.emcy_code:04X}")
+            self._go(State.FAULT, f"error 0x{f.emcy_code:04X}")
+        for tpdo in self._tpdos:
+            if self.syncs % tpdo.trans_type:
+                continue
+            for var in tpdo.map:
+                var.raw = self._value(var, y)
+            tpdo.transmit()
+
+    def _due(self, at_s: float) -> bool:
+        return bool(at_s) and self.controller.time >= at_s
+
+    def _value(self, var: Any, y: Any) -> int | float:
+        """The value of a mapped object after this period: statusword, sample counter, an actual value in counts."""
+        key = (var.index, var.subindex)
+        if var.index == STATUSWORD:
+            return statusword(self.state, warning=self.error_code != 0)
+        channel = self._channel_of.get(key)
+        if channel is None:
+            if var.index == SAMPLE_COUNTER:
+                return self.controller.tick_count % (1 << var.length)
+            return 0
+        name, scale = channel
+        if name == COUNTER:
+            return self.controller.tick_count % (1 << var.length)
+        value = self.controller.sensed(y, name) / scale
+        if var.od.data_type in (0x8, 0x11):
+            return value
+        lo, hi = var.od.min, var.od.max
+        if lo is None or hi is None:
+            signed = var.od.data_type in (0x2, 0x3, 0x4)
+            bits = var.length
+            lo, hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
+        return int(min(max(round(value), lo), hi)) if math.isfinite(value) else 0
+
+    def _fall_silent(self) -> None:
+        assert self.node is not None and self.network is not None
+        self.silent = True
+        self.node.nmt.stop_heartbeat()
+        self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+        self.on_event("fell silent (no heartbeat, PDO or SDO answer)")
+
+
+class ServingCanopen:
+    """A simulated CiA 402 drive on its own python-can bus (canopen's notifier thread answers); ``close`` stops it.
+    ``controller`` is the drive's ``SimulatedController`` (its ``on_event`` reports the drive's changes too)."""
+
+    def __init__(self, drive: SimulatedCia402Drive, network: canopen.Network) -> None:
+        self.drive = drive
+        self.network = network
+        self.controller = drive.controller
+        self.stop = threading.Event()
+        self.error: BaseException | None = None
+
+    def close(self) -> None:
+        """Stop the heartbeat, the notifier and the bus."""
+        self.stop.set()
+        if self.drive.node is not None:
+            self.drive.node.nmt.stop_heartbeat()
+        self.network.disconnect()
+
+
+def serve_canopen(controller: SimulatedController, setup: CanopenSetup, can: dict[str, Any],
+                  faults: Cia402Faults | None = None) -> ServingCanopen:
+    """Serve a simulated CiA 402 drive around ``controller`` on a python-can bus opened from ``can`` (interface,
+    channel, bitrate, options); the drive's events go to ``controller.on_event``."""
+    import can as python_can
+    import canopen
+
+    kwargs = dict(can.get("options") or {})
+    if can.get("bitrate") is not None:
+        kwargs["bitrate"] = can["bitrate"]
+    bus = python_can.Bus(interface=can["interface"], channel=can.get("channel"), **kwargs)
+    network = canopen.Network(bus)
+    drive = SimulatedCia402Drive(controller, setup, faults, lambda text: controller.on_event(text))
+    try:
+        network.connect()
+        drive.attach(network)
+    except BaseException:
+        network.disconnect()
+        raise
+    return ServingCanopen(drive, network)

@@ -1,0 +1,204 @@
+"""The offline experiment on its executors: every case in one pool, plots drawn there too, a Dask cluster, the
+compiled kernels compiled once per machine rather than once per worker."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import tomllib
+from concurrent.futures import ProcessPoolExecutor
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bodebench.apps.cli import main
+from bodebench.apps.plots import write_plots
+from bodebench.bench.events import CaseBegins, CaseSaved, PointFinished
+from bodebench.bench.procedure import SweepProcedure
+from bodebench.io.config import parse_config
+from bodebench.io.results import load_response
+from bodebench.sim.plants import FirstOrderLag, LinearOscillator
+
+ROOT = Path(__file__).resolve().parent.parent
+
+CASES = """
+title = "three plants"
+[plant]
+model = "linear"
+[excitation]
+amplitude = 0.5
+frequencies_hz = [1.0, 4.0, 5.0, 9.0]
+[analysis]
+harmonics = [1, 2]
+tolerance_percent = 0.05
+[cases.light.plant]
+mass = 1e-3
+stiffness = 1.0
+damping_ratio = 0.05
+[cases.heavy.plant]
+mass = 1e-3
+stiffness = 1.0
+damping_ratio = 0.7
+[cases.lag.plant]
+model = "lag"
+time_constant = 0.05
+gain = 2.0
+"""
+
+
+def exact(case_name: str, f: np.ndarray) -> np.ndarray:
+    """The plants' exact first-harmonic response at ``f`` (Hz)."""
+    plant = (FirstOrderLag(0.05, 2.0) if case_name == "lag"
+             else LinearOscillator(1e-3, 1.0, 0.05 if case_name == "light" else 0.7))
+    return plant.frequency_response(f)[:, 0]
+
+
+def sorted_points(response: object) -> list[tuple[float, int, float, float, int, str]]:
+    return sorted((p.frequency_hz, p.harmonic, p.gain, p.phase_deg, p.periods, p.status)
+                  for p in response.points)  # type: ignore[attr-defined]
+
+
+def test_one_pool_for_every_case_gives_the_in_order_results_and_events_case_by_case(tmp_path: Path) -> None:
+    config = parse_config(tomllib.loads(CASES), "cases.toml")
+    inline = SweepProcedure(config, tmp_path / "inline").run()
+    events: list[object] = []
+    with ProcessPoolExecutor(2) as pool:
+        pooled = SweepProcedure(config, tmp_path / "pool", listener=events.append, executor=pool,
+                                plots=partial(write_plots, formats=("png",))).run()
+    assert [o.case.name for o in pooled] == ["light", "heavy", "lag"]
+    for a, b in zip(inline, pooled, strict=True):
+        assert sorted_points(a.response) == sorted_points(b.response)  # bit-identical however they ran
+        on_disk = load_response(b.directory)
+        assert sorted_points(on_disk) == sorted_points(b.response)
+        first = b.response.select(harmonic=1)
+        assert np.allclose(first.gain, np.abs(exact(b.case.name, first.frequency_hz)), rtol=1e-3)
+        assert [f.name for f in b.files] == ["bode.png", "periods.png"]
+        assert all(f.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for f in b.files)
+    # events: each case begins, then its four frequencies, in case order; saved once its plots are on disk
+    begins = [i for i, e in enumerate(events) if isinstance(e, CaseBegins)]
+    assert [events[i].index for i in begins] == [0, 1, 2]  # type: ignore[attr-defined]
+    for k, start in enumerate(begins):
+        end = begins[k + 1] if k + 1 < len(begins) else len(events)
+        finished = [e for e in events[start:end] if isinstance(e, PointFinished)]
+        assert sorted(e.points[0].frequency_hz for e in finished) == [1.0, 4.0, 5.0, 9.0]
+    saved = [e for e in events if isinstance(e, CaseSaved)]
+    assert [e.index for e in saved] == [0, 1, 2] and all(len(e.files) == 2 for e in saved)
+
+
+def test_a_resumed_pool_run_measures_only_what_is_missing(tmp_path: Path) -> None:
+    config = parse_config(tomllib.loads(CASES), "cases.toml")
+    with ProcessPoolExecutor(2) as pool:
+        full = SweepProcedure(config, tmp_path / "full", executor=pool).run()
+        # cut the second case's file after its first frequency's rows, as an interruption would
+        cut = tmp_path / "full" / "heavy" / "response.csv"
+        lines = cut.read_text().splitlines(keepends=True)
+        header = sum(1 for line in lines if not line[:1].isdigit())
+        cut.write_text("".join(lines[:header + 2]))
+        events: list[object] = []
+        resumed = SweepProcedure(config, tmp_path / "full", listener=events.append, executor=pool,
+                                 existing="resume").run()
+    measured = [e for e in events if isinstance(e, PointFinished)]
+    assert len(measured) == 3  # the heavy case's three missing frequencies, nothing else
+    for a, b in zip(full, resumed, strict=True):
+        assert sorted_points(a.response) == sorted_points(b.response)
+        assert sorted_points(load_response(b.directory)) == sorted_points(a.response)
+
+
+@pytest.mark.slow
+def test_simulate_plot_formats_and_bad_arguments(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = tmp_path / "cases.toml"
+    cfg.write_text(CASES)
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "none"), "--jobs", "1", "--plots", "none",
+                 "--quiet"]) == 0
+    assert sorted(p.name for p in (tmp_path / "none" / "lag").iterdir()) == ["response.csv", "response.json"]
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "vec"), "--jobs", "1", "--plots", "svg,pdf",
+                 "--quiet"]) == 0
+    names = sorted(p.name for p in (tmp_path / "vec" / "light").iterdir())
+    assert names == ["bode.pdf", "bode.svg", "periods.pdf", "periods.svg", "response.csv", "response.json"]
+    assert (tmp_path / "vec" / "light" / "bode.pdf").read_bytes()[:5] == b"%PDF-"
+    capsys.readouterr()
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "x"), "--jobs", "-1"]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == "bodebench: --jobs must be >= 1, got -1"
+    assert not (tmp_path / "x").exists()
+    with pytest.raises(SystemExit) as exc:
+        main(["simulate", str(cfg), "--out", str(tmp_path / "y"), "--plots", "png,jpg"])
+    assert exc.value.code == 2
+    assert "plot format jpg unknown; choose from png, svg, pdf" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_simulate_on_a_local_dask_cluster_gives_the_pool_results(tmp_path: Path) -> None:
+    cfg = tmp_path / "cases.toml"
+    cfg.write_text(CASES)
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "inline"), "--jobs", "1", "--quiet"]) == 0
+    proc = subprocess.run([sys.executable, "-m", "bodebench", "simulate", str(cfg), "--out", str(tmp_path / "dask"),
+                           "--executor", "local", "--jobs", "2", "--quiet"], capture_output=True, text=True,
+                          timeout=600, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    for case in ("light", "heavy", "lag"):
+        assert sorted_points(load_response(tmp_path / "dask" / case)) == \
+            sorted_points(load_response(tmp_path / "inline" / case))
+        assert (tmp_path / "dask" / case / "bode.png").exists()  # drawn on the cluster
+
+
+@pytest.mark.slow
+def test_a_missing_dask_scheduler_is_one_line(tmp_path: Path) -> None:
+    cfg = tmp_path / "cases.toml"
+    cfg.write_text(CASES)
+    proc = subprocess.run([sys.executable, "-m", "bodebench", "simulate", str(cfg), "--out", str(tmp_path / "d"),
+                           "--executor", "tcp://127.0.0.1:9", "--quiet"], capture_output=True, text=True,
+                          timeout=300, cwd=tmp_path)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("bodebench: no Dask scheduler at tcp://127.0.0.1:9: ")
+    assert len(proc.stderr.strip().splitlines()) == 1
+
+
+COMPILE_ONCE = textwrap.dedent("""
+    import json, os, time
+    from bodebench.bench.offline import default_executor
+
+    def stats(_):
+        import numba
+        from bodebench.sim import _kernels
+        time.sleep(0.5)  # long enough that every worker of the pool takes one of these
+        misses = hits = 0
+        for name in dir(_kernels):
+            d = getattr(_kernels, name)
+            if isinstance(d, numba.core.registry.CPUDispatcher):
+                misses += sum(d.stats.cache_misses.values())
+                hits += sum(d.stats.cache_hits.values())
+        return os.getpid(), misses, hits
+
+    if __name__ == "__main__":
+        with default_executor(2, models=("lag",)) as pool:
+            found = {}
+            for _ in range(10):
+                for pid, misses, hits in pool.map(stats, range(2)):
+                    found[pid] = (misses, hits)
+                if len(found) == 2:
+                    break
+        print(json.dumps(sorted(found.values())))
+""")
+
+
+@pytest.mark.slow
+def test_the_pool_compiles_the_kernels_once_into_an_empty_cache(tmp_path: Path) -> None:
+    script = tmp_path / "compile_once.py"
+    script.write_text(COMPILE_ONCE)
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=900,
+                          env=dict(os.environ, NUMBA_CACHE_DIR=str(cache)))
+    assert proc.returncode == 0, proc.stderr
+    workers = json.loads(proc.stdout)
+    assert len(workers) == 2
+    (loaded_misses, loaded_hits), (compiled_misses, _) = workers
+    assert compiled_misses > 0  # one worker compiled the lag's kernels ...
+    assert loaded_misses == 0 and loaded_hits == compiled_misses  # ... the other loaded every one of them
+    assert list(cache.rglob("*.nbi"))
