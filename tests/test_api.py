@@ -139,6 +139,7 @@ def test_bad_arguments_are_one_line_errors(tmp_path: Path) -> None:
         bodebench.load(tmp_path)
 
 
+@pytest.mark.slow
 def test_a_bench_sweep_over_the_virtual_bus_and_in_process_agree(tmp_path: Path) -> None:
     bench = {**offline(), "excitation": {"amplitude": AMPLITUDE, "frequencies_hz": [2.0, 5.0]},
              "bench": {"transport": "can", "rate_hz": 1000.0, "clock": "lockstep"},
@@ -153,6 +154,7 @@ def test_a_bench_sweep_over_the_virtual_bus_and_in_process_agree(tmp_path: Path)
         assert abs(complex(a.p, a.q) - complex(b.p, b.q)) <= 2e-4 * abs(complex(b.p, b.q))
 
 
+@pytest.mark.slow
 def test_the_example_script_measures_the_exact_response(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, str(ROOT / "examples" / "api_sweep.py"), str(tmp_path)],
                           capture_output=True, text=True, timeout=600, cwd=tmp_path)

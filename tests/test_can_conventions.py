@@ -75,6 +75,7 @@ def test_interface_channel_and_bitrate_come_from_canrc_and_the_environment(
     assert case.can is not None and (case.can.interface, case.can.channel) == ("virtual", "mine")
 
 
+@pytest.mark.slow
 def test_a_bench_sweep_on_the_resolved_bus(python_can_home: Path, tmp_path: Path) -> None:
     channel = f"canrc-{uuid.uuid4().hex[:8]}"
     (python_can_home / ".canrc").write_text(f"[default]\ninterface = virtual\nchannel = {channel}\n")
@@ -136,6 +137,7 @@ class Recorder:
         return self.frames
 
 
+@pytest.mark.slow
 def test_can_fd_frames_on_the_virtual_bus(tmp_path: Path) -> None:
     channel = f"fd-{uuid.uuid4().hex[:8]}"
     data = bench({"interface": "virtual", "channel": channel, "fd": True}, simulator={}, frames=fd_frames(24))
@@ -160,6 +162,7 @@ def test_can_fd_frames_on_the_virtual_bus(tmp_path: Path) -> None:
         parse_config(bench({"interface": "virtual", "channel": "a", "fd": True}, frames=fd_frames(22)), "fd.toml")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("suffix", [".asc", ".blf", ".log"])  # .csv holds no direction
 def test_the_bus_log_holds_the_sessions_traffic(tmp_path: Path, suffix: str) -> None:
     channel = f"log-{uuid.uuid4().hex[:8]}"
@@ -201,6 +204,7 @@ def test_the_bus_log_holds_the_sessions_traffic(tmp_path: Path, suffix: str) -> 
         assert stamps == sorted(stamps)
 
 
+@pytest.mark.slow
 def test_a_serial_session_leaves_a_raw_byte_log(tmp_path: Path) -> None:
     config = load_config(ROOT / "configs" / "sim_serial.toml")
     data = json.loads(json.dumps(config.cases[0].raw))

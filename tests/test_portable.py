@@ -61,6 +61,7 @@ def test_the_command_line_and_the_drivers_import(no_posix_tty: dict[str, str]) -
     assert done.stdout.strip() == "serial ok"
 
 
+@pytest.mark.slow
 def test_a_can_sweep_runs_and_a_pty_simulator_says_it_needs_posix(no_posix_tty: dict[str, str],
                                                                      tmp_path: Path) -> None:
     config = tmp_path / "lag.toml"

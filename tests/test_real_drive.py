@@ -28,6 +28,7 @@ def host(channel: str) -> dict[str, Any]:
     }
 
 
+@pytest.mark.slow
 def test_a_real_drive_is_measured_without_a_plant_table(tmp_path: Path) -> None:
     channel = f"real-{uuid.uuid4().hex[:8]}"
     config = parse_config(host(channel), "drive.toml")

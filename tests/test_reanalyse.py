@@ -87,6 +87,7 @@ def test_a_looser_tolerance_gives_what_a_live_sweep_at_it_measures(tmp_path: Pat
     assert {p.status for p in fixed.response} == {"capped"}
 
 
+@pytest.mark.slow
 def test_a_simulated_bench_sweep_analysed_again_is_bit_identical(tmp_path: Path) -> None:
     sweep(on_bench(f"reanalyse-{uuid.uuid4().hex[:8]}"), tmp_path / "live")
     record = load_samples(samples_path(tmp_path / "live", FREQS[0]))
