@@ -224,9 +224,9 @@ def test_a_serial_session_leaves_a_raw_byte_log(tmp_path: Path) -> None:
     # the session's counters were read before the ramp out, the zero setpoint and the disable frame
     assert len(sent) > health.frames_out and len(received) >= health.frames_in
     layout = outcome.case.on_bench.layout
-    last_setpoint = [m for m in sent if m.arbitration_id == layout.setpoint.id][-1]
-    assert layout.setpoint.decode(bytes(last_setpoint.data))["setpoint"] == 0.0
-    assert (sent[-1].arbitration_id, bytes(sent[-1].data)) == (layout.disable.id, bytes(layout.disable.data))
+    last_setpoint = [data for frame_id, data in sent if frame_id == layout.setpoint.id][-1]
+    assert layout.setpoint.decode(bytes(last_setpoint))["setpoint"] == 0.0
+    assert (sent[-1][0], bytes(sent[-1][1])) == (layout.disable.id, bytes(layout.disable.data))
     assert tx.crc_errors == rx.crc_errors == 0 and tx.bytes_discarded == rx.bytes_discarded == 0
     setpoint_id = outcome.case.on_bench.layout.setpoint.id
     assert sum(1 for frame_id, _ in sent if frame_id == setpoint_id) > 100

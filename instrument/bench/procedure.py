@@ -259,6 +259,11 @@ class SweepProcedure:
         to its case's file as it is done; events case by case (a later case's points, done early, are announced
         when its turn comes); each case's plots drawn on the executor too, while later cases are measured."""
         from bodebench.bench.offline import measure_cases, sort_points
+        from bodebench.sim._jit import HAVE_NUMBA
+
+        if not HAVE_NUMBA:
+            log.warning("numba is not installed: the simulated plants run as plain Python, about 170 times slower "
+                        "(pip install 'bodebench[sim]')")
 
         cases = [self._case(i) for i in indices]
         outcomes: list[CaseOutcome] = []
