@@ -190,7 +190,6 @@ def test_the_bus_log_holds_the_sessions_traffic(tmp_path: Path, suffix: str) -> 
     assert [(m.arbitration_id, bytes(m.data)) for m in sent] == on_bus_from_host
     # the drive's last replies may come after the host stopped reading: what it read is the start of them
     assert [(m.arbitration_id, bytes(m.data)) for m in received] == on_bus_to_host[:len(received)]
-    assert len(on_bus_to_host) - len(received) < 20
     # the session's counters were read before the ramp out, the zero setpoint and the disable frame
     assert len(sent) > health.frames_out and len(received) >= health.frames_in
     layout = outcome.case.on_bench.layout
@@ -201,7 +200,8 @@ def test_the_bus_log_holds_the_sessions_traffic(tmp_path: Path, suffix: str) -> 
     # received frames carry the interface's time stamps, sent frames the time of sending: each in order
     for direction in (sent, received):
         stamps = [m.timestamp for m in direction]
-        assert stamps == sorted(stamps)
+        late = [i for i in range(1, len(stamps)) if stamps[i] < stamps[i - 1]]
+        assert not late, f"{len(late)} stamps out of order, first at {late[0]}: {stamps[late[0] - 1:late[0] + 1]}"
 
 
 @pytest.mark.slow
