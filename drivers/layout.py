@@ -44,9 +44,13 @@ __all__ = [
     "default_layout",
 ]
 
+CAN_FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+"""The payload lengths a CAN FD frame can have (its DLC codes 0 to 15)."""
+
 _TRANSPORTS = {
     # transport -> (largest payload in bytes, largest standard id, largest extended id)
     "can": (8, 0x7FF, 0x1FFFFFFF),
+    "can-fd": (64, 0x7FF, 0x1FFFFFFF),
     "serial-binary": (64, 0xFF, 0xFF),
     "serial-ascii": (64, 0xFFF, 0xFFF),
 }
@@ -235,7 +239,8 @@ class Layout:
                               f"({watchdog:g} s): the drive would trip between heartbeats")
 
     def validate(self, transport: str = "can") -> None:
-        """Check the layout for ``transport``: "can" (payload <= 8 bytes, 11/29-bit ids), "serial-binary" (payload
+        """Check the layout for ``transport``: "can" (payload <= 8 bytes, 11/29-bit ids), "can-fd" (a CAN FD length of
+        at most 64 bytes: 0 to 8, 12, 16, 20, 24, 32, 48 or 64), "serial-binary" (payload
         <= 64 bytes, id <= 0xFF) or "serial-ascii" (payload <= 64 bytes, id <= 0xFFF; 29-bit ids not allowed).
 
         Structural rules (unique ids, no overlaps, counters, channel names) are checked at construction and again
@@ -250,10 +255,15 @@ class Layout:
                 raise LayoutError(
                     f"message {show(msg.name)}: payload of {msg.length} bytes exceeds {max_payload} for {transport}"
                 )
+            if transport == "can-fd" and msg.length not in CAN_FD_LENGTHS:
+                longer = min(n for n in CAN_FD_LENGTHS if n > msg.length)
+                raise LayoutError(f"message {show(msg.name)}: payload of {msg.length} bytes is not a CAN FD length "
+                                  f"(0 to 8, 12, 16, 20, 24, 32, 48, 64): a signal up to byte {longer - 1} fills it "
+                                  f"to {longer}")
             limit = max_ext if msg.extended else max_std
             if msg.id > limit:
                 raise LayoutError(f"message {show(msg.name)}: id 0x{msg.id:X} exceeds 0x{limit:X} for {transport}")
-        if transport != "can":
+        if not transport.startswith("can"):
             # a serial line carries no extended flag: ids must be distinct as numbers
             owners: dict[int, Codec] = {}
             for msg in self.messages:

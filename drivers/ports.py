@@ -11,6 +11,7 @@ import io
 import os
 import select
 import struct
+import threading
 import time
 from abc import ABC, abstractmethod
 from collections import deque
@@ -32,15 +33,19 @@ from .serial_framing import (
     encode_binary,
 )
 
-if os.name == "posix":
+try:  # POSIX: a tty's descriptor is read and written directly
     import fcntl
     import termios
+except ImportError:  # Windows: pyserial's own read and write
+    _DIRECT_FD = False
+else:
+    _DIRECT_FD = os.name == "posix"
 
 if TYPE_CHECKING:  # python-can is imported where a CAN port is made
     import can
     from can.typechecking import Channel
 
-__all__ = ["MAX_BATCH", "CanPort", "Frame", "FramePort", "SerialLine", "SerialPort"]
+__all__ = ["MAX_BATCH", "ByteLog", "CanPort", "Frame", "FramePort", "SerialLine", "SerialPort", "resolve_can_config"]
 
 MAX_BATCH = 256
 """Most frames one ``recv`` call returns; the rest wait for the next call."""
@@ -206,6 +211,32 @@ class FramePort(ABC):
 
 # ----------------------------------------------------------------------------------------------------------------
 # CAN
+def resolve_can_config(interface: str = "", channel: str = "", bitrate: int | None = None,
+                       context: str = "") -> dict[str, Any]:
+    """python-can's bus configuration for these arguments, as ``can.Bus(interface=..., channel=..., bitrate=...,
+    config_context=...)`` resolves it: the values given (empty: not given) first, then ``can.rc``, the environment
+    (CAN_INTERFACE, CAN_CHANNEL, CAN_BITRATE, CAN_CONFIG) and the configuration files (``~/.canrc`` and the others
+    ``can.util.load_config`` reads, section ``context`` before [default]). ValueError when no interface results
+    or it is not one python-can knows."""
+    import can
+    import can.util
+
+    given: dict[str, Any] = {}
+    if interface:
+        given["interface"] = interface
+    if channel:
+        given["channel"] = channel
+    if bitrate is not None:
+        given["bitrate"] = bitrate
+    try:
+        return dict(can.util.load_config(config=given, context=context or None))
+    except can.CanInterfaceNotImplementedError as exc:
+        if not interface and "None" in str(exc):
+            raise ValueError("missing: not in the file, nor in python-can's configuration (CAN_INTERFACE, "
+                             "~/.canrc)") from None
+        raise ValueError(f"{exc} (python-can knows: {', '.join(sorted(can.VALID_INTERFACES))})") from None
+
+
 def _can_errors() -> tuple[tuple[type[BaseException], ...], tuple[type[BaseException], ...]]:
     import can
 
@@ -218,32 +249,57 @@ class CanPort(FramePort):
     _vendor_errors, _timeout_errors = _can_errors()
 
     def __init__(self, bus: can.BusABC, *, name: str | None = None, send_timeout: float | None = 1.0,
-                 owns_bus: bool = True) -> None:
+                 owns_bus: bool = True, fd: bool = False, log: str | os.PathLike[str] | None = None) -> None:
         """Wrap the open ``can.BusABC`` ``bus``. ``send_timeout`` (s) bounds each send where the interface supports
-        it; with ``owns_bus`` the bus is shut down by ``close()``."""
-        super().__init__(name or f"CAN {getattr(bus, 'channel_info', type(bus).__name__)}", "can")
+        it; with ``owns_bus`` the bus is shut down by ``close()``. ``fd``: CAN FD, frames longer than 8 bytes go as
+        FD frames (transport "can-fd"). ``log``: every frame sent and received goes to this file through python-can's
+        ``can.Logger`` (its suffix picks the format: .asc, .blf, .log, .csv, ...); heartbeats are then sent by the
+        caller rather than by the interface's periodic task, so that they are in the log too."""
+        super().__init__(name or f"CAN {getattr(bus, 'channel_info', type(bus).__name__)}", "can-fd" if fd else "can")
         self._bus = bus
         self._send_timeout = send_timeout
         self._owns_bus = owns_bus
+        self._fd = fd
+        channel = getattr(bus, "channel_id", None) or getattr(bus, "channel", None)
+        self._channel = channel if isinstance(channel, (str, int)) else None
+        """The channel that sent frames are logged on (received ones carry the interface's)."""
         self._periodic: list[can.broadcastmanager.CyclicSendTaskABC] = []
+        self._log: Any = None
+        self._log_lock = threading.Lock()
+        if log is not None:
+            import can as _can
+
+            try:
+                self._log = _can.Logger(log)
+            except (OSError, ValueError) as exc:
+                raise DriverInitError(f"cannot write the bus log {os.fspath(log)!r}: {exc}") from exc
 
     @classmethod
     def open(cls, interface: str, channel: Channel | None, bitrate: int | None = None,
-             options: Mapping[str, Any] | None = None) -> CanPort:
+             options: Mapping[str, Any] | None = None, *, fd: bool = False,
+             log: str | os.PathLike[str] | None = None) -> CanPort:
         """Open ``can.Bus(interface=..., channel=..., bitrate=..., **options)``; DriverInitError naming interface and
-        channel when that fails (``bitrate`` None leaves it to the interface). ``options`` are the interface's own
-        keyword arguments, as python-can takes them (untyped)."""
+        channel when that fails (``bitrate`` None leaves it to the interface, an empty ``interface`` or ``channel``
+        to python-can's configuration). ``options`` are the interface's own keyword arguments, as python-can takes
+        them (untyped). ``fd`` asks the interface for CAN FD (python-can's ``fd=True``); ``log`` as for the
+        constructor."""
         import can
 
         kwargs = dict(options or {})
         if bitrate is not None:
             kwargs["bitrate"] = bitrate
+        if fd:
+            kwargs["fd"] = True
         name = f"CAN {interface}:{channel}"
         try:
-            bus = can.Bus(interface=interface, channel=channel, **kwargs)
+            bus = can.Bus(interface=interface or None, channel=channel or None, **kwargs)
         except (can.CanError, OSError, ValueError, TypeError, ImportError, NotImplementedError) as exc:
             raise DriverInitError(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}") from exc
-        return cls(bus, name=name)
+        try:
+            return cls(bus, name=name, fd=fd, log=log)
+        except BaseException:
+            bus.shutdown()
+            raise
 
     @property
     def bus(self) -> can.BusABC:
@@ -258,10 +314,23 @@ class CanPort(FramePort):
                            is_fd=len(frame.data) > 8, is_error_frame=frame.is_error)
 
     def _send(self, frame: Frame) -> None:
-        self._bus.send(self._message(frame), timeout=self._send_timeout)
+        msg = self._message(frame)
+        self._bus.send(msg, timeout=self._send_timeout)
+        if self._log is not None:
+            msg.timestamp = time.time()
+            msg.is_rx = False
+            msg.channel = self._channel
+            self._write_log(msg)
+
+    def _write_log(self, msg: can.Message) -> None:
+        with self._log_lock:
+            self._log(msg)
 
     def _send_periodic(self, frame: Frame, period_s: float) -> bool:
-        """python-can's periodic send (the kernel's broadcast manager on socketcan, a thread elsewhere)."""
+        """python-can's periodic send (the kernel's broadcast manager on socketcan, a thread elsewhere); not with a
+        bus log, whose file must see every frame sent."""
+        if self._log is not None:
+            return False
         self._periodic.append(self._bus.send_periodic(self._message(frame), period_s))
         return True
 
@@ -269,6 +338,8 @@ class CanPort(FramePort):
         msg = self._bus.recv(timeout)
         out: list[Frame] = []
         while msg is not None:
+            if self._log is not None:
+                self._write_log(msg)
             out.append(self._to_frame(msg))
             if len(out) >= limit:
                 break
@@ -285,8 +356,12 @@ class CanPort(FramePort):
         for task in self._periodic:
             task.stop()
         self._periodic.clear()
-        if self._owns_bus:
-            self._bus.shutdown()
+        try:
+            if self._owns_bus:
+                self._bus.shutdown()
+        finally:
+            if self._log is not None:
+                self._log.stop()
 
     def _bus_state(self) -> str:
         import can
@@ -346,11 +421,12 @@ class SerialPort(FramePort):
     _MAX_READS = 16  # reads per poll at most
 
     def __init__(self, ser: SerialLine, framing: str, layout: Layout, *, name: str | None = None,
-                 send_timeout: float = 1.0, frame_gap_s: float | None = None) -> None:
+                 send_timeout: float = 1.0, frame_gap_s: float | None = None,
+                 log: str | os.PathLike[str] | None = None) -> None:
         """Wrap the open serial object ``ser``; ``framing`` "binary" or "ascii"; ``layout`` is validated for it.
         ``send_timeout`` (s) bounds each send on a line that does not take the bytes; ``frame_gap_s`` (s): silence
         inside a frame after which it is taken as cut short (None: 20 characters' time at the line's baud rate, at
-        least 2 ms)."""
+        least 2 ms). ``log``: every byte written and read goes to this file, as :class:`ByteLog` lines."""
         if framing not in _FRAMINGS:
             raise LayoutError(f'serial framing: one of "binary", "ascii", got {framing!r}')
         layout.validate(f"serial-{framing}")
@@ -379,10 +455,11 @@ class SerialPort(FramePort):
         self.idle_s = frame_gap_s
         """s of silence inside a frame after which it is taken as cut short."""
         self._last_byte = time.monotonic()
+        self._log = ByteLog(log) if log is not None else None
 
     @classmethod
     def open(cls, port: str, baudrate: int, framing: str, layout: Layout, send_timeout: float = 1.0,
-             frame_gap_s: float | None = None) -> SerialPort:
+             frame_gap_s: float | None = None, log: str | os.PathLike[str] | None = None) -> SerialPort:
         """Open ``port`` (a device path or a pyserial URL such as "loop://") at ``baudrate`` with ``timeout=0``;
         DriverInitError naming the port when that fails. ``send_timeout`` (s): how long a write that stalls (the
         line's buffer full) is retried before it fails; ``frame_gap_s`` as for the constructor."""
@@ -395,7 +472,12 @@ class SerialPort(FramePort):
             ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DriverInitError(f"cannot open serial port {port!r} at {baudrate} baud: {exc}") from exc
-        return cls(ser, framing, layout, name=f"serial {port}", send_timeout=send_timeout, frame_gap_s=frame_gap_s)
+        try:
+            return cls(ser, framing, layout, name=f"serial {port}", send_timeout=send_timeout,
+                       frame_gap_s=frame_gap_s, log=log)
+        except BaseException:
+            ser.close()
+            raise
 
     @property
     def deframer(self) -> BinaryDeframer | AsciiDeframer:
@@ -425,6 +507,8 @@ class SerialPort(FramePort):
         if frame.is_error:  # a serial line has no error frames
             return
         wire = self.wire_bytes(frame)
+        if self._log is not None:
+            self._log.write("TX", wire)
         if self._fd is None:
             self._ser.write(wire)
             return
@@ -445,7 +529,10 @@ class SerialPort(FramePort):
         """What the line holds now, at most ``_CHUNK`` bytes (b"" when nothing). ``readable``: select() just said
         so; then no bytes at all means the far end hung up (OSError)."""
         if self._fd is None:
-            return bytes(self._ser.read(min(max(int(self._ser.in_waiting), 1), self._CHUNK)))
+            data = bytes(self._ser.read(min(max(int(self._ser.in_waiting), 1), self._CHUNK)))
+            if data and self._log is not None:
+                self._log.write("RX", data)
+            return data
         size = self._CHUNK
         if not readable:
             # ask the count first: a read (or select) on a tty with nothing queued waits for the kernel's flush
@@ -459,6 +546,8 @@ class SerialPort(FramePort):
             return b""
         if readable and not data:
             raise OSError("the line hung up (end of file)")
+        if data and self._log is not None:
+            self._log.write("RX", data)
         return data
 
     def _read_available(self, readable: bool = False) -> list[Frame]:
@@ -538,8 +627,49 @@ class SerialPort(FramePort):
             fd = fileno()
         except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
             return None
-        return fd if isinstance(fd, int) and os.name == "posix" else None
+        return fd if isinstance(fd, int) and _DIRECT_FD else None
 
     def _close(self) -> None:
-        self._ser.close()
+        try:
+            self._ser.close()
+        finally:
+            if self._log is not None:
+                self._log.close()
+
+
+class ByteLog:
+    """A serial line's raw traffic, one text line per write or read: ``<unix time, s> <TX|RX> <bytes in hex>``,
+    after a ``#`` header line. The time is the host's ``time.time()`` just before the write or just after the read;
+    the lines are flushed as they are written."""
+
+    HEADER = "# bodebench serial byte log: unix_time_s direction hex_bytes\n"
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        try:
+            self._file = open(path, "w", encoding="ascii", buffering=1)
+        except OSError as exc:
+            raise DriverInitError(f"cannot write the bus log {os.fspath(path)!r}: {exc.strerror or exc}") from exc
+        self._lock = threading.Lock()
+        self._file.write(self.HEADER)
+
+    def write(self, direction: str, data: bytes) -> None:
+        """One line for ``data`` sent ("TX") or received ("RX")."""
+        with self._lock:
+            self._file.write(f"{time.time():.6f} {direction} {data.hex()}\n")
+
+    def close(self) -> None:
+        with self._lock:
+            self._file.close()
+
+    @staticmethod
+    def read(path: str | os.PathLike[str]) -> list[tuple[float, str, bytes]]:
+        """The (time, direction, bytes) of every line of a byte log."""
+        out: list[tuple[float, str, bytes]] = []
+        with open(path, encoding="ascii") as handle:
+            for line in handle:
+                if line.startswith("#") or not line.strip():
+                    continue
+                stamp, direction, hexed = line.split()
+                out.append((float(stamp), direction, bytes.fromhex(hexed)))
+        return out
 

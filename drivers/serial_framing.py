@@ -18,6 +18,7 @@ The deframers accept arbitrary bytes in arbitrary pieces and never raise; they c
 
 from __future__ import annotations
 
+import binascii
 import math
 from collections.abc import Mapping, Sequence
 
@@ -67,15 +68,10 @@ def crc_table(poly: int, bits: int) -> tuple[int, ...]:
     return tuple(table)
 
 
-_CRC_TABLE = crc_table(0x1021, 16)
-
-
 def crc16_ccitt_false(data: bytes | bytearray | memoryview, crc: int = 0xFFFF) -> int:
-    """CRC-16/CCITT-FALSE of ``data`` (poly 0x1021, init 0xFFFF, no reflection, xorout 0); pass ``crc`` to chain."""
-    table = _CRC_TABLE
-    for byte in data:
-        crc = ((crc << 8) & 0xFFFF) ^ table[(crc >> 8) ^ byte]
-    return crc
+    """CRC-16/CCITT-FALSE of ``data`` (poly 0x1021, init 0xFFFF, no reflection, xorout 0); pass ``crc`` to chain.
+    The standard library's ``binascii.crc_hqx`` computes this CRC; with init 0xFFFF it is this variant."""
+    return binascii.crc_hqx(data, crc)
 
 
 def encode_binary(frame_id: int, payload: bytes) -> bytes:

@@ -21,7 +21,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from bodebench.sim._jit import njit
 
 TAYLOR_TERMS = 30  # terms of the local expansion; exact to round-off for |M|*tau <= 2
 MAX_EVENTS_PER_STEP = 64

@@ -28,8 +28,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from bodebench.sim._jit import njit
 from bodebench.sim.plants import LinearPlant, Plant, PlantState
 
 __all__ = ["ElectrohydraulicDrive", "HYDRAULIC_DEFAULTS"]

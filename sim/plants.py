@@ -1,5 +1,5 @@
 """Simulated plants: the second-order link with Coulomb friction, a linear
-oscillator and a first-order lag (METHOD.md section 2).
+oscillator and a first-order lag (docs/METHOD.md section 2).
 
 Every plant advances exactly (to round-off) under either input the instrument
 produces:
@@ -180,7 +180,7 @@ _CoulombMatrices = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]
 
 
 class CoulombOscillator(Plant):
-    """Second-order link with classical dry (Coulomb) friction (METHOD.md section 2).
+    """Second-order link with classical dry (Coulomb) friction (docs/METHOD.md section 2).
 
     ``m Y'' = U - F_ct sign(V) - K_p Y - c V`` while sliding; stuck (V = 0
     exactly) while ``|U - K_p Y| <= F_ct``; breaks away the instant the net

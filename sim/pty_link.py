@@ -14,11 +14,28 @@ import errno
 import os
 import select
 import time
-import tty
 
 from bodebench.drivers.ports import Frame, FramePort
 
 MAX_LINE = 64
+
+POSIX_ONLY = ("the pseudo-terminal simulators (serial, slcan) need a POSIX system (Linux, macOS) with termios "
+              "and pseudo-terminals; here the simulated drive runs on a python-can virtual bus "
+              '([can] interface = "virtual") or in-process (bodebench simulate)')
+"""Why a pseudo-terminal cannot be made on this platform."""
+
+
+class PtyUnavailable(OSError):
+    """This platform has no pseudo-terminals (Windows): the message says where the simulated drive can run."""
+
+
+def pty_available() -> bool:
+    """Whether pseudo-terminals can be made here (``tty``/``termios`` importable and ``os.openpty`` present)."""
+    try:
+        import tty  # noqa: F401
+    except ImportError:
+        return False
+    return hasattr(os, "openpty") and hasattr(os, "ttyname")
 
 
 class Pty:
@@ -30,6 +47,11 @@ class Pty:
     """
 
     def __init__(self) -> None:
+        """Raises :class:`PtyUnavailable` where the platform has no pseudo-terminals."""
+        if not pty_available():
+            raise PtyUnavailable(POSIX_ONLY)
+        import tty
+
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
         os.set_blocking(self.master, False)

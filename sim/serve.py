@@ -22,7 +22,7 @@ from bodebench.sim.cia402_drive import Cia402Faults, ServingCanopen, serve_canop
 from bodebench.sim.controller import ControllerTiming, FeedbackSensing, SimulatedController
 from bodebench.sim.faults import FaultConfig, FaultyPort, ValueFaults
 from bodebench.sim.models import plant_from_config
-from bodebench.sim.pty_link import FdStream, Pty, SlcanAdapterPort
+from bodebench.sim.pty_link import POSIX_ONLY, FdStream, Pty, PtyUnavailable, SlcanAdapterPort, pty_available
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection
@@ -127,26 +127,36 @@ def serve_can(spec: SimulatorSpec) -> Serving | ServingCanopen:
     can = dict(spec.can)
     if spec.canopen is not None:
         return serve_canopen(spec.controller(), spec.canopen, can, spec.cia402)
-    port = CanPort.open(can["interface"], can.get("channel"), can.get("bitrate"), can.get("options", {}))
+    port = CanPort.open(can["interface"], can.get("channel"), can.get("bitrate"), can.get("options", {}),
+                        fd=bool(can.get("fd", False)))
     return Serving(spec.controller(), spec.wire(port))
 
 
 def serve_serial_pty(spec: SimulatorSpec) -> tuple[Serving, str]:
-    """Serve the serial protocol on a new pseudo-terminal; returns the tty path the instrument opens."""
-    pty = Pty()
+    """Serve the serial protocol on a new pseudo-terminal; returns the tty path the instrument opens (POSIX only:
+    SimulatorStartError elsewhere)."""
+    pty = _new_pty()
     stream = FdStream(pty.master)
     port = SerialPort(stream, spec.framing, spec.layout)
     return Serving(spec.controller(), spec.wire(port, stream.write), [pty]), pty.path
 
 
 def serve_slcan_pty(spec: SimulatorSpec) -> tuple[Serving, str]:
-    """Pose as an SLCAN adapter on a new pseudo-terminal; returns the path for python-can's ``slcan`` interface."""
-    pty = Pty()
+    """Pose as an SLCAN adapter on a new pseudo-terminal; returns the path for python-can's ``slcan`` interface
+    (POSIX only: SimulatorStartError elsewhere)."""
+    pty = _new_pty()
     return Serving(spec.controller(), spec.wire(SlcanAdapterPort(pty.master)), [pty]), pty.path
 
 
 class SimulatorStartError(RuntimeError):
     """The simulated controller could not be started (the message says why)."""
+
+
+def _new_pty() -> Pty:
+    try:
+        return Pty()
+    except PtyUnavailable as exc:
+        raise SimulatorStartError(str(exc)) from None
 
 
 def _process_main(spec: SimulatorSpec, transport: str, conn: Connection) -> None:
@@ -173,6 +183,8 @@ class SimulatorProcess:
 
         if transport not in PTY_TRANSPORTS:
             raise ValueError(f"transport must be one of {PTY_TRANSPORTS}")
+        if not pty_available():
+            raise SimulatorStartError(POSIX_ONLY)
         ctx = mp.get_context("spawn")
         self._conn, theirs = ctx.Pipe()
         self.process = ctx.Process(target=_process_main, args=(spec, transport, theirs), daemon=True,

@@ -48,7 +48,7 @@ def test_default_rule_meets_0_01_db_and_0_05_deg_on_the_paper_grid(exact: np.nda
 
 
 def test_printed_full_averaging_misses_the_target_on_the_same_run(exact: np.ndarray) -> None:
-    """METHOD.md's weak spot, shown: full averaging from n_k = 1 stops with errors far above eps."""
+    """docs/METHOD.md's weak spot, shown: full averaging from n_k = 1 stops with errors far above eps."""
     response = sweep(oscillator_case("full"))
     gain_err, phase_err = errors(response, exact)
     assert gain_err.max() > 0.01 or phase_err.max() > 0.05

@@ -309,7 +309,8 @@ def test_cross_field_max_periods_must_exceed_skip_periods() -> None:
 @pytest.mark.parametrize(
     ("data", "expected"),
     [
-        ({"excitation": {"amplitude": 1, "frequencies_hz": [1]}}, "plant.model: missing"),
+        ({"excitation": {"amplitude": 1, "frequencies_hz": [1]}},
+         "plant: missing: an offline experiment needs a [plant] table (only a real drive needs none)"),
         ({"plant": {"mass": 1.0}, "excitation": {"amplitude": 1, "frequencies_hz": [1]}}, "plant.model: missing"),
         ({"plant": {"model": "lag"}}, "excitation.amplitude: missing"),
         ({"plant": {"model": "lag"}, "excitation": {"amplitude": 1}},
@@ -571,7 +572,8 @@ def test_an_optional_table_is_loaded_and_overridable_per_case() -> None:
     exp = parse_config(data)
     assert exp.cases[0].can == cfg.CanConfig(interface="virtual", bitrate=500000)
     assert exp.cases[1].can is not None and exp.cases[1].can.bitrate == 250000
-    assert exp.cases[1].raw["can"] == {"interface": "virtual", "channel": "", "bitrate": 250000, "options": {}}
+    assert exp.cases[1].raw["can"] == {"interface": "virtual", "channel": "", "bitrate": 250000, "fd": False,
+                                       "context": "", "options": {}}
     # An optional table that is absent yields None.
     del data["cases"]
     del data["simulator"]

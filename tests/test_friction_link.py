@@ -22,7 +22,7 @@ from bodebench.core.rules import CRITERIA
 from bodebench.io.config import CaseConfig, parse_config
 from bodebench.sim.plants import CoulombOscillator
 
-# The 2013 test plant (METHOD.md section 2).
+# The 2013 test plant (docs/METHOD.md section 2).
 MASS = 2.533e-4
 STIFFNESS = 1.0
 AMPLITUDE = 0.01  # A_F

@@ -15,7 +15,7 @@ from scipy import signal
 
 from bodebench.sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant
 
-# The 2013 test plant (METHOD.md section 2): resonance near 10 Hz.
+# The 2013 test plant (docs/METHOD.md section 2): resonance near 10 Hz.
 MASS = 2.533e-4
 STIFFNESS = 1.0
 AMPLITUDE = 0.01

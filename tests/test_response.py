@@ -45,7 +45,7 @@ def point(
 
 
 def paper_phase_deg(pc: float, qc: float) -> float:
-    """METHOD.md's piecewise phase formula (with 180/pi for the paper's 57.3), axes included."""
+    """docs/METHOD.md's piecewise phase formula (with 180/pi for the paper's 57.3), axes included."""
     deg = 180.0 / math.pi
     if pc == 0.0:
         sign = (qc > 0) - (qc < 0)

@@ -1,6 +1,6 @@
 """Steady response of the friction link in dimensionless form, and the calibration table built from it.
 
-The link of METHOD.md section 2, ``m Y'' = U - F_ct sign(V) - K_p Y (- c V)``, driven by
+The link of docs/METHOD.md section 2, ``m Y'' = U - F_ct sign(V) - K_p Y (- c V)``, driven by
 ``U = A_F sin(2 pi f t)``, has a settled first harmonic that depends only on ``Fbar = F_ct / A_F``, the
 frequency ratio ``r = f / f_n`` and the viscous damping ratio ``zeta``; in units of the static deflection
 ``A_F / K_p`` it is a complex number ``z = P + jQ`` (``Y_1 = |z| A_F / K_p sin(2 pi f t + arg z)``).
@@ -15,7 +15,7 @@ map of the simulator. Newton's method with a finite-difference Jacobian and a ba
 it, after a few plain iterations of the map (which settle any sticking regime at once). The first harmonic is
 the trapezoidal rule over the period at :data:`STEPS_PER_PERIOD` samples, as the instrument would measure it.
 
-:class:`CalibrationTable` holds what the identification procedure of METHOD.md section 3 reads: the phase
+:class:`CalibrationTable` holds what the identification procedure of docs/METHOD.md section 3 reads: the phase
 ``phase(Fbar, r)`` on a grid of ``Fbar`` above ``pi/4`` and a log grid of ``r``, and ``r_90(Fbar)`` where the
 phase crosses -90 degrees (root finding on the computed phase). :func:`compute_calibration` generates it
 (``bodebench calibrate``); :func:`load_calibration` reads the copy shipped in ``instrument/data``.
@@ -307,7 +307,7 @@ DEFAULT_OFFSET_GRID: tuple[float, ...] = _grid(list(np.geomspace(0.12, 10.0, 97)
 
 @dataclass(frozen=True)
 class CalibrationTable:
-    """Calibration curves of the f_-90 procedure (METHOD.md section 3), in dimensionless form.
+    """Calibration curves of the f_-90 procedure (docs/METHOD.md section 3), in dimensionless form.
 
     fbar: (n_f,) friction levels F_ct/A_F, ascending, in (pi/4, 1); offset: (n_o,) frequency offsets
     ``rho = f / f_-90``, ascending; phase_deg: (n_f, n_o) settled first-harmonic phase (degrees) at

@@ -1,4 +1,4 @@
-"""Identification of the friction link from its measured first-harmonic response (METHOD.md section 3).
+"""Identification of the friction link from its measured first-harmonic response (docs/METHOD.md section 3).
 
 The link ``m Y'' = U - F_ct sign(V) - K_p Y`` is driven by ``U = A_F sin(2 pi f t)``; ``K_p`` and ``A_F`` are
 known. Two routes recover the dry friction ``F_ct`` and the mass ``m`` (``f_n = sqrt(K_p/m) / (2 pi)``):
@@ -70,7 +70,7 @@ __all__ = [
 
 #: Confidence level of the fit's intervals.
 CONFIDENCE = 0.95
-#: Tick offsets read on each side of f_-90 (METHOD.md section 3, step 2).
+#: Tick offsets read on each side of f_-90 (docs/METHOD.md section 3, step 2).
 TICK_OFFSETS: tuple[int, ...] = (1, 2, 4, 6)
 #: Smallest relative standard deviation given to a point's gain and phase (radians) in the fit: the scale of
 #: what a settled measurement at eps = 0.01 % and K_f = 200 can promise (about 0.009 dB and 0.06 degrees).
@@ -382,7 +382,7 @@ def _read_fbar(table: CalibrationTable, offset: float, phase: float) -> tuple[fl
 
 def paper_procedure(curve: MeasuredCurve, stiffness: float, amplitude: float,
                     table: CalibrationTable | None = None, offsets: Sequence[int] = TICK_OFFSETS) -> ProcedureResult:
-    """The 2017 paper's procedure (METHOD.md section 3, steps 1-8) on a measured first-harmonic curve.
+    """The 2017 paper's procedure (docs/METHOD.md section 3, steps 1-8) on a measured first-harmonic curve.
 
     Refuses (``applicable`` False, ``reason`` starting with :data:`NO_CROSSING`) where the measured phase does
     not cross -90 degrees the way a settled link with Fbar > pi/4 does: no crossing, measurements near it that

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import argparse
 import functools
+import logging
 import os
 import sys
 import time
 import traceback
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Any, NoReturn, Sequence
 
 # Only the standard library at the top: `bodebench --help` and argument errors import nothing else; each command
 # imports what it uses.
@@ -18,6 +19,7 @@ if TYPE_CHECKING:
     from bodebench.core.summary import ResponseSummary
     from bodebench.io.config import ExperimentConfig
 
+log = logging.getLogger("bodebench")
 
 def _plot_formats(text: str) -> tuple[str, ...]:
     """``--plots``: comma-separated formats, or "none"."""
@@ -41,13 +43,15 @@ def _plot_writer(args: argparse.Namespace) -> PlotWriter | None:
 
 
 def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False,
-                  plots: PlotWriter | None = None) -> int:
+                  plots: PlotWriter | None = None, log_bus: Path | None = None, keep_samples: bool = True) -> int:
     """Run every case of a bench config (``direct``: the simulated drive without a bus); the exit status."""
     from bodebench.apps.progress import ProgressPrinter
     from bodebench.bench.events import CaseBegins, SessionError
     from bodebench.bench.procedure import SweepProcedure
+    from bodebench.drivers.errors import DriverError
     from bodebench.drivers.stop_signals import StopSignal
     from bodebench.io.results import ResultsError
+    from bodebench.sim.serve import SimulatorStartError
 
     printer: ProgressPrinter | None = None
 
@@ -60,7 +64,8 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
             printer(event)
 
     procedure = SweepProcedure(config, out, listener=listener, direct=direct, plots=plots,
-                               existing="resume" if resume else "refuse")
+                               existing="resume" if resume else "refuse", log_bus=log_bus,
+                               keep_samples=keep_samples)
     try:
         outcomes = procedure.run()
     except ResultsError as exc:  # a results directory cannot take the sweep: found before any setpoint
@@ -72,7 +77,7 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
             raise
         current = procedure.current
         session = current.session
-        if not isinstance(exc, (SessionError, KeyboardInterrupt)):
+        if not isinstance(exc, (SessionError, KeyboardInterrupt, SimulatorStartError, DriverError)):
             traceback.print_exc()
         kept = len(current.response.points)  # each of them saved when it was measured
         where = f"{kept} points kept in {current.directory}" if kept else "no point measured"
@@ -112,13 +117,15 @@ def _also(files: Sequence[Path]) -> str:
 def _cause(exc: BaseException) -> str:
     """One line naming why a sweep stopped."""
     from bodebench.bench.events import SessionError
+    from bodebench.drivers.errors import DriverError
     from bodebench.drivers.stop_signals import StopSignal
+    from bodebench.sim.serve import SimulatorStartError
 
     if isinstance(exc, StopSignal):
         return f"interrupted ({exc.signame})"
     if isinstance(exc, KeyboardInterrupt):
         return "interrupted"
-    if isinstance(exc, SessionError):
+    if isinstance(exc, (SessionError, SimulatorStartError, DriverError)):
         return str(exc)
     return f"error: {type(exc).__name__}: {exc}"
 
@@ -131,7 +138,22 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.config}: bench: missing (bodebench run needs a bench config; "
                           "use bodebench simulate for an offline experiment)", "bench")
     return _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet, resume=args.resume,
-                         plots=_plot_writer(args))
+                         plots=_plot_writer(args), log_bus=_log_bus(args.log_bus),
+                         keep_samples=not args.no_samples)
+
+
+def _log_bus(value: str | None) -> Path | None:
+    """The --log-bus file, checked before anything is sent: its directory must exist."""
+    from bodebench.io.results import ResultsError
+
+    if value is None:
+        return None
+    path = Path(value)
+    if not path.parent.is_dir():
+        raise ResultsError(f"--log-bus {value}: no directory {path.parent}")
+    if path.is_dir():
+        raise ResultsError(f"--log-bus {value}: is a directory")
+    return path
 
 
 def _tui(args: argparse.Namespace) -> int:
@@ -142,7 +164,7 @@ def _tui(args: argparse.Namespace) -> int:
     if not config.on_bench:
         raise ConfigError(f"{args.config}: bench: missing (bodebench tui needs a bench config)", "bench")
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
-    return run_tui(config, out)
+    return run_tui(config, out, log_bus=_log_bus(args.log_bus))
 
 
 def _sim_controller(args: argparse.Namespace) -> int:
@@ -153,7 +175,7 @@ def _sim_controller(args: argparse.Namespace) -> int:
 
     config = load_config(args.config)
     case = config.cases[0]
-    if case.bench is None or case.simulator is None:
+    if case.bench is None or case.simulator is None or case.plant is None:
         raise ConfigError(f"{args.config}: simulator: missing (sim-controller needs [bench], [plant] and "
                           "[simulator])", "simulator")
     bench, layout = case.on_bench.bench, case.on_bench.layout
@@ -210,7 +232,7 @@ def _simulate(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     if config.on_bench:
         return _bench_sweeps(config, out, direct=True, quiet=args.quiet, resume=args.resume,
-                             plots=_plot_writer(args))
+                             plots=_plot_writer(args), keep_samples=not args.no_samples)
     done, total, name = 0, 0, ""
 
     def listener(event: object) -> None:
@@ -224,11 +246,12 @@ def _simulate(args: argparse.Namespace) -> int:
             print(f"{name}: {done}/{total}  f = {event.points[0].frequency_hz:g} Hz  {worst} periods",
                   file=sys.stderr)
 
-    models = {case.plant.model for case in config.cases}
+    models = {case.plant.model for case in config.cases if case.plant is not None}
     try:
         with offline_executor(args.jobs, args.executor, models) as executor:
             procedure = SweepProcedure(config, out, listener=listener, executor=executor, plots=_plot_writer(args),
-                                       existing="resume" if args.resume else "refuse")
+                                       existing="resume" if args.resume else "refuse",
+                                       keep_samples=not args.no_samples)
             outcomes = procedure.run()
     except ExecutorError as exc:
         print(f"bodebench: {exc}", file=sys.stderr)
@@ -324,48 +347,209 @@ def _plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def _analyse(args: argparse.Namespace) -> int:
+    from bodebench.analysis.reanalyse import reanalyse
+    from bodebench.io.results import CSV_NAME, ResultsError, load_response, save_response
+    from bodebench.io.samples import SamplesError
+
+    directory = Path(args.results)
+    overrides: dict[str, object] = {}
+    if args.criterion is not None:
+        overrides["criterion"] = args.criterion
+    if args.tolerance is not None:
+        overrides["tolerance_percent"] = args.tolerance
+    out = Path(args.out) if args.out else None
+    if out is not None and (out / CSV_NAME).exists():
+        raise ResultsError(f"{out / CSV_NAME}: results already here; choose another --out")
+    try:
+        result = reanalyse(directory, **overrides)
+    except SamplesError as exc:
+        print(f"bodebench: {exc} (a sweep keeps its samples since bodebench 0.1; measure it again)",
+              file=sys.stderr)
+        return 2
+    stored = load_response(directory)
+    response, analysis = result.response, result.analysis
+    same = sum(1 for a, b in zip(stored.points, response.points, strict=True) if _same_point(a, b))
+    print(f"{directory}: {len(response)} points from their samples, criterion {analysis.criterion}, tolerance "
+          f"{analysis.tolerance_percent:g} %; {same} identical to the stored points")
+    if not args.quiet:
+        print(f"{'f Hz':>10} {'k':>2} {'channel':<14} {'gain dB':>11} {'phase deg':>10} {'periods':>7}  status")
+        for p in response.points:
+            print(f"{p.frequency_hz:10g} {p.harmonic:2d} {p.channel:<14} {p.gain_db:11.5f} {p.phase_deg:10.4f} "
+                  f"{p.periods:7d}  {p.status}")
+    if result.record_ended:
+        print(f"the record ended before the rule stopped at {len(result.record_ended)} frequencies (capped there): "
+              + ", ".join(f"{f:g}" for f in result.record_ended) + " Hz")
+    if out is not None:
+        from bodebench.apps.plots import write_plots
+
+        save_response(response, out)
+        files = write_plots(response, out, f"{response.case} ({analysis.criterion}, {analysis.tolerance_percent:g} %)",
+                            formats=args.plots)
+        print(f"-> {out / CSV_NAME} (+ {', '.join(f.name for f in files)})")
+    return 0
+
+
+def _same_point(a: object, b: object) -> bool:
+    """Whether two points are the same, bit for bit (NaN equal to NaN)."""
+    import dataclasses
+    import math
+
+    assert dataclasses.is_dataclass(a) and dataclasses.is_dataclass(b)
+    for x, y in zip(dataclasses.astuple(a), dataclasses.astuple(b), strict=True):  # type: ignore[arg-type]
+        if isinstance(x, float) and isinstance(y, float) and math.isnan(x) and math.isnan(y):
+            continue
+        if x != y:
+            return False
+    return True
+
+
+def _ports(args: argparse.Namespace) -> int:
+    import json
+
+    import serial.tools.list_ports
+
+    serial_ports = [{"port": p.device, "description": p.description or "", "hwid": p.hwid or ""}
+                    for p in sorted(serial.tools.list_ports.comports(), key=lambda p: p.device)]
+    can_configs: list[dict[str, object]] = []
+    if not args.no_can:
+        import can
+
+        found = can.detect_available_configs(interfaces=args.can or None)
+        can_configs = [{k: v if isinstance(v, (str, int, float, bool)) or v is None else str(v)
+                        for k, v in dict(c).items()} for c in found]
+    if args.json:
+        print(json.dumps({"serial": serial_ports, "can": can_configs}, indent=2))
+        return 0
+    print(f"serial ports (pyserial): {len(serial_ports)}")
+    for p in serial_ports:
+        print(f'  port = "{p["port"]}"    # {p["description"]}; {p["hwid"]}')
+    if args.no_can:
+        return 0
+    where = ", ".join(args.can) if args.can else "every interface"
+    print(f"CAN configurations (python-can, {where}): {len(can_configs)}")
+    for c in can_configs:
+        print("  " + ", ".join(f"{k} = {json.dumps(v)}" for k, v in c.items()))
+    return 0
+
+
+LOG_BUS_HELP = ("write the session's traffic to FILE: on CAN through python-can's Logger, the suffix picks the "
+                 "format (.asc, .blf, .log, .csv, ...); on a serial line a raw timestamped byte log")
+
+
+def _jobs(text: str) -> int:
+    """--jobs: a whole number of worker processes, at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a whole number of worker processes, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1 (worker processes), got {value}")
+    return value
+
+
+def _version() -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version("bodebench")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """A bad option gives one line (and exit status 2), not the usage block."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: {message} (see --help)\n")
+
+
+def _common_options() -> _OneLineParser:
+    """-v and -q, the same on every subcommand."""
+    common = _OneLineParser(add_help=False)
+    group = common.add_mutually_exclusive_group()
+    group.add_argument("-v", "--verbose", action="count", default=0,
+                       help="log more: -v what bodebench does, -vv its details and those of python-can")
+    group.add_argument("-q", "--quiet", action="store_true", help="no progress display; log errors only")
+    return common
+
+
+def _configure_logging(verbose: int, quiet: bool) -> None:
+    """Log lines on stderr: warnings by default, info with -v, debug with -vv, errors only with -q. python-can's
+    own warnings (missing vendor libraries, ...) show from -v on."""
+    import logging
+
+    level = logging.ERROR if quiet else logging.WARNING if verbose == 0 else logging.INFO if verbose == 1 \
+        else logging.DEBUG
+    logging.basicConfig(level=level, format="%(name)s: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
+    logging.getLogger("can").setLevel(level if verbose >= 2 else max(level, logging.ERROR) if verbose == 0
+                                      else logging.WARNING)
 EXECUTOR_HELP = ("run the frequencies on a Dask cluster: a scheduler address (tcp://host:8786), or local to start "
                  "one here with --jobs workers (needs the dask extra)")
 PLOTS_HELP = "plot files per case: comma-separated png, svg, pdf, or none (default: png)"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="bodebench", description=__doc__.strip().splitlines()[0] if __doc__ else "")
-    sub = parser.add_subparsers(dest="command", required=True)
-    sim = sub.add_parser("simulate", help="sweep a simulated plant offline (the papers' computational experiment)")
+    parser = _OneLineParser(prog="bodebench", description=__doc__.strip().splitlines()[0] if __doc__ else "")
+    parser.add_argument("--version", action="version", version=f"bodebench {_version()}")
+    common = _common_options()
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineParser)
+
+    def add(name: str, **kwargs: Any) -> argparse.ArgumentParser:
+        return sub.add_parser(name, parents=[common], **kwargs)
+
+    sim = add("simulate", help="sweep a simulated plant offline (the papers' computational experiment)")
     sim.add_argument("config", help="TOML experiment file")
     sim.add_argument("--out", required=True, help="results directory (one sub-directory per case)")
-    sim.add_argument("--jobs", type=int, default=None,
+    sim.add_argument("--jobs", type=_jobs, default=None,
                      help="worker processes (default: all cores; 1 runs in this process)")
-    sim.add_argument("--quiet", action="store_true", help="no progress lines")
     sim.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
     sim.add_argument("--executor", default=None, metavar="SCHEDULER", help=EXECUTOR_HELP)
     sim.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)
+    sim.add_argument("--no-samples", action="store_true",
+                     help="do not keep the raw samples of each frequency in DIR/samples/ (analyse needs them)")
     sim.set_defaults(handler=_simulate)
-    run = sub.add_parser("run", help="sweep a drive on the bench (CAN or serial), headless")
+    run = add("run", help="sweep a drive on the bench (CAN or serial), headless")
     run.add_argument("config", help="TOML bench file")
     run.add_argument("--out", required=True, help="results directory")
-    run.add_argument("--quiet", action="store_true", help="no progress display")
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
     run.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)
+    run.add_argument("--log-bus", metavar="FILE", default=None, help=LOG_BUS_HELP)
+    run.add_argument("--no-samples", action="store_true",
+                     help="do not keep the raw samples of each frequency in DIR/samples/ (analyse needs them)")
     run.set_defaults(handler=_run)
-    ctl = sub.add_parser("sim-controller", help="run the simulated servo controller of a bench config standalone")
+    ctl = add("sim-controller", help="run the simulated servo controller of a bench config standalone")
     ctl.add_argument("config", help="TOML bench file with [simulator]")
     ctl.add_argument("--seconds", type=float, default=0.0, help="stop after this long (default: until Ctrl-C)")
     ctl.set_defaults(handler=_sim_controller)
-    tui = sub.add_parser("tui", help="sweep a drive on the bench in the terminal UI")
+    tui = add("tui", help="sweep a drive on the bench in the terminal UI")
     tui.add_argument("config", help="TOML bench file")
     tui.add_argument("--out", default=None, help="results directory (default: results/<config stem>)")
+    tui.add_argument("--log-bus", metavar="FILE", default=None, help=LOG_BUS_HELP)
     tui.set_defaults(handler=_tui)
-    cal = sub.add_parser("calibrate", help="compute the friction link's calibration curves (identify's procedure)")
+    ana = add("analyse", help="analyse a measured sweep again from its samples, without the bench")
+    ana.add_argument("results", metavar="RESULTS_DIR", help="directory holding response.csv, response.json, samples/")
+    ana.add_argument("--criterion", default=None, help="stopping rule (default: the sweep's own)")
+    ana.add_argument("--tolerance", type=float, default=None, metavar="PERCENT",
+                     help="tolerance eps in percent (default: the sweep's own)")
+    ana.add_argument("--out", default=None, help="write the new response and its plots here (default: print only)")
+    ana.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)
+    ana.set_defaults(handler=_analyse)
+    ports = add("ports", help="list the serial ports and the CAN interfaces and channels found here")
+    ports.add_argument("--can", action="append", metavar="INTERFACE", default=None,
+                       help="search only this python-can interface (repeatable; default: every interface)")
+    ports.add_argument("--no-can", action="store_true", help="list the serial ports only")
+    ports.add_argument("--json", action="store_true", help="print JSON")
+    ports.set_defaults(handler=_ports)
+    cal = add("calibrate", help="compute the friction link's calibration curves (identify's procedure)")
     cal.add_argument("--out", default=None, help="output file (default: the table shipped in the package)")
-    cal.add_argument("--jobs", type=int, default=None,
+    cal.add_argument("--jobs", type=_jobs, default=None,
                      help="worker processes (default: all cores; 1 runs in this process)")
     cal.add_argument("--executor", default=None, metavar="SCHEDULER", help=EXECUTOR_HELP)
     cal.set_defaults(handler=_calibrate)
-    ident = sub.add_parser("identify", help="identify the friction link (F_ct, m) from a measured response")
+    ident = add("identify", help="identify the friction link (F_ct, m) from a measured response")
     ident.add_argument("results", metavar="RESULTS_DIR", help="directory holding response.csv and response.json")
     ident.add_argument("--json", action="store_true", help="print the report as JSON")
     ident.add_argument("--stiffness", type=float, default=None, help="K_p (default: the sidecar's plant.stiffness)")
@@ -397,6 +581,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from bodebench.io.results import ResultsError
     from bodebench.sim.serve import SimulatorStartError
 
+    _configure_logging(args.verbose, args.quiet)
+    log.debug("bodebench %s: %s", _version(), " ".join(sys.argv if argv is None else ["bodebench", *argv]))
     try:
         if args.handler is _tui:  # the terminal UI handles its own keys and signals
             return int(args.handler(args))

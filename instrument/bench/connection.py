@@ -31,13 +31,17 @@ class CanLink:
     options: dict[str, Any]
     layout: Layout
     simulator: SimulatorSpec | None = None
+    fd: bool = False
+    log: str = ""
+    """A bus log of every frame the host sends and receives (python-can's Logger; empty: none)."""
 
     def __call__(self) -> tuple[FramePort, Layout, list[Any]]:
         resources: list[Any] = []
         if self.simulator is not None:
             resources.append(serve_can(self.simulator))
         try:
-            port = CanPort.open(self.interface, self.channel, self.bitrate, self.options)
+            port = CanPort.open(self.interface, self.channel, self.bitrate, self.options, fd=self.fd,
+                                log=self.log or None)
         except BaseException:
             for r in resources:
                 r.close()
@@ -76,10 +80,12 @@ class SerialLink:
     framing: str
     layout: Layout
     send_timeout_s: float = 1.0
+    log: str = ""
+    """A raw log of every byte written and read (:class:`~bodebench.drivers.ports.ByteLog`; empty: none)."""
 
     def __call__(self) -> tuple[FramePort, Layout, list[Any]]:
-        return (SerialPort.open(self.port, self.baudrate, self.framing, self.layout, self.send_timeout_s),
-                self.layout, [])
+        return (SerialPort.open(self.port, self.baudrate, self.framing, self.layout, self.send_timeout_s,
+                                log=self.log or None), self.layout, [])
 
 
 def stall_budget(case: CaseConfig) -> float:
@@ -122,24 +128,27 @@ def simulator_spec(case: CaseConfig, *, wire_faults: bool = True) -> SimulatorSp
     wire_faults: with the configured faults (False: none, for the in-process drive of ``bodebench simulate``)."""
     tables = case.on_bench
     bench, sim, serial, can = tables.bench, case.simulator, case.serial, case.can
+    if case.plant is None:
+        raise ConfigError(f"{case.source}: plant: missing: the simulated drive needs a [plant] table", "plant")
     timing = ControllerTiming(bench.rate_hz, bench.clock, sim.jitter if sim else 0.0,
                               sim.seed if sim else 0, bench.pacing_cpu)
     sensing = FeedbackSensing(sim.noise, sim.quantization, sim.seed) if sim else None
     can_map: dict[str, Any] = {}
     if can is not None:
         can_map = {"interface": can.interface, "channel": can.channel or "bodebench", "bitrate": can.bitrate,
-                   "options": dict(can.options)}
+                   "fd": can.fd, "options": dict(can.options)}
     faults = sim.faults if sim is not None and wire_faults else None
     cia402 = sim.cia402 if sim is not None and wire_faults and sim.cia402.any else None
     return SimulatorSpec(asdict(case.plant), tables.layout, timing, serial.framing if serial else "binary", can_map,
                          faults if faults is not None and faults.any else None, sensing, case.canopen_setup, cia402)
 
 
-def plan_link(case: CaseConfig, *, direct: bool = False) -> LinkPlan:
+def plan_link(case: CaseConfig, *, direct: bool = False, log: str = "") -> LinkPlan:
     """How the worker reaches the drive of ``case`` (starting the simulated drive where the config has one).
 
     direct: the simulated drive called in-process without a bus (``bodebench simulate``): its jitter, noise
-    and quantization as configured; faults, which need a wire, are refused.
+    and quantization as configured; faults, which need a wire, are refused. log: a file for the host's traffic,
+    a python-can log on CAN (its suffix picks the format), a raw byte log on a serial line (none without a bus).
     """
     tables = case.on_bench
     bench, layout, sim, serial = tables.bench, tables.layout, case.simulator, case.serial
@@ -153,7 +162,8 @@ def plan_link(case: CaseConfig, *, direct: bool = False) -> LinkPlan:
             raise ConfigError(f"{case.source}: simulator.cia402: drive faults need a bus; bodebench simulate runs "
                               "the drive in-process (use bodebench run, or remove [simulator.cia402])",
                               "simulator.cia402")
-        transport = f"serial-{serial.framing}" if bench.transport == "serial" and serial else "can"
+        transport = (f"serial-{serial.framing}" if bench.transport == "serial" and serial
+                     else "can-fd" if case.can is not None and case.can.fd else "can")
         return LinkPlan(DirectLink(simulator_spec(case, wire_faults=False), transport), layout,
                         where="in-process")
     if bench.transport == "canopen":
@@ -173,7 +183,7 @@ def plan_link(case: CaseConfig, *, direct: bool = False) -> LinkPlan:
             options = {**SLCAN_DEFAULTS, **options}
         if simulated and can.interface == "slcan" and not can.channel:
             proc = SimulatorProcess(simulator_spec(case), "slcan")
-            link = CanLink("slcan", proc.path, can.bitrate, options, layout)
+            link = CanLink("slcan", proc.path, can.bitrate, options, layout, fd=can.fd, log=log)
             return LinkPlan(link, layout, [proc], where=f"slcan adapter on {proc.path}")
         channel = can.channel or "bodebench"
         spec = None
@@ -182,13 +192,13 @@ def plan_link(case: CaseConfig, *, direct: bool = False) -> LinkPlan:
             # clock (a second pacing thread would fight the worker for the interpreter), so it answers each setpoint
             spec = simulator_spec(case)
             spec = replace(spec, timing=replace(spec.timing, clock="lockstep"))
-        link = CanLink(can.interface, channel, can.bitrate, options, layout, spec)
+        link = CanLink(can.interface, channel, can.bitrate, options, layout, spec, fd=can.fd, log=log)
         return LinkPlan(link, layout, where=f"{can.interface} channel {channel}")
     assert serial is not None  # the loader made sure: transport "serial" needs a [serial] table
     budget = stall_budget(case)
     if simulated and not serial.port:
         proc = SimulatorProcess(simulator_spec(case), "serial")
-        return LinkPlan(SerialLink(proc.path, serial.baudrate, serial.framing, layout, budget), layout, [proc],
+        return LinkPlan(SerialLink(proc.path, serial.baudrate, serial.framing, layout, budget, log), layout, [proc],
                         where=f"serial {proc.path}")
-    return LinkPlan(SerialLink(serial.port, serial.baudrate, serial.framing, layout, budget), layout,
+    return LinkPlan(SerialLink(serial.port, serial.baudrate, serial.framing, layout, budget, log), layout,
                     where=f"serial {serial.port}")

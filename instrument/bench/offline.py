@@ -12,6 +12,7 @@ import os
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager, nullcontext
 from dataclasses import asdict
+from pathlib import Path
 from typing import Any, Callable, Collection, Iterator, Sequence
 
 import numpy as np
@@ -19,6 +20,7 @@ import numpy as np
 from bodebench.core.autointegration import Autointegrator
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.io.config import CaseConfig, PlantConfig
+from bodebench.io.samples import PointSamples
 from bodebench.sim.models import plant_from_config
 from bodebench.sim.plants import Plant
 
@@ -40,7 +42,16 @@ def measure_frequency(case: CaseConfig, frequency_hz: float) -> list[ResponsePoi
     rule decides at every period, so the periods reported are exactly those a
     period-by-period run would need.
     """
+    return measure_point(case, frequency_hz)
+
+
+def measure_point(case: CaseConfig, frequency_hz: float, samples_dir: str = "") -> list[ResponsePoint]:
+    """:func:`measure_frequency`; with ``samples_dir`` (a results directory) the samples the sampler was fed are
+    saved there first (:mod:`bodebench.io.samples`), by the process that measured them."""
+    keep_samples = bool(samples_dir)
     analysis = case.analysis
+    if case.plant is None:
+        raise ValueError(f"case {case.name!r} of {case.source} has no [plant] to simulate")
     settle = case.excitation.settle_at(frequency_hz)  # whole periods simulated before period 1
     plant = build_plant(case.plant)
     channel = plant.output_names.index(OUTPUT_CHANNEL)
@@ -48,8 +59,12 @@ def measure_frequency(case: CaseConfig, frequency_hz: float) -> list[ResponsePoi
     steps = analysis.steps_per_period
     h = 1.0 / (steps * frequency_hz)
     sampler = Autointegrator(frequency_hz, amplitude, (OUTPUT_CHANNEL,), analysis, t0=settle / frequency_hz)
+    record = PointSamples(frequency_hz, amplitude, (OUTPUT_CHANNEL,), source="offline") if keep_samples else None
     state = plant.initial_state()
-    sampler.feed(np.array([0.0]), np.zeros((1, 1)))
+    first_t, first_y = np.array([0.0]), np.zeros((1, 1))
+    if record is not None:
+        record.add(first_t, first_y)
+    sampler.feed(first_t, first_y)
     step = 0
     batch = FIRST_BATCH_PERIODS
     while not sampler.done:
@@ -57,10 +72,15 @@ def measure_frequency(case: CaseConfig, frequency_hz: float) -> list[ResponsePoi
         n = periods * steps
         y = plant.run_sine(state, step * h, h, n, amplitude, frequency_hz)
         t = (step + 1 + np.arange(n)) * h
+        if record is not None:
+            record.add(t, y[:, channel:channel + 1])
         sampler.feed(t, y[:, channel:channel + 1])
         step += n
         batch = min(2 * batch, MAX_BATCH_PERIODS)
-    return sampler.points()
+    points = sampler.points()
+    if record is not None:
+        record.save(samples_dir)
+    return points
 
 
 def default_executor(max_workers: int | None = None, models: Collection[str] = ()) -> ProcessPoolExecutor:
@@ -141,14 +161,16 @@ def offline_executor(jobs: int | None = None, scheduler: str | None = None,
 
 def sweep(case: CaseConfig, executor: Executor | None = None,
           on_point: Callable[[list[ResponsePoint]], None] | None = None,
-          measured: Sequence[ResponsePoint] = (), skip: Collection[float] = ()) -> FrequencyResponse:
+          measured: Sequence[ResponsePoint] = (), skip: Collection[float] = (),
+          samples_dir: str | Path = "") -> FrequencyResponse:
     """Measure every frequency of a case; ``on_point`` gets each frequency's points as soon as they are done.
 
     executor: where frequencies run (None: in this process, in order); ``measured``: points of an interrupted
-    sweep, kept; ``skip``: the frequencies (Hz) they complete, not measured again.
+    sweep, kept; ``skip``: the frequencies (Hz) they complete, not measured again; ``samples_dir``: the results
+    directory whose ``samples/`` gets each frequency's samples before ``on_point`` gets its points ("": none).
     """
     response = FrequencyResponse(measured, config=case.raw, case=case.name)
-    for _, points in measure_cases((case,), executor, (skip,)):
+    for _, points in measure_cases((case,), executor, (skip,), (str(samples_dir),)):
         for p in points:
             response.add(p)
         if on_point is not None:
@@ -163,19 +185,25 @@ def sort_points(response: FrequencyResponse) -> None:
 
 
 def measure_cases(cases: Sequence[CaseConfig], executor: Executor | None = None,
-                  skip: Sequence[Collection[float]] = ()) -> Iterator[tuple[int, list[ResponsePoint]]]:
+                  skip: Sequence[Collection[float]] = (), samples_dirs: Sequence[str] = ()
+                  ) -> Iterator[tuple[int, list[ResponsePoint]]]:
     """Every frequency of every case, all on one executor: (case index, that frequency's points), in the order they
     are done (None: in this process, case by case, frequency by frequency).
 
-    skip: per case, the frequencies (Hz) not to measure. Frequencies not yet started are cancelled when the caller
-    stops iterating."""
+    skip: per case, the frequencies (Hz) not to measure. samples_dirs: per case, the results directory whose
+    ``samples/`` gets each frequency's samples, written by the process that measured them before its points are
+    yielded ("" or absent: none). Frequencies not yet started are cancelled when the caller stops iterating."""
     tasks = [(i, f) for i, case in enumerate(cases) for f in case.excitation.frequencies_hz
              if not (i < len(skip) and f in skip[i])]
+
+    def where(i: int) -> str:
+        return samples_dirs[i] if i < len(samples_dirs) else ""
+
     if executor is None:
         for i, f in tasks:
-            yield i, measure_frequency(cases[i], f)
+            yield i, measure_point(cases[i], f, where(i))
         return
-    futures: dict[Future[list[ResponsePoint]], int] = {executor.submit(measure_frequency, cases[i], f): i
+    futures: dict[Future[list[ResponsePoint]], int] = {executor.submit(measure_point, cases[i], f, where(i)): i
                                                        for i, f in tasks}
     try:
         for fut in as_completed(futures):

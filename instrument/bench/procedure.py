@@ -11,6 +11,7 @@ or the offline sweep through a :class:`ResultsWriter`), and writes the plots of 
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 from collections.abc import Callable, Sequence
@@ -36,6 +37,8 @@ from bodebench.io.results import (
     update_sidecar,
 )
 
+log = logging.getLogger("bodebench.sweep")
+
 PlotWriter = Callable[..., list[Path]]
 """Draws a finished case: (response, directory, title, summary=...) -> the files written."""
 
@@ -43,6 +46,12 @@ PlotWriter = Callable[..., list[Path]]
 def case_directory(config: ExperimentConfig, out: Path, case: CaseConfig) -> Path:
     """Where a case's results go: ``out`` itself for a file without [cases], else ``out/<case name>``."""
     return out / case.name if config.has_cases else out
+
+
+def bus_log_path(path: Path, config: ExperimentConfig, case: CaseConfig) -> Path:
+    """Where a case's bus log goes: ``path`` itself for a file without [cases], else ``path`` with the case's name
+    before its suffix (``bus.asc`` -> ``bus.<case>.asc``)."""
+    return path.with_name(f"{path.stem}.{case.name}{path.suffix}") if config.has_cases else path
 
 
 EXISTING = ("refuse", "resume", "replace")
@@ -95,7 +104,9 @@ class SweepProcedure:
     direct: a bench config's simulated drive called in-process, without a bus (``bodebench simulate``);
     existing: what to do with results already in a case's directory (:data:`EXISTING`); worker_mode: where the
     bus worker runs (None: as the config says); executor: where offline frequencies run (None: in this thread,
-    in order); plots: draws each finished case (None: no plots).
+    in order); plots: draws each finished case (None: no plots); log_bus: a log of each bench case's traffic on the
+    bus (:func:`bus_log_path`; None: none); keep_samples: save each frequency's raw samples in ``samples/``
+    (:mod:`bodebench.io.samples`).
 
     Requests from other threads (:meth:`request_abort`, :meth:`set_paused`, :meth:`request_skip`,
     :meth:`set_tolerance`) reach the running session and every case after it.
@@ -103,7 +114,8 @@ class SweepProcedure:
 
     def __init__(self, config: ExperimentConfig, out: Path, *, listener: Listener | None = None,
                  direct: bool = False, existing: str = "refuse", worker_mode: str | None = None,
-                 executor: Executor | None = None, plots: PlotWriter | None = None) -> None:
+                 executor: Executor | None = None, plots: PlotWriter | None = None, log_bus: Path | None = None,
+                 keep_samples: bool = True) -> None:
         self.config = config
         self.out = Path(out)
         self.listener: Listener = listener or (lambda event: None)
@@ -112,6 +124,8 @@ class SweepProcedure:
         self.worker_mode = worker_mode
         self.executor = executor
         self.plots = plots
+        self.log_bus = log_bus
+        self.keep_samples = keep_samples
         self.outcomes: list[CaseOutcome] = []
         self.current: CaseOutcome | None = None
         self._lock = threading.Lock()
@@ -190,6 +204,9 @@ class SweepProcedure:
         merged = merge_frequency(base or FrequencyResponse(config=case.raw, case=case.name),
                                  result.response.points, frequency_hz)
         outcome.response = merged
+        if (self.keep_samples and outcome.session is not None and outcome.session.last_samples is not None
+                and result.response.points):
+            outcome.session.last_samples.save(directory)
         save_response(merged, directory)
         self._finish(outcome)
         return outcome
@@ -213,6 +230,8 @@ class SweepProcedure:
             return
         case = self._case(index)
         directory = self._directory(index)
+        log.info("case %s: %d frequencies -> %s%s", case.name, len(case.excitation.frequencies_hz), directory,
+                 f" (resuming after {len(previous.points)} points)" if previous else "")
         self.listener(CaseBegins(index, case.name, directory))
         outcome = CaseOutcome(index, case, directory, FrequencyResponse(config=case.raw, case=case.name),
                               earlier_runs=sidecar_runs(directory) if previous is not None else [],
@@ -239,9 +258,12 @@ class SweepProcedure:
                     ) -> SessionResult:
         from bodebench.bench.connection import plan_link
 
-        plan = plan_link(outcome.case, direct=self.direct)
+        bus_log = "" if self.log_bus is None else str(bus_log_path(self.log_bus, self.config, outcome.case))
+        plan = plan_link(outcome.case, direct=self.direct, log=bus_log)
+        log.info("case %s: the drive is reached %s%s", outcome.case.name, plan.where or "directly",
+                 f"; bus log {bus_log}" if bus_log else "")
         session = BenchSession(outcome.case, plan, outcome.directory if write else None, self.listener,
-                               worker_mode=self.worker_mode, resume=previous)
+                               worker_mode=self.worker_mode, resume=previous, keep_samples=self.keep_samples)
         with self._lock:
             outcome.session = session
             if self._paused:
@@ -256,6 +278,11 @@ class SweepProcedure:
         to its case's file as it is done; events case by case (a later case's points, done early, are announced
         when its turn comes); each case's plots drawn on the executor too, while later cases are measured."""
         from bodebench.bench.offline import measure_cases, sort_points
+        from bodebench.sim._jit import HAVE_NUMBA
+
+        if not HAVE_NUMBA:
+            log.warning("numba is not installed: the simulated plants run as plain Python, about 170 times slower "
+                        "(pip install 'bodebench[sim]')")
 
         cases = [self._case(i) for i in indices]
         outcomes: list[CaseOutcome] = []
@@ -293,7 +320,8 @@ class SweepProcedure:
                         self._announce(outcome.case, points)
 
         advance()
-        for k, points in measure_cases(cases, self.executor, skips):
+        samples_dirs = [str(o.directory) if self.keep_samples else "" for o in outcomes]
+        for k, points in measure_cases(cases, self.executor, skips, samples_dirs):
             writers[k].append(points)
             for point in points:
                 outcomes[k].response.add(point)

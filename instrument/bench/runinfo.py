@@ -43,7 +43,7 @@ def json_safe(value: Any) -> Any:
 def link_description(case: CaseConfig, direct: bool) -> dict[str, Any]:
     """How the case reached its plant or drive: offline, the simulated drive in-process, or a bus."""
     if case.bench is None:
-        return {"kind": "offline", "plant": case.plant.model}
+        return {"kind": "offline", "plant": case.plant.model if case.plant is not None else ""}
     bench = case.bench
     out: dict[str, Any] = {"kind": "in-process simulated drive" if direct else "bus", "transport": bench.transport,
                            "clock": bench.clock, "rate_hz": bench.rate_hz, "timebase": bench.timebase}

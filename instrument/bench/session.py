@@ -50,6 +50,7 @@ from bodebench.drivers.scheduling import pacing_cpu_left_alone
 from bodebench.drivers.stop_signals import StopSignal
 from bodebench.io.config import AnalysisConfig, CaseConfig
 from bodebench.io.results import CSV_NAME, ResultsWriter, check_output
+from bodebench.io.samples import PointSamples
 from bodebench.status import FaultKind
 
 
@@ -80,9 +81,11 @@ class BenchSession:
 
     def __init__(self, case: CaseConfig, plan: LinkPlan, out_dir: Path | None = None,
                  listener: Listener | None = None, worker_mode: str | None = None,
-                 resume: FrequencyResponse | None = None) -> None:
-        """resume: points of an interrupted sweep of the same case; their frequencies are not measured again."""
+                 resume: FrequencyResponse | None = None, keep_samples: bool = True) -> None:
+        """resume: points of an interrupted sweep of the same case; their frequencies are not measured again.
+        keep_samples: save each frequency's raw samples in ``out_dir/samples/`` before its rows."""
         self.case = case
+        self.keep_samples = keep_samples
         self.plan = plan
         self.out_dir = out_dir
         self.listener = listener or (lambda event: None)
@@ -97,6 +100,8 @@ class BenchSession:
         self.last_health: Health | None = None
         self.ended: SessionEnded | None = None
         self.refused: list[tuple[float, str]] = []  # (frequency, reason) of points not written
+        self.last_samples: PointSamples | None = None
+        """The samples of the frequency measured last (saved in ``samples/`` when there is a results directory)."""
         self._writer: ResultsWriter | None = None
 
     # --- user requests (any thread)
@@ -279,6 +284,7 @@ class BenchSession:
         started = self._expect(SineStarted, timeout=60.0)
         t0 = started.tick * self.period + (bench.ramp_in_periods + settle) / f
         sampler = Autointegrator(f, amplitude, outputs, analysis, t0=t0, reference=reference or None)
+        record = PointSamples(f, amplitude, outputs, t0, reference, "bench")
         ticks_per_period = max(1, math.ceil(1.0 / (f * self.period)))
         held: tuple[float, np.ndarray] | None = None  # the last sample at or before t0
         scope: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
@@ -313,6 +319,7 @@ class BenchSession:
                 t = np.concatenate([[held[0]], t])
                 values = np.vstack([held[1][None, :], values])
                 held = (math.inf, held[1])
+            record.add(t, values)
             with np.errstate(all="ignore"):  # garbage that got this far is refused below, not warned about
                 sampler.feed(t, values)
             if bench.clock == "lockstep" and not sampler.done:
@@ -329,8 +336,11 @@ class BenchSession:
             self.refused.append((f, refused))
             self.listener(PointFinished(index, (), skipped=True, refused=refused))
             return
+        self.last_samples = record
         if self.out_dir is not None:
             try:
+                if self.keep_samples:
+                    record.save(self.out_dir)  # before the rows: a point on disk always has its samples
                 self._results_writer().append(points)
             except OSError as exc:  # the rows already on disk stay; a torn row of these is dropped on resume
                 self.listener(SessionFault(FaultKind.OUTPUT, str(exc), len(self.response.points)))

@@ -102,6 +102,7 @@ class Autointegrator:
         # so a small harmonic cannot stop on the calm before the transient of its channel has died out
         self._primary = self.harmonics.index(1) if 1 in self.harmonics else 0
         self._order = [self._primary] + [k for k in range(len(self.harmonics)) if k != self._primary]
+        self._last_references: list[float] = [math.nan] * len(self.channels)
 
     @property
     def done(self) -> bool:
@@ -135,6 +136,7 @@ class Autointegrator:
                 for k, hist in enumerate(row):
                     hist.extend(z[:, c, k])
             references = np.max(np.abs(z), axis=2).tolist()
+        self._last_references = references[-1]
         primary, order, max_periods = self._primary, self._order, self.max_periods
         for i in range(m):
             n = self.periods + i + 1
@@ -154,6 +156,18 @@ class Autointegrator:
                 break
         self.periods += m
         return m
+
+    def end_of_record(self) -> None:
+        """The samples ended before every series had a verdict (a record analysed again with a rule that wants more
+        periods): each series still open is capped at the last whole period, as at ``max_periods``."""
+        for c, verdicts in enumerate(self._verdicts):
+            for k in self._order:
+                if verdicts[k] is None:
+                    hist = self._histories[c][k]
+                    if hist.n == 0:
+                        raise ValueError(f"the record of {self.frequency_hz:g} Hz holds no whole period")
+                    verdicts[k] = self._rules[c][k].capped(hist, hist.n, self._last_references[c])
+                    self._pending -= 1
 
     def states(self) -> list[SeriesState]:
         """Progress of every series at the latest period."""

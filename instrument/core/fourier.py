@@ -1,4 +1,4 @@
-"""Per-period Fourier coefficients by the trapezoidal rule (METHOD.md section 1).
+"""Per-period Fourier coefficients by the trapezoidal rule (docs/METHOD.md section 1).
 
 A :class:`PeriodIntegrator` takes a stream of timestamped multi-channel samples and, for every whole
 period of the reference frequency, returns the Fourier coefficients

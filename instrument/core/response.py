@@ -258,7 +258,7 @@ class FrequencyResponse:
             if (harmonic is None or pt.harmonic == harmonic) and (channel is None or pt.channel == channel)
         ]
         chosen.sort(key=lambda pt: pt.frequency_hz)
-        out = FrequencyResponse(case=self.case)
+        out = type(self)(case=self.case)
         out.config = _normalise_config(self.config)
         out.points = chosen
         return out

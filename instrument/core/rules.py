@@ -1,4 +1,4 @@
-"""Stopping rules of monoharmonic autointegration (METHOD.md section 1).
+"""Stopping rules of monoharmonic autointegration (docs/METHOD.md section 1).
 
 A rule looks at the per-period Fourier coefficients of one series (one
 channel, one harmonic), held as complex numbers ``Z(i) = P(i) + j Q(i)``, and

@@ -14,7 +14,7 @@ import os
 import re
 import tomllib
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -113,6 +113,7 @@ class CaseConfig:
     """One validated case: base tables merged with the case's overrides.
 
     ``source``: the configuration file (relative paths in it, such as a DBC file, are taken from its directory).
+    ``plant``: the simulated plant (None for a real drive: nothing is simulated, and the saved copy has no [plant]).
     ``raw``: the merged, validated configuration as a JSON-serialisable dict (defaults filled in; plant keys the
     model does not use left out), as saved with the results. ``layout``: the frame layout of a bench case (None
     offline); on transport canopen the layout of its PDOs, and ``canopen_setup`` the [canopen] table resolved
@@ -121,7 +122,7 @@ class CaseConfig:
 
     name: str
     source: Path
-    plant: PlantConfig
+    plant: PlantConfig | None
     excitation: ExcitationConfig
     analysis: AnalysisConfig
     raw: dict[str, Any] = field(hash=False, repr=False)
@@ -205,6 +206,12 @@ def _build_case(
     def key(table: str, name: str) -> str:
         return _key_path(*case_parts, table, name) if name in overrides.get(table, {}) else _key_path(table, name)
 
+    if built["bench"] is not None and built["bench"].transport in ("can", "canopen") and built["can"] is not None:
+        built["can"] = _resolve_can(built["can"], built["simulator"] is not None, key)
+        raw["can"] = _to_raw(built["can"])
+    if built["plant"] is None and (built["bench"] is None or built["simulator"] is not None):
+        what = "an offline experiment" if built["bench"] is None else "a simulated drive ([simulator])"
+        raise _Fault(_key_path("plant"), f"missing: {what} needs a [plant] table (only a real drive needs none)")
     layout, setup = _check_bench(built, frames, key, source)
     return CaseConfig(
         name=name,
@@ -278,6 +285,28 @@ def _parse(data: Mapping[str, Any], source: str) -> ExperimentConfig:
     return ExperimentConfig(path=Path(source), title=title, cases=built, has_cases=True)
 
 
+def _resolve_can(table: CanConfig, simulated: bool, key: Callable[[str, str], str]) -> CanConfig:
+    """``[can]`` with the interface, channel and bitrate it leaves empty taken from python-can's own configuration
+    (``can.util.load_config``: the environment's CAN_INTERFACE, CAN_CHANNEL, CAN_BITRATE, CAN_CONFIG, then
+    ~/.canrc and the other files it reads), as ``can.Bus()`` resolves them; a simulated drive keeps its own channel.
+    Raises :class:`_Fault`."""
+    if table.interface and (table.channel or simulated) and table.bitrate is not None:
+        return table
+    from bodebench.drivers.ports import resolve_can_config
+
+    try:
+        resolved = resolve_can_config(table.interface, table.channel, table.bitrate, table.context)
+    except ValueError as exc:
+        raise _Fault(key("can", "interface"), str(exc)) from None
+    interface = resolved.get("interface") or ""
+    channel = table.channel or ("" if simulated else str(resolved.get("channel") or ""))
+    bitrate = table.bitrate if table.bitrate is not None else resolved.get("bitrate")
+    if bitrate is not None and (isinstance(bitrate, bool) or not isinstance(bitrate, int) or bitrate < 1):
+        raise _Fault(key("can", "bitrate"), f"python-can's configuration gives bitrate {bitrate!r}: not a bit rate")
+    fd = table.fd or bool(resolved.get("fd", False))
+    return replace(table, interface=interface, channel=channel, bitrate=bitrate, fd=fd)
+
+
 def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, key: Callable[[str, str], str],
                  source: str) -> tuple[Layout | None, CanopenSetup | None]:
     """Cross-table checks of a bench case; the frame layout it uses (None offline) and, on transport canopen, the
@@ -303,7 +332,8 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
         raise _Fault("canopen", f'only used with bench.transport = "canopen" (not "{bench.transport}")')
     simulated = tables.get("simulator") is not None
     if isinstance(link, CanConfig) and not link.channel and not simulated:
-        raise _Fault(key("can", "channel"), "missing (only a [simulator] provides its own)")
+        raise _Fault(key("can", "channel"), "missing: not in the file, nor in python-can's configuration "
+                                            "(CAN_CHANNEL, ~/.canrc); only a [simulator] provides its own")
     if isinstance(link, SerialConfig) and not link.port and not simulated:
         raise _Fault(key("serial", "port"), "missing (only a [simulator] provides its own)")
     cpus = os.cpu_count() or 1
@@ -344,7 +374,8 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
         else:
             layout = default_layout() if frames is None else Layout.from_mapping(frames, source)
         framing = tables["serial"].framing if bench.transport == "serial" else ""
-        layout.validate(f"serial-{framing}" if framing else "can")
+        fd = bench.transport == "can" and tables["can"].fd
+        layout.validate(f"serial-{framing}" if framing else "can-fd" if fd else "can")
     except LayoutError as exc:
         text = str(exc)
         head, _, problem = text.partition(": ")

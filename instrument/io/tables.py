@@ -49,7 +49,10 @@ _HYDRAULIC = ("model", ("hydraulic",))
 
 @dataclass(frozen=True)
 class PlantConfig:
-    """The simulated plant (METHOD.md section 2); all quantities dimensionless unless stated."""
+    """The simulated plant (docs/METHOD.md section 2); all quantities dimensionless unless stated. Required where
+    something is simulated (an offline experiment, a bench config with [simulator]); a real drive needs none."""
+
+    TABLE_OPTIONAL = True
 
     model: str = field(
         metadata={
@@ -315,7 +318,7 @@ class ExcitationConfig:
 
 @dataclass(frozen=True)
 class AnalysisConfig:
-    """Harmonic analysis and stopping rule (METHOD.md section 1)."""
+    """Harmonic analysis and stopping rule (docs/METHOD.md section 1)."""
 
     harmonics: tuple[int, ...] = field(
         default=(1,),
@@ -402,11 +405,16 @@ class CanConfig:
 
     TABLE_OPTIONAL = True
 
-    interface: str = field(metadata={"doc": "python-can interface: socketcan, pcan, kvaser, vector, slcan, "
-                                            "virtual, udp_multicast, ..."})
-    channel: str = field(default="", metadata={"doc": "interface channel; empty with [simulator]: "
-                                                      "the simulator's"})
-    bitrate: int | None = field(default=None, metadata={"min": 1, "doc": "bit/s"})
+    interface: str = field(default="", metadata={"doc": "python-can interface: socketcan, pcan, kvaser, vector, "
+                                                        "slcan, virtual, udp_multicast, ...; empty: python-can's "
+                                                        "configuration (CAN_INTERFACE, ~/.canrc)"})
+    channel: str = field(default="", metadata={"doc": "interface channel; empty: python-can's configuration, or "
+                                                      "with [simulator] the simulator's"})
+    bitrate: int | None = field(default=None, metadata={"min": 1, "doc": "bit/s; none: python-can's "
+                                                                         "configuration, else the interface's"})
+    fd: bool = field(default=False, metadata={"doc": "CAN FD: frames of up to 64 bytes (python-can's fd=True)"})
+    context: str = field(default="", metadata={"doc": "section of python-can's configuration file (its "
+                                                      "config_context); empty: [default]"})
     options: dict = field(default_factory=dict, metadata={"doc": "further can.Bus keyword arguments"})
 
 

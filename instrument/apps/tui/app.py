@@ -139,7 +139,9 @@ class BodeBenchApp(App[int]):
         Binding("tab", "next_view", "next view", show=False),
     ]
 
-    def __init__(self, config: ExperimentConfig, out: Path, refresh_hz: float = 5.0) -> None:
+    def __init__(self, config: ExperimentConfig, out: Path, refresh_hz: float = 5.0, log_bus: Path | None = None
+                 ) -> None:
+        """log_bus: a log of the bus traffic of each sweep (the second sweep's as ``<stem>.run2<suffix>``, ...)."""
         super().__init__()
         if not config.cases or not config.on_bench:
             raise ValueError(f"{config.path}: not a bench config (no [bench] table)")
@@ -152,6 +154,7 @@ class BodeBenchApp(App[int]):
         resource_tracker.ensure_running()
         self.config = config
         self.out = Path(out)
+        self.log_bus = log_bus
         self.refresh_hz = refresh_hz
         self.case_index = 0
         self.tolerance_percent: float | None = None   # None: as configured
@@ -243,7 +246,7 @@ class BodeBenchApp(App[int]):
         # sweep is aborted (setpoint to zero, drive disabled) and joined before the app ends
         self._signals: list[int] = []
         loop = asyncio.get_running_loop()
-        for signum in (signal.SIGTERM, signal.SIGHUP):
+        for signum in [getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)]:
             try:
                 loop.add_signal_handler(signum, self._stop_signal, signum)
             except (NotImplementedError, RuntimeError, ValueError):  # not the main thread: the signal stays as it is
@@ -452,6 +455,12 @@ class BodeBenchApp(App[int]):
                                        "quit?", "Abort and quit"), answered)
 
     # ------------------------------------------------------------------------------------------ the session
+    def _log_path(self) -> Path | None:
+        """The bus log of the sweep about to start (``self._runs`` counts it)."""
+        if self.log_bus is None or self._runs <= 1:
+            return self.log_bus
+        return self.log_bus.with_name(f"{self.log_bus.stem}.run{self._runs}{self.log_bus.suffix}")
+
     def _launch(self, frequency_hz: float | None) -> None:
         """Start a sweep of every case (``frequency_hz``: re-measure that frequency of the current case)."""
         from bodebench.apps.plots import write_plots  # matplotlib: only once a sweep starts
@@ -460,7 +469,7 @@ class BodeBenchApp(App[int]):
         bridge = SessionBridge(self.post_message, self._runs)
         procedure = SweepProcedure(self.config, self.out, listener=bridge, existing="replace",
                                    worker_mode=self.config.cases[0].on_bench.bench.worker_mode(beside_a_ui=True),
-                                   plots=write_plots)
+                                   plots=write_plots, log_bus=self._log_path())
         if self.tolerance_percent is not None:
             procedure.set_tolerance(self.tolerance_percent)
         control = RunControl(self._runs, procedure)

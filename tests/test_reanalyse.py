@@ -1,0 +1,122 @@
+"""Raw samples kept next to the results, and ``bodebench analyse`` recomputing a sweep from them: bit for bit the
+live result with the same settings, on an offline sweep and on a simulated bench sweep; with a looser tolerance,
+bit for bit what a live sweep at that tolerance measures (its record is a prefix of the stricter one's)."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from bodebench.analysis.reanalyse import reanalyse
+from bodebench.bench.procedure import SweepProcedure
+from bodebench.io.config import ConfigError, parse_config
+from bodebench.io.results import CSV_NAME, load_response, save_response
+from bodebench.io.samples import SamplesError, load_samples, samples_path
+
+TAU, GAIN, AMPLITUDE = 0.02, 2.0, 0.01
+FREQS = [1.0, 4.0, 8.0, 25.0]
+
+
+def offline(tolerance: float = 0.01, **analysis: Any) -> dict[str, Any]:
+    return {
+        "plant": {"model": "lag", "time_constant": TAU, "gain": GAIN},
+        "excitation": {"amplitude": AMPLITUDE, "frequencies_hz": FREQS},
+        "analysis": {"tolerance_percent": tolerance, "harmonics": [1, 2]} | analysis,
+    }
+
+
+def on_bench(channel: str) -> dict[str, Any]:
+    return {**offline(0.5, harmonics=[1]), "excitation": {"amplitude": AMPLITUDE, "frequencies_hz": FREQS[:2]},
+            "bench": {"transport": "can", "rate_hz": 1000.0, "clock": "lockstep",
+                                       "output_channels": ["position"], "reference_channel": "setpoint_echo"},
+            "can": {"interface": "virtual", "channel": channel}, "safety": {"max_amplitude": 0.02, "watchdog_s": 5.0},
+            "simulator": {"jitter": 0.05, "noise": 1e-6, "seed": 7}}
+
+
+def sweep(data: dict[str, Any], out: Path, **kwargs: Any) -> None:
+    SweepProcedure(parse_config(data, "x.toml"), out, **kwargs).run()
+
+
+def cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "bodebench", *args], capture_output=True, text=True, timeout=600)
+
+
+def test_the_samples_file_holds_the_lags_exact_response(tmp_path: Path) -> None:
+    sweep(offline(), tmp_path)
+    for f in FREQS:
+        record = load_samples(samples_path(tmp_path, f))
+        assert (record.source, record.frequency_hz, record.amplitude, record.channels) == (
+            "offline", f, AMPLITUDE, ("position",))
+        t, y = record.t, record.y[:, 0]
+        assert np.all(np.diff(t) > 0) and sum(len(b[0]) for b in record.batches) == t.size
+        # T y' + y = K A sin(w t) from rest: the steady sine plus the decaying transient
+        w = 2 * math.pi * f
+        steady = GAIN * AMPLITUDE / (1 + (w * TAU) ** 2) * (np.sin(w * t) - w * TAU * np.cos(w * t))
+        exact = steady + GAIN * AMPLITUDE * w * TAU / (1 + (w * TAU) ** 2) * np.exp(-t / TAU)
+        assert np.max(np.abs(y - exact)) <= 1e-12 * GAIN * AMPLITUDE
+        periods = {p.periods for p in load_response(tmp_path).points if p.frequency_hz == f}
+        assert t[-1] * f >= max(periods)  # the record covers every period the rule used
+
+
+def test_an_offline_sweep_analysed_again_is_bit_identical(tmp_path: Path) -> None:
+    sweep(offline(), tmp_path / "live")
+    done = cli("analyse", str(tmp_path / "live"), "--out", str(tmp_path / "again"), "--quiet")
+    assert done.returncode == 0, done.stderr
+    assert f"{2 * len(FREQS)} identical to the stored points" in done.stdout
+    assert (tmp_path / "again" / CSV_NAME).read_bytes() == (tmp_path / "live" / CSV_NAME).read_bytes()
+
+
+def test_a_looser_tolerance_gives_what_a_live_sweep_at_it_measures(tmp_path: Path) -> None:
+    sweep(offline(0.01), tmp_path / "strict")
+    sweep(offline(0.5), tmp_path / "loose")
+    again = reanalyse(tmp_path / "strict", tolerance_percent=0.5)
+    assert not again.record_ended
+    save_response(again.response, tmp_path / "again")
+    assert (tmp_path / "again" / CSV_NAME).read_bytes() == (tmp_path / "loose" / CSV_NAME).read_bytes()
+    assert again.response.config == load_response(tmp_path / "loose").config
+    # a rule that wants more than the record holds is capped where it ends
+    fixed = reanalyse(tmp_path / "loose", criterion="fixed", settle_periods=5000, average_periods=50)
+    assert set(fixed.record_ended) == set(FREQS)
+    assert {p.status for p in fixed.response} == {"capped"}
+
+
+@pytest.mark.slow
+def test_a_simulated_bench_sweep_analysed_again_is_bit_identical(tmp_path: Path) -> None:
+    sweep(on_bench(f"reanalyse-{uuid.uuid4().hex[:8]}"), tmp_path / "live")
+    record = load_samples(samples_path(tmp_path / "live", FREQS[0]))
+    assert record.source == "bench" and record.reference == "setpoint_echo" and record.y.shape[1] == 2
+    assert record.t[0] <= record.t0 < record.t[1]  # the sample before the first period edge is kept
+    done = cli("analyse", str(tmp_path / "live"), "--out", str(tmp_path / "again"))
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "again" / CSV_NAME).read_bytes() == (tmp_path / "live" / CSV_NAME).read_bytes()
+    other = cli("analyse", str(tmp_path / "live"), "--criterion", "full", "--tolerance", "1")
+    assert other.returncode == 0, other.stderr
+    assert "criterion full, tolerance 1 %" in other.stdout
+
+
+def test_bad_input_is_one_line(tmp_path: Path) -> None:
+    sweep(offline(0.5), tmp_path / "live")
+    done = cli("analyse", str(tmp_path / "live"), "--criterion", "nope")
+    assert done.returncode == 2 and len(done.stderr.splitlines()) == 1
+    assert "response.json: analysis.criterion: must be one of" in done.stderr
+    with pytest.raises(ConfigError):
+        reanalyse(tmp_path / "live", tolerance_percent=-1.0)
+    samples_path(tmp_path / "live", FREQS[1]).unlink()
+    with pytest.raises(SamplesError, match="no such samples file"):
+        reanalyse(tmp_path / "live")
+    done = cli("analyse", str(tmp_path / "live"))
+    assert done.returncode == 2 and len(done.stderr.splitlines()) == 1 and "4.0Hz.npz" in done.stderr
+    samples_path(tmp_path / "live", FREQS[0]).write_bytes(b"not a zip")
+    with pytest.raises(SamplesError, match="not a samples file"):
+        load_samples(samples_path(tmp_path / "live", FREQS[0]))
+    done = cli("analyse", str(tmp_path / "live"), "--out", str(tmp_path / "live"))
+    assert done.returncode == 2 and "results already here" in done.stderr
+    sweep(offline(0.5), tmp_path / "none", keep_samples=False)
+    assert not (tmp_path / "none" / "samples").exists()
