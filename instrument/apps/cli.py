@@ -562,7 +562,7 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument("--calibration", default=None, help="calibration file (default: the shipped table)")
     ident.add_argument("--no-plot", action="store_true", help="do not write identify.png/svg")
     ident.set_defaults(handler=_identify)
-    plot = sub.add_parser("plot", help="one Bode diagram comparing several results directories")
+    plot = add("plot", help="one Bode diagram comparing several results directories")
     plot.add_argument("results", metavar="DIR", nargs="+",
                       help="results directories (or directories of case sub-directories)")
     plot.add_argument("--out", required=True, help="image file; its suffix names the format (.png, .svg, .pdf)")
