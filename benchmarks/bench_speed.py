@@ -124,8 +124,8 @@ def main() -> None:
           f"{steps / kernel_s:.3e} steps/s, one core)")
     print(f"  end to end, warm cache  {warm_wall:8.2f} s wall  ({warm_cpu:.2f} s CPU; least of {args.repeat}; "
           f"all runs {', '.join(f'{w:.2f}' for w, _ in warm)} s)")
-    print(f"  end to end, cold cache  {cold_wall:8.2f} s wall  ({cold_cpu:.2f} s CPU; {len(compiled)} kernel "
-          f"signatures compiled into an empty numba cache)")
+    print(f"  end to end, cold cache  {cold_wall:8.2f} s wall  ({cold_cpu:.2f} s CPU; {len(compiled)} kernels "
+          f"compiled into an empty numba cache)")
     print(f"  warm wall / kernel CPU  {ratio:8.2f} x      (target <= {TARGET_RATIO:g}: "
           f"{'met' if ratio <= TARGET_RATIO else 'NOT met'})")
     print()

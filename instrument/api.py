@@ -70,8 +70,8 @@ def _case_index(config: ExperimentConfig, case: str | None) -> int:
 
 
 def _procedure(config: ExperimentConfig, index: int, out: Path, *, direct: bool, resume: bool, plots: bool,
-               listener: Listener | None, jobs: int | None) -> Response:
-    from bodebench.bench.offline import default_executor
+               listener: Listener | None, jobs: int | None, samples: bool = True) -> Response:
+    from bodebench.bench.offline import offline_executor
     from bodebench.bench.procedure import SweepProcedure
 
     writer = None
@@ -79,15 +79,17 @@ def _procedure(config: ExperimentConfig, index: int, out: Path, *, direct: bool,
         from bodebench.apps.plots import write_plots
 
         writer = write_plots
-    executor = default_executor(jobs) if jobs != 1 and config.cases[index].bench is None else None
-    try:
+    case = config.cases[index]
+    with offline_executor(1 if case.bench is not None else jobs, models=_models(case)) as executor:
         procedure = SweepProcedure(config, out, listener=listener, direct=direct, plots=writer, executor=executor,
-                                   existing="resume" if resume else "refuse")
+                                   existing="resume" if resume else "refuse", keep_samples=samples)
         outcome = procedure.run(cases=[index])[0]
-    finally:
-        if executor is not None:
-            executor.shutdown(cancel_futures=True)
     return Response.of(outcome.response)
+
+
+def _models(case: CaseConfig) -> tuple[str, ...]:
+    """The plant model whose compiled step loops an offline pool loads first (none without a plant)."""
+    return (case.plant.model,) if case.plant is not None and case.bench is None else ()
 
 
 def _check_jobs(jobs: int | None) -> None:
@@ -96,13 +98,15 @@ def _check_jobs(jobs: int | None) -> None:
 
 
 def simulate(config: ConfigSource, out: str | Path | None = None, *, case: str | None = None, jobs: int | None = 1,
-             resume: bool = False, plots: bool = False, listener: Listener | None = None) -> Response:
+             resume: bool = False, plots: bool = False, samples: bool = False,
+             listener: Listener | None = None) -> Response:
     """Sweep one case offline: the simulated plant of an experiment config, or a bench config's simulated drive
     called in-process without a bus (as ``bodebench simulate``).
 
     out: results directory (None: nothing is written); case: the case's name (needed when the file has several);
     jobs: worker processes for the frequencies of an offline experiment (1: this process, None: every core);
-    resume: continue an interrupted sweep in ``out``; plots: draw bode/periods plots into ``out``; listener: gets
+    resume: continue an interrupted sweep in ``out``; plots: draw bode/periods plots into ``out``; samples: keep
+    each frequency's raw samples in ``out/samples/`` (a simulation's are reproducible from its config); listener: gets
     the events of :mod:`bodebench.bench.events`. Raises ConfigError, ResultsError (``out`` holds another sweep),
     SessionError (a bench sweep stopped; its points so far are in ``out``)."""
     _check_jobs(jobs)
@@ -110,20 +114,16 @@ def simulate(config: ConfigSource, out: str | Path | None = None, *, case: str |
     index = _case_index(experiment, case)
     chosen: CaseConfig = experiment.cases[index]
     if out is None and chosen.bench is None and listener is None:
-        from bodebench.bench.offline import default_executor, sweep
+        from bodebench.bench.offline import offline_executor, sweep
 
-        executor = None if jobs == 1 else default_executor(jobs)
-        try:
+        with offline_executor(jobs, models=_models(chosen)) as executor:
             return Response.of(sweep(chosen, executor))
-        finally:
-            if executor is not None:
-                executor.shutdown(cancel_futures=True)
     if out is None:
         with tempfile.TemporaryDirectory(prefix="bodebench-") as scratch:
             return _procedure(experiment, index, Path(scratch), direct=True, resume=False, plots=False,
-                              listener=listener, jobs=jobs)
+                              listener=listener, jobs=jobs, samples=False)
     return _procedure(experiment, index, Path(out), direct=True, resume=resume, plots=plots, listener=listener,
-                      jobs=jobs)
+                      jobs=jobs, samples=samples)
 
 
 def run(config: ConfigSource, out: str | Path, *, case: str | None = None, resume: bool = False,

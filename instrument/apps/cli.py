@@ -232,7 +232,7 @@ def _simulate(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     if config.on_bench:
         return _bench_sweeps(config, out, direct=True, quiet=args.quiet, resume=args.resume,
-                             plots=_plot_writer(args), keep_samples=not args.no_samples)
+                             plots=_plot_writer(args), keep_samples=args.samples)
     done, total, name = 0, 0, ""
 
     def listener(event: object) -> None:
@@ -251,7 +251,7 @@ def _simulate(args: argparse.Namespace) -> int:
         with offline_executor(args.jobs, args.executor, models) as executor:
             procedure = SweepProcedure(config, out, listener=listener, executor=executor, plots=_plot_writer(args),
                                        existing="resume" if args.resume else "refuse",
-                                       keep_samples=not args.no_samples)
+                                       keep_samples=args.samples)
             outcomes = procedure.run()
     except ExecutorError as exc:
         print(f"bodebench: {exc}", file=sys.stderr)
@@ -507,8 +507,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
     sim.add_argument("--executor", default=None, metavar="SCHEDULER", help=EXECUTOR_HELP)
     sim.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)
-    sim.add_argument("--no-samples", action="store_true",
-                     help="do not keep the raw samples of each frequency in DIR/samples/ (analyse needs them)")
+    sim.add_argument("--samples", action="store_true",
+                     help="keep the raw samples of each frequency in DIR/samples/ for bodebench analyse (a "
+                          "simulation's samples are reproducible from its config, so by default they are not kept)")
     sim.set_defaults(handler=_simulate)
     run = add("run", help="sweep a drive on the bench (CAN or serial), headless")
     run.add_argument("config", help="TOML bench file")
