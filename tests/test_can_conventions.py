@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import threading
 import uuid
 from pathlib import Path
 from typing import Any
@@ -14,6 +13,7 @@ from typing import Any
 import can
 import can.util
 import pytest
+from helpers import FrameRecorder
 
 from bodebench.bench.procedure import SweepProcedure
 from bodebench.drivers.ports import ByteLog
@@ -112,40 +112,15 @@ def fd_frames(length: int) -> dict[str, Any]:
     }
 
 
-class Recorder:
-    """A node on a virtual channel that records every frame on it."""
-
-    def __init__(self, channel: str) -> None:
-        self.bus = can.Bus(interface="virtual", channel=channel)
-        self.frames: list[can.Message] = []
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while not self.stop.is_set():
-            msg = self.bus.recv(0.05)
-            if msg is not None:
-                self.frames.append(msg)
-
-    def close(self) -> list[can.Message]:
-        self.stop.set()
-        self.thread.join()
-        while (msg := self.bus.recv(0.05)) is not None:
-            self.frames.append(msg)
-        self.bus.shutdown()
-        return self.frames
-
-
 @pytest.mark.slow
 def test_can_fd_frames_on_the_virtual_bus(tmp_path: Path) -> None:
     channel = f"fd-{uuid.uuid4().hex[:8]}"
     data = bench({"interface": "virtual", "channel": channel, "fd": True}, simulator={}, frames=fd_frames(24))
-    recorder = Recorder(channel)
+    recorder = FrameRecorder(channel)
     try:
         outcome = SweepProcedure(parse_config(data, "fd.toml"), tmp_path).run()[0]
     finally:
-        frames = recorder.close()
+        frames = recorder.frames_seen()
     feedback = [m for m in frames if m.arbitration_id == 0x181]
     setpoints = [m for m in frames if m.arbitration_id == 0x201]
     assert feedback and all(m.is_fd and m.dlc == 24 and len(m.data) == 24 for m in feedback)
@@ -173,11 +148,11 @@ def test_the_bus_log_holds_the_sessions_traffic(tmp_path: Path, suffix: str) -> 
     data["analysis"]["harmonics"] = [1]
     data["analysis"]["tolerance_percent"] = 0.1
     log = tmp_path / f"bus{suffix}"
-    recorder = Recorder(channel)
+    recorder = FrameRecorder(channel)
     try:
         outcome = SweepProcedure(parse_config(data, "sim_can.toml"), tmp_path / "out", log_bus=log).run()[0]
     finally:
-        frames = recorder.close()
+        frames = recorder.frames_seen()
     assert outcome.result is not None and outcome.result.health is not None
     health = outcome.result.health.bus
     logged = list(can.LogReader(log))
