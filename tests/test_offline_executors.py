@@ -122,9 +122,10 @@ def test_simulate_plot_formats_and_bad_arguments(tmp_path: Path, capsys: pytest.
     assert names == ["bode.pdf", "bode.svg", "periods.pdf", "periods.svg", "response.csv", "response.json"]
     assert (tmp_path / "vec" / "light" / "bode.pdf").read_bytes()[:5] == b"%PDF-"
     capsys.readouterr()
-    assert main(["simulate", str(cfg), "--out", str(tmp_path / "x"), "--jobs", "-1"]) == 2
-    err = capsys.readouterr().err
-    assert err.strip() == "bodebench: --jobs must be >= 1, got -1"
+    with pytest.raises(SystemExit) as exc:
+        main(["simulate", str(cfg), "--out", str(tmp_path / "x"), "--jobs", "-1"])
+    assert exc.value.code == 2
+    assert "argument --jobs: must be >= 1 (worker processes), got -1" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
     with pytest.raises(SystemExit) as exc:
         main(["simulate", str(cfg), "--out", str(tmp_path / "y"), "--plots", "png,jpg"])
