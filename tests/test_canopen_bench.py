@@ -96,7 +96,7 @@ def test_bodebench_run_sweeps_the_shipped_canopen_config_and_says_how_it_left_th
     proc = subprocess.run(_command() + ["run", str(small), "--out", str(tmp_path / "out")], capture_output=True,
                           text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
-    last = proc.stdout.strip().splitlines()[-1]
+    last = next(line for line in proc.stdout.splitlines() if "drive left at" in line)  # its summary follows
     assert "drive left at setpoint 0, seen disabled: quick stop (controlword 0x0002)" in last, last
     assert "(switch on disabled); NMT pre-operational sent" in last, last
     response = load_response(tmp_path / "out")
