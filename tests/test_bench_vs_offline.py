@@ -13,6 +13,7 @@ from __future__ import annotations
 import cmath
 import math
 import uuid
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,7 @@ from scipy import signal
 
 from bodebench.bench.offline import sweep
 from bodebench.bench.procedure import SweepProcedure
+from bodebench.core.response import FrequencyResponse
 from bodebench.io.config import parse_config
 from bodebench.io.results import load_response
 
@@ -58,10 +60,17 @@ def test_the_bench_chain_measures_what_the_offline_experiment_computes(tmp_path:
              "can": {"interface": "virtual", "channel": f"offline-{uuid.uuid4().hex[:8]}"},
              "safety": {"max_amplitude": 0.02}, "simulator": {}}
     outcomes = SweepProcedure(parse_config(bench, "bench.toml"), tmp_path).run()
-    on_bench = load_response(tmp_path)  # what the procedure left on disk is what it returned
-    assert [(p.frequency_hz, p.p, p.q) for p in on_bench] == [(p.frequency_hz, p.p, p.q) for p in outcomes[0].response]
+    assert_bench_agrees_with_offline(tmp_path, outcomes[0].response, base, num, den, [2.0, 5.0, 12.0])
+
+
+def assert_bench_agrees_with_offline(directory: Path, returned: FrequencyResponse, base: dict[str, Any],
+                                     num: Sequence[float], den: Sequence[float], freqs: list[float]) -> None:
+    """What a bench sweep left in ``directory`` is what it returned, and each point is the offline experiment's of
+    ``base`` times the zero-order hold's ratio, within the tolerance and both points' uncertainties."""
+    on_bench = load_response(directory)
+    assert [(p.frequency_hz, p.p, p.q) for p in on_bench] == [(p.frequency_hz, p.p, p.q) for p in returned]
     offline = {p.frequency_hz: p for p in sweep(parse_config(base, "offline.toml").cases[0])}
-    assert sorted(offline) == sorted(p.frequency_hz for p in on_bench) == [2.0, 5.0, 12.0]
+    assert sorted(offline) == sorted(p.frequency_hz for p in on_bench) == freqs
     for measured in on_bench:
         computed = offline[measured.frequency_hz]
         assert measured.converged and computed.converged

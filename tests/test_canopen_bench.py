@@ -14,10 +14,9 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_bench_vs_offline import EPS_PERCENT, PLANTS, RATE_HZ, held_over_continuous
+from test_bench_vs_offline import EPS_PERCENT, PLANTS, RATE_HZ, assert_bench_agrees_with_offline
 
 from bodebench.bench.connection import plan_link
-from bodebench.bench.offline import sweep
 from bodebench.bench.procedure import SweepProcedure
 from bodebench.bench.session import BenchSession
 from bodebench.io.config import load_config, parse_config
@@ -40,17 +39,7 @@ def test_a_sweep_over_canopen_measures_what_the_offline_experiment_computes(tmp_
     base = {"plant": table, "excitation": {"amplitude": 0.01, "frequencies_hz": [5.0, 12.0]},
             "analysis": {"tolerance_percent": EPS_PERCENT, "steps_per_period": 400}}
     outcomes = SweepProcedure(parse_config(canopen_bench(base), "canopen.toml"), tmp_path).run()
-    on_bench = load_response(tmp_path)
-    assert [(p.frequency_hz, p.p, p.q) for p in on_bench] == [(p.frequency_hz, p.p, p.q) for p in outcomes[0].response]
-    offline = {p.frequency_hz: p for p in sweep(parse_config(base, "offline.toml").cases[0])}
-    assert sorted(p.frequency_hz for p in on_bench) == [5.0, 12.0]
-    for measured in on_bench:
-        computed = offline[measured.frequency_hz]
-        assert measured.converged and computed.converged
-        z_bench = complex(measured.p, measured.q)
-        z_offline = complex(computed.p, computed.q) * held_over_continuous(num, den, measured.frequency_hz)
-        allowed = EPS_PERCENT / 100 * abs(z_offline) + measured.uncertainty + computed.uncertainty
-        assert abs(z_bench - z_offline) <= allowed, (measured.frequency_hz, abs(z_bench - z_offline), allowed)
+    assert_bench_agrees_with_offline(tmp_path, outcomes[0].response, base, num, den, [5.0, 12.0])
 
 
 @pytest.mark.slow

@@ -26,13 +26,13 @@ before it, which the first period edge interpolates from, included) to the batch
 from __future__ import annotations
 
 import io
-import os
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from bodebench.io.results import atomic_write_bytes
 
 __all__ = ["FORMAT", "SAMPLES_DIR", "PointSamples", "SamplesError", "load_samples", "samples_path"]
 
@@ -99,19 +99,7 @@ class PointSamples:
             for name, value in arrays.items():
                 with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
                     np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as handle:
-                handle.write(buffer.getvalue())
-                handle.flush()
-                os.fsync(handle.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except FileNotFoundError:
-                pass
-            raise
+        atomic_write_bytes(path, buffer.getvalue())
         return path
 
 
