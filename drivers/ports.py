@@ -92,6 +92,8 @@ class FramePort(ABC):
         self.frames_out = 0
         self.errors = 0
         self.last_error = ""
+        self.log_failure = ""
+        """Why the traffic log stopped recording before the port closed ("" while it records, or without a log)."""
         self._closed = False
         self._queue: deque[Frame] = deque()
 
@@ -137,6 +139,11 @@ class FramePort(ABC):
         self._closed = True
         with self._vendor("close"):
             self._close()
+
+    def end_log(self) -> None:
+        """Stop recording the traffic: the log, if any, is completed and closed (the port stays open); a failure to
+        complete it goes to ``log_failure``. Safe to call twice."""
+        self._end_log()
 
     def send_periodic(self, frame: Frame, period_s: float) -> bool:
         """Have the interface repeat ``frame`` every ``period_s`` s on its own until ``close()``; False where the
@@ -189,6 +196,9 @@ class FramePort(ABC):
 
     # ----------------------------------------------------------------------------------------------------------
     # backend hooks
+    def _end_log(self) -> None:  # noqa: B027 - a hook: ports without a log have nothing to do
+        """Complete and close the traffic log (ports without one: nothing to do)."""
+
     @abstractmethod
     def _send(self, frame: Frame) -> None:
         """Transmit ``frame``."""
@@ -266,6 +276,9 @@ class CanPort(FramePort):
         self._periodic: list[can.broadcastmanager.CyclicSendTaskABC] = []
         self._log: Any = None
         self._log_lock = threading.Lock()
+        self._log_path = "" if log is None else os.fspath(log)
+        self._log_channels: dict[Any, Any] = {}  # channel of a frame -> the channel its log entry gets
+        self._log_short_channels = False  # the format keeps channel numbers in 16 bits
         if log is not None:
             import can as _can
 
@@ -273,6 +286,7 @@ class CanPort(FramePort):
                 self._log = _can.Logger(log)
             except (OSError, ValueError) as exc:
                 raise DriverInitError(f"cannot write the bus log {os.fspath(log)!r}: {exc}") from exc
+            self._log_short_channels = isinstance(self._log, _can.BLFWriter)
 
     @classmethod
     def open(cls, interface: str, channel: Channel | None, bitrate: int | None = None,
@@ -322,9 +336,57 @@ class CanPort(FramePort):
             msg.channel = self._channel
             self._write_log(msg)
 
+    def _logged_channel(self, channel: Any) -> Any:
+        """The channel a frame's log entry names. A BLF entry holds the channel number python-can reads off the
+        name's trailing digits, plus one, in 16 bits: a name whose digits make a larger number (a virtual channel
+        named with a random hex suffix) is logged as the writer's default channel instead."""
+        if not self._log_short_channels:
+            return channel
+        try:
+            return self._log_channels[channel]
+        except KeyError:
+            import can.util
+
+            number = can.util.channel2int(channel)
+            logged = None if number is not None and not 0 <= number < 0xFFFF else channel
+            self._log_channels[channel] = logged
+            return logged
+        except TypeError:  # a channel python-can cannot look up by value
+            return None
+
     def _write_log(self, msg: can.Message) -> None:
+        """One frame into the bus log. The log is a record, not the measurement: when it cannot take the frame (a
+        full disk, a writer's error) it stops there, its failure kept in ``log_failure``, and the traffic goes on."""
         with self._log_lock:
-            self._log(msg)
+            if self._log is None:
+                return
+            msg.channel = self._logged_channel(msg.channel)
+            try:
+                self._log(msg)
+            except Exception as exc:  # noqa: BLE001 - any writer failure ends the log, never the session
+                self._stop_log(exc)
+
+    def _stop_log(self, exc: BaseException | None) -> None:
+        """Close the log (lock held); ``exc``: the failure that ended it early (None: the end of the session)."""
+        writer, self._log = self._log, None
+        try:
+            writer.stop()
+        except Exception as error:  # noqa: BLE001 - the file may be what failed
+            exc = exc or error
+        handle = getattr(writer, "file", None)
+        if handle is not None:
+            try:
+                handle.close()
+            except Exception:  # noqa: BLE001 - closed anyway: nothing left to flush later
+                pass
+        if exc is not None and not self.log_failure:
+            what = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc) or type(exc).__name__
+            self.log_failure = f"{self._log_path}: {what}; nothing logged after {time.strftime('%H:%M:%S')}"
+
+    def _end_log(self) -> None:
+        with self._log_lock:
+            if self._log is not None:
+                self._stop_log(None)
 
     def _send_periodic(self, frame: Frame, period_s: float) -> bool:
         """python-can's periodic send (the kernel's broadcast manager on socketcan, a thread elsewhere); not with a
@@ -360,8 +422,7 @@ class CanPort(FramePort):
             if self._owns_bus:
                 self._bus.shutdown()
         finally:
-            if self._log is not None:
-                self._log.stop()
+            self._end_log()
 
     def _bus_state(self) -> str:
         import can
@@ -633,8 +694,12 @@ class SerialPort(FramePort):
         try:
             self._ser.close()
         finally:
-            if self._log is not None:
-                self._log.close()
+            self._end_log()
+
+    def _end_log(self) -> None:
+        if self._log is not None:
+            self._log.close()
+            self.log_failure = self._log.failure
 
 
 class ByteLog:
@@ -649,17 +714,42 @@ class ByteLog:
             self._file = open(path, "w", encoding="ascii", buffering=1)
         except OSError as exc:
             raise DriverInitError(f"cannot write the bus log {os.fspath(path)!r}: {exc.strerror or exc}") from exc
+        self._path = os.fspath(path)
         self._lock = threading.Lock()
-        self._file.write(self.HEADER)
+        self.failure = ""
+        """Why the log stopped recording early ("" while it records): the line is a record, never stopped by it."""
+        self.write_line(self.HEADER)
 
     def write(self, direction: str, data: bytes) -> None:
         """One line for ``data`` sent ("TX") or received ("RX")."""
+        self.write_line(f"{time.time():.6f} {direction} {data.hex()}\n")
+
+    def write_line(self, line: str) -> None:
+        """``line`` into the log; a write that fails ends the log there (``failure`` says why)."""
         with self._lock:
-            self._file.write(f"{time.time():.6f} {direction} {data.hex()}\n")
+            if self._file.closed:
+                return
+            try:
+                self._file.write(line)
+            except (OSError, ValueError) as exc:
+                self._fail(exc)
+
+    def _fail(self, exc: OSError | ValueError) -> None:
+        what = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        self.failure = self.failure or f"{self._path}: {what}; nothing logged after {time.strftime('%H:%M:%S')}"
+        try:
+            self._file.close()
+        except (OSError, ValueError):
+            pass
 
     def close(self) -> None:
         with self._lock:
-            self._file.close()
+            if self._file.closed:
+                return
+            try:
+                self._file.close()
+            except (OSError, ValueError) as exc:
+                self._fail(exc)
 
     @staticmethod
     def read(path: str | os.PathLike[str]) -> list[tuple[float, str, bytes]]:

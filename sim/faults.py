@@ -40,6 +40,8 @@ class FaultConfig:
     out_of_range_after_s: from then on the position reads +1e6 (a broken sensor).
     stop_after_s: from then on the drive answers nothing (cable pulled, drive crashed).
     bus_off_after_s: from then on the drive sends only error frames (its CAN controller went bus-off).
+    stall_every_s, stall_s: the last ``stall_s`` of every ``stall_every_s`` the drive answers nothing (a stalled bus,
+    frames lost in a burst): its clock and counter go on, so the host's samples have a gap there.
     seed: random seed.
 
     The fields carry their bounds as validation metadata: the configuration loader checks a
@@ -62,6 +64,8 @@ class FaultConfig:
     out_of_range_after_s: float = field(default=-1.0, metadata={"doc": "controller time, s (negative: never)"})
     stop_after_s: float = field(default=-1.0, metadata={"doc": "controller time, s (negative: never)"})
     bus_off_after_s: float = field(default=-1.0, metadata={"doc": "controller time, s (negative: never)"})
+    stall_every_s: float = field(default=0.0, metadata={"min": 0, "doc": "controller time, s (0: never)"})
+    stall_s: float = field(default=0.0, metadata={"min": 0, "doc": "s of each stall_every_s without an answer"})
     seed: int = field(default=0, metadata={"min": 0, "doc": "numpy random seed"})
 
     @property
@@ -80,6 +84,8 @@ class ValueFaults:
     def silent(self, time_s: float) -> bool:
         """The drive answers nothing (stopped) at controller time ``time_s``."""
         c = self.config
+        if c.stall_every_s > 0 and time_s % c.stall_every_s >= c.stall_every_s - c.stall_s:
+            return True
         return 0 <= c.stop_after_s <= time_s
 
     def bus_off(self, time_s: float) -> bool:

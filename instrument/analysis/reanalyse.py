@@ -3,7 +3,8 @@
 Every frequency of a results directory has its samples in ``samples/`` (:mod:`bodebench.io.samples`). Each is fed
 to a fresh sampler in the batches the live sampler took, so that with the settings of the sweep the points come out
 bit for bit as they were measured. A rule that wants more periods than the record holds is capped where the record
-ends (status ``capped``).
+ends (status ``capped``). Periods that gaps in a bench record touch are discarded as live (the offline experiment's
+samples have none); a frequency of which too many were is left out, its reason in ``failed``.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from bodebench.core.autointegration import AnalysisSettings, Autointegrator
+from bodebench.core.autointegration import AnalysisSettings, Autointegrator, GapsError
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.io.config import AnalysisConfig, build_table
 from bodebench.io.results import SIDECAR_NAME, load_response
@@ -25,23 +26,27 @@ __all__ = ["Reanalysis", "reanalyse", "reanalyse_point"]
 
 @dataclass(frozen=True)
 class Reanalysis:
-    """The response analysed again (its configuration's [analysis] is the one used) and the frequencies whose
-    record ended before the rule stopped (Hz)."""
+    """The response analysed again (its configuration's [analysis] is the one used), the frequencies whose
+    record ended before the rule stopped (Hz), and those that failed for gaps in their samples (Hz, why)."""
 
     response: FrequencyResponse
     analysis: AnalysisConfig
     record_ended: tuple[float, ...]
+    failed: tuple[tuple[float, str], ...] = ()
 
 
 def reanalyse_point(samples: PointSamples, analysis: AnalysisSettings) -> tuple[list[ResponsePoint], bool]:
-    """The points of one frequency from its samples; True when the record ended before every series stopped."""
+    """The points of one frequency from its samples; True when the record ended before every series stopped.
+    ValueError saying why when too many of its periods had gaps."""
     sampler = Autointegrator(samples.frequency_hz, samples.amplitude, samples.channels, analysis, t0=samples.t0,
-                             reference=samples.reference or None)
+                             reference=samples.reference or None, check_gaps=samples.source != "offline")
     for t, y in samples.batches:
         if sampler.done:
             break
         with np.errstate(all="ignore"):  # as live: garbage that got this far shows in the verdict
             sampler.feed(t, y)
+    if sampler.failure:
+        raise GapsError(sampler.failure)
     ended = not sampler.done
     if ended:
         sampler.end_of_record()
@@ -61,9 +66,15 @@ def reanalyse(directory: str | Path, **overrides: Any) -> Reanalysis:
     config = {**stored.config, "analysis": {**stored.config.get("analysis", {}), **overrides}}
     points: list[ResponsePoint] = []
     ended: list[float] = []
+    failed: list[tuple[float, str]] = []
     for f in dict.fromkeys(p.frequency_hz for p in stored.points):
-        found, short = reanalyse_point(load_samples(samples_path(directory, f)), analysis)
+        try:
+            found, short = reanalyse_point(load_samples(samples_path(directory, f)), analysis)
+        except GapsError as exc:
+            failed.append((f, str(exc)))
+            continue
         points.extend(found)
         if short:
             ended.append(f)
-    return Reanalysis(FrequencyResponse(points, config=config, case=stored.case), analysis, tuple(ended))
+    return Reanalysis(FrequencyResponse(points, config=config, case=stored.case), analysis, tuple(ended),
+                      tuple(failed))

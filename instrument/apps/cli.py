@@ -93,10 +93,15 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
         unconverged = [p for p in outcome.response.points if not p.converged]
         rt = f", round trip {result.round_trip_s * 1e6:.0f} us" if result.round_trip_s == result.round_trip_s else ""
         drive = session.ended.drive_state() if session.ended is not None else ""
-        refused = (f", {len(session.refused)} frequencies refused as not physical (not written; --resume "
-                   "measures them again)" if session.refused else "")
+        refused = (f", {len(session.refused)} frequencies refused (not written; --resume measures them again)"
+                   if session.refused else "")
         print(f"{outcome.case.name}: {len(outcome.response.points)} points, {len(unconverged)} not "
               f"converged{refused}{rt} -> {outcome.directory}/response.csv{_also(outcome.files)}; {drive}")
+        if result.periods_discarded:
+            print(f"  {result.periods_discarded} periods discarded for gaps in the feedback (column "
+                  "periods_discarded)")
+        if result.log_failure:
+            print(f"  bus log failed, the sweep went on without it: {result.log_failure}")
         _print_summary(outcome.summary)
         if session.refused:
             status = 1
@@ -369,7 +374,12 @@ def _analyse(args: argparse.Namespace) -> int:
         return 2
     stored = load_response(directory)
     response, analysis = result.response, result.analysis
-    same = sum(1 for a, b in zip(stored.points, response.points, strict=True) if _same_point(a, b))
+    if result.failed:  # frequencies left out: the others compared point by point
+        again = {(p.frequency_hz, p.harmonic, p.channel): p for p in response.points}
+        same = sum(1 for a in stored.points if (b := again.get((a.frequency_hz, a.harmonic, a.channel))) is not None
+                   and _same_point(a, b))
+    else:
+        same = sum(1 for a, b in zip(stored.points, response.points, strict=True) if _same_point(a, b))
     print(f"{directory}: {len(response)} points from their samples, criterion {analysis.criterion}, tolerance "
           f"{analysis.tolerance_percent:g} %; {same} identical to the stored points")
     if not args.quiet:
@@ -377,6 +387,8 @@ def _analyse(args: argparse.Namespace) -> int:
         for p in response.points:
             print(f"{p.frequency_hz:10g} {p.harmonic:2d} {p.channel:<14} {p.gain_db:11.5f} {p.phase_deg:10.4f} "
                   f"{p.periods:7d}  {p.status}")
+    for f, why in result.failed:
+        print(f"{f:g} Hz left out, too many periods with gaps: {why}")
     if result.record_ended:
         print(f"the record ended before the rule stopped at {len(result.record_ended)} frequencies (capped there): "
               + ", ".join(f"{f:g}" for f in result.record_ended) + " Hz")

@@ -52,8 +52,9 @@ class ProgressPrinter:
             now = time.monotonic()
             if now - self._last >= self.refresh_s:
                 self._last = now
+                gaps = f" ({event.discarded} discarded for gaps)" if event.discarded else ""
                 self._line(f"{self.label}: {self.done}/{self.total} done, {event.frequency_hz:g} Hz, "
-                           f"period {event.periods}, ETA {self._eta()}{self._bus}", False)
+                           f"period {event.periods}{gaps}, ETA {self._eta()}{self._bus}", False)
         elif isinstance(event, PointFinished):
             self.done += 1
             if event.refused:
@@ -64,8 +65,10 @@ class ProgressPrinter:
             else:
                 worst = max(p.periods for p in event.points)
                 state = "converged" if all(p.converged for p in event.points) else "NOT converged"
-                self._line(f"{self.label}: {self.done}/{self.total} {self._freq:g} Hz {state} in {worst} periods, "
-                           f"ETA {self._eta()}", True)
+                discarded = max(p.periods_discarded for p in event.points)
+                gaps = f" (+{discarded} discarded for gaps in the feedback)" if discarded else ""
+                self._line(f"{self.label}: {self.done}/{self.total} {self._freq:g} Hz {state} in {worst} periods"
+                           f"{gaps}, ETA {self._eta()}", True)
         elif isinstance(event, BusStatus):
             h = event.health.bus
             rejected = " ".join(f"{cause} {n}" for cause, n in h.rejected.items() if n)

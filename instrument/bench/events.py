@@ -39,19 +39,22 @@ class PointStarted:
 
 @dataclass(frozen=True)
 class PointProgress:
-    """The current point after the latest batch of periods; ``scope``: recent (t, setpoint, output) samples."""
+    """The current point after the latest batch of periods; ``scope``: recent (t, setpoint, output) samples;
+    ``discarded``: periods not integrated so far for gaps in the feedback (``periods`` counts the whole ones)."""
 
     index: int
     frequency_hz: float
     periods: int
     states: tuple[SeriesState, ...]
     scope: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    discarded: int = 0
 
 
 @dataclass(frozen=True)
 class PointFinished:
     """A point done: its ``points`` (one per channel and harmonic) on disk; ``skipped`` by the user, or
-    ``refused`` (the reason: not a physical response, nothing written)."""
+    ``refused`` (the reason: not a physical response, or too many periods with gaps in the feedback; nothing
+    written)."""
 
     index: int
     points: tuple[ResponsePoint, ...]

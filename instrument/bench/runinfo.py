@@ -68,7 +68,8 @@ def run_record(case: CaseConfig, clock: RunClock, *, direct: bool, points: int, 
                result: SessionResult | None, completed: bool, reason: str = "") -> dict[str, Any]:
     """The record of one run: start, end and duration (s), software, host, link, points in the directory at its
     end, whether it resumed an earlier run, how it ended, and for a bench run the bus counters, the round trip
-    (s) and the pacing statistics (s) at its end."""
+    (s), the pacing statistics (s) at its end, the sample counters (with the periods discarded for gaps in the
+    feedback) and, when the bus log stopped recording early, why (``bus_log_failure``)."""
     ended = datetime.now(UTC)
     record: dict[str, Any] = {
         "started": clock.started.isoformat(timespec="milliseconds"),
@@ -89,5 +90,8 @@ def run_record(case: CaseConfig, clock: RunClock, *, direct: bool, points: int, 
         record["round_trip_s"] = json_safe(health.round_trip_s)
         record["pacing"] = json_safe(health.pacing) if health.pacing is not None else "lockstep clock (no pacing)"
         record["samples"] = {"time_conflicts": health.time_conflicts, "invalid": health.invalid_samples,
-                             "missed_replies": health.missed_replies, "counter_anomalies": health.counter_anomalies}
+                             "missed_replies": health.missed_replies, "counter_anomalies": health.counter_anomalies,
+                             "periods_discarded": result.periods_discarded}
+    if result is not None and result.log_failure:
+        record["bus_log_failure"] = result.log_failure
     return record

@@ -63,6 +63,10 @@ class SessionResult:
     disabled: bool
     round_trip_s: float = math.nan
     health: Health | None = None
+    periods_discarded: int = 0
+    """Periods of the sweep's points not integrated for gaps in the feedback (refused points' included)."""
+    log_failure: str = ""
+    """Why the bus log stopped recording before the sweep ended ("" when it did not, or there was none)."""
 
 
 @dataclass
@@ -100,6 +104,7 @@ class BenchSession:
         self.last_health: Health | None = None
         self.ended: SessionEnded | None = None
         self.refused: list[tuple[float, str]] = []  # (frequency, reason) of points not written
+        self.periods_discarded = 0  # periods not integrated for gaps in the feedback, all points so far
         self.last_samples: PointSamples | None = None
         """The samples of the frequency measured last (saved in ``samples/`` when there is a results directory)."""
         self._writer: ResultsWriter | None = None
@@ -192,7 +197,8 @@ class BenchSession:
             self.listener(self.ended)
         rt = self.last_health.round_trip_s if self.last_health else math.nan
         return SessionResult(self.response, completed, reason, stopped.last_setpoint if stopped else math.nan,
-                             stopped.disabled if stopped else False, rt, self.last_health)
+                             stopped.disabled if stopped else False, rt, self.last_health, self.periods_discarded,
+                             stopped.log_failure if stopped else "")
 
     def _shutdown(self, reason: str, abort: bool) -> Stopped | None:
         try:
@@ -324,7 +330,13 @@ class BenchSession:
                 sampler.feed(t, values)
             if bench.clock == "lockstep" and not sampler.done:
                 self._conn.send(Credit(message.last_tick + ticks_per_period))
-            self.listener(PointProgress(index, f, sampler.periods, tuple(sampler.states()), _scope(scope, f)))
+            self.listener(PointProgress(index, f, sampler.periods, tuple(sampler.states()), _scope(scope, f),
+                                        discarded=sampler.discarded))
+        self.periods_discarded += sampler.discarded
+        if sampler.failure:  # too many periods with gaps in the feedback: no measurement
+            self.refused.append((f, sampler.failure))
+            self.listener(PointFinished(index, (), skipped=True, refused=sampler.failure))
+            return
         try:
             with np.errstate(all="ignore"):
                 points = sampler.points()

@@ -130,7 +130,8 @@ class Stopped:
     """The worker's last message: the last setpoint that went out, whether a zero setpoint went out after every
     other (``zero_sent``), whether the disable frame went out (a CANopen drive: whether it was seen disabled), how
     many frames reached the bus at all, and what the driver did to take the drive out of operation beyond the
-    disable frame (``shutdown``, in words; empty for the frame layouts)."""
+    disable frame (``shutdown``, in words; empty for the frame layouts), and why the bus log stopped recording
+    before the end (``log_failure``; "" when it did not, or there was none)."""
 
     reason: str
     last_setpoint: float
@@ -138,6 +139,7 @@ class Stopped:
     zero_sent: bool = False
     frames_out: int = 0
     shutdown: str = ""
+    log_failure: str = ""
 
 
 # --------------------------------------------------------------------------------------------------- configuration
@@ -639,7 +641,14 @@ class BusWorker:
                 pass
             frames_out = self.driver.port.frames_out if self.driver is not None else 0
             shutdown = self.driver.shutdown_account if self.driver is not None else ""
-            self._report(Stopped(reason, self.last_sent, disabled, zero_sent, frames_out, shutdown))
+            log_failure = ""
+            if self.driver is not None:  # the log is complete with the zero setpoint and the disable frame
+                try:
+                    self.driver.port.end_log()
+                except Exception:  # noqa: BLE001 - a log's end never stands in the way of the report
+                    pass
+                log_failure = self.driver.port.log_failure
+            self._report(Stopped(reason, self.last_sent, disabled, zero_sent, frames_out, shutdown, log_failure))
             self._close()
 
     def _report(self, message: object) -> None:

@@ -3,6 +3,12 @@
 Joins the per-period integrator (``bodebench.core.fourier``) with a stopping rule
 per series (one series = one channel x one harmonic). Pure numerics: the
 caller brings timestamped samples from a simulation or a bus.
+
+Gaps in the stream: a period that holds part of an interval between two samples longer than ``max_gap_cycles``
+cycles of the highest harmonic integrated is not integrated but discarded (counted in ``discarded``); the rules see
+the whole periods only, numbered 1, 2, ... in the order they came. A point of which more than
+``max_discarded_percent`` of the periods were discarded fails (``failure`` says why), judged when the rules have
+stopped and at every period once the periods spanned reach ``max_periods``.
 """
 
 from __future__ import annotations
@@ -40,6 +46,14 @@ class AnalysisSettings(Protocol):
     def average_periods(self) -> int: ...
     @property
     def max_periods(self) -> int: ...
+    @property
+    def max_gap_cycles(self) -> float: ...
+    @property
+    def max_discarded_percent(self) -> float: ...
+
+class GapsError(ValueError):
+    """A point of which too many periods were discarded for gaps in its samples; the message says how many."""
+
 
 _FEW_PERIODS = 4  # periods up to which feed() works on Python scalars (cheaper than numpy's per-call cost)
 
@@ -73,10 +87,17 @@ class Autointegrator:
     ``Z_r``: ``Z_k * A_i * (conj(Z_r)/|Z_r|)**k / |Z_r|``, so gain and phase
     are output over input whatever delay or amplitude error the path to the
     drive added, and the rules judge that ratio.
+
+    check_gaps: discard the periods gaps in the samples touch (samples of a computation, on a uniform grid of the
+    step chosen, have none: False takes every period).
+
+    periods: whole periods integrated; discarded: periods a gap in the samples touched, up to the period at which
+    the rules stopped (see the module docstring); failure: why the point is not a measurement ("" while it is).
     """
 
     def __init__(self, frequency_hz: float, amplitude: float, channels: Sequence[str],
-                 analysis: AnalysisSettings, t0: float = 0.0, reference: str | None = None) -> None:
+                 analysis: AnalysisSettings, t0: float = 0.0, reference: str | None = None,
+                 check_gaps: bool = True) -> None:
         self.frequency_hz = frequency_hz
         self.amplitude = amplitude
         self.channels = tuple(channels)
@@ -86,8 +107,11 @@ class Autointegrator:
         self.reference = reference
         harmonics = self.harmonics if reference is None or 1 in self.harmonics else (*self.harmonics, 1)
         self._ref_index = harmonics.index(1) if reference is not None else -1
+        self.max_gap_periods = analysis.max_gap_cycles / max(harmonics)
+        """Longest interval between two samples a whole period may contain, in periods of f."""
+        self.max_discarded_percent = analysis.max_discarded_percent
         self._integrator = PeriodIntegrator(frequency_hz, harmonics, len(self.channels) + (reference is not None),
-                                            t0)
+                                            t0, max_gap=self.max_gap_periods if check_gaps else math.inf)
         self._histories = [[SeriesHistory() for _ in self.harmonics] for _ in self.channels]
         self._rules: list[list[StoppingRule]] = [
             [make_rule(analysis.criterion, tolerance_percent=analysis.tolerance_percent,
@@ -98,6 +122,8 @@ class Autointegrator:
         self._verdicts: list[list[Verdict | None]] = [[None] * len(self.harmonics) for _ in self.channels]
         self._pending = len(self.channels) * len(self.harmonics)  # series still without a verdict
         self.periods = 0
+        self.discarded = 0
+        self.failure = ""
         # the first harmonic (else the first listed) leads: the others are judged only once it has settled,
         # so a small harmonic cannot stop on the calm before the transient of its channel has died out
         self._primary = self.harmonics.index(1) if 1 in self.harmonics else 0
@@ -106,16 +132,57 @@ class Autointegrator:
 
     @property
     def done(self) -> bool:
-        """True once every series has a verdict."""
-        return self._pending == 0
+        """True once every series has a verdict, or the point has failed."""
+        return self._pending == 0 or bool(self.failure)
+
+    def _judge_gaps(self, whole: int) -> None:
+        """Fail the point when more than ``max_discarded_percent`` of the periods spanned were discarded."""
+        spanned = whole + self.discarded
+        if spanned and 100.0 * self.discarded > self.max_discarded_percent * spanned:
+            self.failure = (
+                f"{self.frequency_hz:g} Hz: {self.discarded} of {spanned} periods discarded for gaps in the samples "
+                f"longer than {self.max_gap_periods / self.frequency_hz * 1e3:.3g} ms ({self.max_gap_periods:.3g} "
+                f"of a period), more than max_discarded_percent = {self.max_discarded_percent:g} %")
 
     def feed(self, t: np.ndarray, y: np.ndarray) -> int:
-        """Take samples (t in s, increasing; y shaped (n, channels)); returns the periods completed."""
-        p, q = self._integrator.feed(t, y)
+        """Take samples (t in s, increasing; y shaped (n, channels)); returns the whole periods completed."""
+        p, q, whole = self._integrator.feed_marked(t, y)
+        if not whole.all():
+            if self.done:
+                p, q = p[whole], q[whole]
+            else:
+                return self._feed_with_gaps(p, q, whole)
         m = p.shape[0]
         if m == 0 or self.done:
             self.periods += m
             return m
+        self._integrate(p, q)
+        return m
+
+    def _feed_with_gaps(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> int:
+        """Periods some of which a gap touched: each run of whole periods integrated, each discarded one counted
+        (until the rules stop) and judged."""
+        m = int(whole.sum())
+        edges = np.flatnonzero(np.diff(whole.astype(np.int8))) + 1
+        for run in np.split(np.arange(whole.size), edges):
+            if self.done:
+                if whole[run[0]]:
+                    self.periods += run.size
+                continue
+            if whole[run[0]]:
+                self._integrate(p[run], q[run])
+            else:
+                for _ in run:
+                    self.discarded += 1
+                    if self.periods + self.discarded >= self.max_periods:
+                        self._judge_gaps(self.periods)
+                    if self.failure:
+                        break
+        return m
+
+    def _integrate(self, p: np.ndarray, q: np.ndarray) -> None:
+        """Whole periods' coefficients (m, channel, harmonic) into the histories and the rules."""
+        m = p.shape[0]
         z = p + 1j * q  # (m, channel, harmonic)
         if self.reference is not None:
             z_ref = z[:, -1, self._ref_index]
@@ -152,10 +219,11 @@ class Autointegrator:
                     if verdict is not None:
                         verdicts[k] = verdict
                         self._pending -= 1
-            if self._pending == 0:
+            if self.discarded and (self._pending == 0 or n + self.discarded >= max_periods):
+                self._judge_gaps(n)
+            if self.done:
                 break
         self.periods += m
-        return m
 
     def end_of_record(self) -> None:
         """The samples ended before every series had a verdict (a record analysed again with a rule that wants more
@@ -191,9 +259,11 @@ class Autointegrator:
         return self._histories[self.channels.index(channel)][self.harmonics.index(harmonic)].values
 
     def points(self) -> list[ResponsePoint]:
-        """The measured points, one per series (requires ``done``)."""
+        """The measured points, one per series (requires ``done``); ValueError saying why for a failed point."""
         if not self.done:
             raise RuntimeError("Autointegrator.points() before every series has a verdict")
+        if self.failure:
+            raise GapsError(self.failure)
         pts = []
         for c, name in enumerate(self.channels):
             verdicts = self._verdicts[c]
@@ -213,7 +283,7 @@ class Autointegrator:
                                          amplitude=self.amplitude, p=v.p, q=v.q, periods=v.period,
                                          converged=v.converged, status=v.status, uncertainty=v.uncertainty,
                                          uncertainty_1d=v.uncertainty_1d, within_eps=v.within_eps,
-                                         periods_needed=v.periods_needed,
+                                         periods_needed=v.periods_needed, periods_discarded=self.discarded,
                                          thd=thd if harmonic == 1 else math.nan,
                                          coherence=coherence(self._histories[c][k].values[start:stop])))
         return pts

@@ -10,6 +10,10 @@ where the integral is the trapezoidal rule applied to the product of signal and 
 Period i (i = 1, 2, ...) spans [t0 + (i - 1)/f, t0 + i/f] seconds. Period edges that fall between two
 samples get a virtual sample, linearly interpolated between its neighbours, so that every period's
 integral covers exactly its own interval. Results do not depend on how the stream is split into chunks.
+
+With ``max_gap`` (periods), :meth:`PeriodIntegrator.feed_marked` also tells which periods are whole: a period is
+not whole when any part of it lies between two samples further apart than ``max_gap`` (a gap in the stream that
+the trapezoidal rule would bridge by a straight line).
 """
 
 from __future__ import annotations
@@ -34,9 +38,11 @@ class PeriodIntegrator:
         n_channels: number of signal channels.
         t0: start of period 1 in seconds; the reference functions have zero phase at t0.
         periods_done: number of complete periods emitted so far.
+        max_gap: longest interval between two samples a whole period may contain, in periods (inf: any).
     """
 
-    def __init__(self, frequency_hz: float, harmonics: Sequence[int], n_channels: int, t0: float = 0.0) -> None:
+    def __init__(self, frequency_hz: float, harmonics: Sequence[int], n_channels: int, t0: float = 0.0,
+                 max_gap: float = math.inf) -> None:
         freq = float(frequency_hz)
         if not math.isfinite(freq) or freq <= 0.0:
             raise ValueError(f"frequency_hz must be a finite positive number of Hz, got {frequency_hz!r}")
@@ -52,12 +58,16 @@ class PeriodIntegrator:
         start = float(t0)
         if not math.isfinite(start):
             raise ValueError(f"t0 must be a finite number of seconds, got {t0!r}")
+        gap = float(max_gap)
+        if not gap > 0.0:
+            raise ValueError(f"max_gap must be a positive number of periods, got {max_gap!r}")
 
         self.frequency_hz: float = freq
         self.harmonics: tuple[int, ...] = tuple(int(k) for k in harmonics)
         self.n_channels: int = int(n_channels)
         self.t0: float = start
         self.periods_done: int = 0
+        self.max_gap: float = gap
 
         self._k: np.ndarray = np.asarray(self.harmonics, dtype=np.float64)
         n_h = len(self.harmonics)
@@ -71,6 +81,7 @@ class PeriodIntegrator:
         self._wc_last: np.ndarray = np.empty((self.n_channels, n_h, 1))
         self._acc_p: np.ndarray = np.zeros((self.n_channels, n_h))
         self._acc_q: np.ndarray = np.zeros((self.n_channels, n_h))
+        self._gap_open: bool = False  # the period in progress holds part of a gap longer than max_gap
 
     # ------------------------------------------------------------------ input checks
 
@@ -116,9 +127,9 @@ class PeriodIntegrator:
                 )
         return t_arr, y_arr
 
-    def _empty(self) -> tuple[np.ndarray, np.ndarray]:
+    def _empty_marked(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         shape = (0, self.n_channels, len(self.harmonics))
-        return np.zeros(shape), np.zeros(shape)
+        return np.zeros(shape), np.zeros(shape), np.zeros(0, dtype=bool)
 
     # ------------------------------------------------------------------ streaming
 
@@ -139,9 +150,15 @@ class PeriodIntegrator:
             ValueError: t not 1-D, not finite or not strictly increasing (the offending index is named),
                 y of the wrong shape or not finite, or a first sample later than t0.
         """
+        p, q, _ = self.feed_marked(t, y)
+        return p, q
+
+    def feed_marked(self, t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`feed`, and with it a (m,) boolean array: True for each period completed that is whole (no part of
+        it between two samples further apart than ``max_gap``), False for one a gap touched."""
         t_arr, y_arr = self._check(t, y)
         if t_arr.shape[0] == 0:
-            return self._empty()
+            return self._empty_marked()
 
         f = self.frequency_hz
         u_new = (t_arr - self.t0) * f  # time since t0 in periods
@@ -179,7 +196,7 @@ class PeriodIntegrator:
         n_pts = tt.shape[0]
         if n_pts < 2:
             self._acc_p, self._acc_q = acc_p, acc_q
-            return self._empty()
+            return self._empty_marked()
 
         du = np.diff(tt) * f  # segment lengths in periods
         n_cross = np.diff(pp)  # period edges crossed by each segment
@@ -189,7 +206,8 @@ class PeriodIntegrator:
             # Whole chunk inside the current period: one trapezoid sum, no output.
             self._acc_p = acc_p + ((ws[..., :-1] + ws[..., 1:]) * du).sum(axis=-1)
             self._acc_q = acc_q + ((wc[..., :-1] + wc[..., 1:]) * du).sum(axis=-1)
-            return self._empty()
+            self._gap_open = self._gap_open or bool(np.any(du > self.max_gap))
+            return self._empty_marked()
 
         sums_p, sums_q, first_period = self._integrate_with_edges(uu, pp, yy, ws, wc, du, n_cross)
         sums_p[0] += acc_p
@@ -201,8 +219,27 @@ class PeriodIntegrator:
         skip = max(0, -first_period)  # rows of periods before period 1
         out_p = sums_p[skip:-1]
         out_q = sums_q[skip:-1]
+        touched = self._touched_by_gaps(uu, pp, du, first_period, sums_p.shape[0])
         self.periods_done += out_p.shape[0]
-        return out_p, out_q
+        return out_p, out_q, ~touched[skip:-1]
+
+    def _touched_by_gaps(self, uu: np.ndarray, pp: np.ndarray, du: np.ndarray, first: int, rows: int
+                         ) -> np.ndarray:
+        """(rows,) True for each period (row 0: period ``first``) that some part of a segment longer than
+        ``max_gap`` lies in; the last row's flag is carried to the next call (its period is still in progress)."""
+        touched = np.zeros(rows, dtype=bool)
+        gaps = np.flatnonzero(du > self.max_gap)
+        if gaps.size:
+            lo = pp[gaps]
+            # a segment ending exactly on an edge has nothing in the period that edge opens
+            hi = np.maximum(lo, pp[gaps + 1] - (uu[gaps + 1] == pp[gaps + 1]))
+            marks = np.zeros(rows + 1, dtype=np.int64)
+            np.add.at(marks, lo - first, 1)
+            np.add.at(marks, hi - first + 1, -1)
+            touched = np.cumsum(marks[:-1]) > 0
+        touched[0] |= self._gap_open
+        self._gap_open = bool(touched[-1])
+        return touched
 
     def _integrate_with_edges(
         self,

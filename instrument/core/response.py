@@ -66,7 +66,8 @@ class ResponsePoint:
     distortion of the channel's output from the harmonics measured (dimensionless; NaN: none measured, or not a
     harmonic-1 point), ``coherence`` the series' coherence with the excitation over its later analysed periods
     (dimensionless, 0 to 1; NaN: not stated), both defined in :mod:`bodebench.core.quality` and left out of
-    comparisons between points (NaN, their usual value where not stated, equals nothing).
+    comparisons between points (NaN, their usual value where not stated, equals nothing), ``periods_discarded``
+    the periods not integrated because a gap in the samples touched them (not among ``periods``).
     ``p`` and ``q`` may be NaN (e.g. a failed point) but not infinite.
     """
 
@@ -85,6 +86,7 @@ class ResponsePoint:
     periods_needed: int = 0
     thd: float = field(default=math.nan, compare=False)
     coherence: float = field(default=math.nan, compare=False)
+    periods_discarded: int = 0
 
     def __post_init__(self) -> None:
         def set_(name: str, value: object) -> None:
@@ -114,6 +116,9 @@ class ResponsePoint:
         if not _is_int(self.periods_needed) or self.periods_needed < 0:
             raise ValueError(f"periods_needed must be an integer >= 0, got {self.periods_needed!r}")
         set_("periods_needed", int(self.periods_needed))
+        if not _is_int(self.periods_discarded) or self.periods_discarded < 0:
+            raise ValueError(f"periods_discarded must be an integer >= 0, got {self.periods_discarded!r}")
+        set_("periods_discarded", int(self.periods_discarded))
         if not _is_int(self.harmonic) or self.harmonic < 1:
             raise ValueError(f"harmonic must be an integer >= 1, got {self.harmonic!r}")
         set_("harmonic", int(self.harmonic))

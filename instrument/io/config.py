@@ -365,6 +365,12 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
             raise _Fault(at, f"{f:g} Hz: harmonic {top} needs at least {MIN_SAMPLES_PER_PERIOD} samples a "
                                  f"period at bench.rate_hz = {bench.rate_hz:g} (at most "
                                  f"{bench.rate_hz / (MIN_SAMPLES_PER_PERIOD * top):g} Hz)")
+        gap_cycles = tables["analysis"].max_gap_cycles
+        if top * f / bench.rate_hz >= gap_cycles:
+            raise _Fault(key("analysis", "max_gap_cycles"),
+                         f"{gap_cycles:g}: at {f:g} Hz one sample interval at bench.rate_hz = {bench.rate_hz:g} is "
+                         f"already {top * f / bench.rate_hz:g} cycles of harmonic {top}: every period would be "
+                         "discarded")
         if safety.max_rate is not None and 2 * math.pi * f * amplitude > safety.max_rate:
             raise _Fault(at, f"{f:g} Hz: the sine's slew 2*pi*f*A = {2 * math.pi * f * amplitude:g} exceeds "
                                  f"safety.max_rate ({safety.max_rate:g})")

@@ -42,6 +42,8 @@ COLUMN_DOCS: dict[str, str] = {
            "harmonics measured, a ratio (nan: none measured, or another harmonic's row)",
     "coherence": "|mean Z_i|^2 / mean |Z_i|^2 over the later half of the analysed periods: the share of the "
                  "output's power at k f locked to the excitation, 0 to 1",
+    "periods_discarded": "periods not integrated because a gap in the samples, longer than max_gap_cycles of the "
+                         "highest harmonic, touched them (not among periods)",
 }
 
 

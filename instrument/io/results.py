@@ -43,7 +43,7 @@ __all__ = [
 CSV_NAME = "response.csv"
 SIDECAR_NAME = "response.json"
 FORMAT_NAME = "bodebench-response"
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 
 #: Columns of response.csv, in file order.
 CSV_COLUMNS: tuple[str, ...] = (
@@ -68,11 +68,13 @@ CSV_COLUMNS: tuple[str, ...] = (
     "periods_needed",
     "thd",
     "coherence",
+    "periods_discarded",
 )
-#: Columns of a version-1 and a version-2 response.csv (read; the added columns take their defaults).
+#: Columns of a version-1, -2 and -3 response.csv (read; the added columns take their defaults).
 _CSV_COLUMNS_V1 = CSV_COLUMNS[:16]
 _CSV_COLUMNS_V2 = CSV_COLUMNS[:19]
-_OLDER_COLUMNS = (_CSV_COLUMNS_V1, _CSV_COLUMNS_V2)
+_CSV_COLUMNS_V3 = CSV_COLUMNS[:21]
+_OLDER_COLUMNS = (_CSV_COLUMNS_V1, _CSV_COLUMNS_V2, _CSV_COLUMNS_V3)
 _DERIVED_COLUMNS: tuple[str, ...] = ("gain", "gain_db", "phase_deg", "gain_ci", "gain_db_ci", "phase_ci_deg")
 _DERIVED_RTOL = 1e-9
 _DEFAULT_STYLE = CsvStyle()
@@ -186,6 +188,7 @@ def _point_row(point: ResponsePoint, style: CsvStyle = _DEFAULT_STYLE) -> str:
         "periods_needed": str(point.periods_needed),
         "thd": num(point.thd),
         "coherence": num(point.coherence),
+        "periods_discarded": str(point.periods_discarded),
     }
     for name in _DERIVED_COLUMNS:
         values[name] = num(getattr(point, name))
@@ -315,6 +318,7 @@ def _parse_row(path: Path, lineno: int, row: dict[str, str], decimal_comma: bool
             periods_needed=integer("periods_needed") if "periods_needed" in row else 0,
             thd=number("thd") if "thd" in row else math.nan,
             coherence=number("coherence") if "coherence" in row else math.nan,
+            periods_discarded=integer("periods_discarded") if "periods_discarded" in row else 0,
         )
     except ResultsError:
         raise

@@ -339,6 +339,13 @@ class AnalysisConfig:
     average_periods: int = field(
         default=50, metadata={"min": 1, "doc": 'periods averaged (criterion "fixed" only)'}
     )
+    max_gap_cycles: float = field(default=0.25, metadata={
+        "min": 0, "min_exclusive": True, "max": 1,
+        "doc": "longest interval between two samples a period may contain, in cycles of the highest harmonic "
+               "measured; a period with a longer gap is discarded, not integrated"})
+    max_discarded_percent: float = field(default=50.0, metadata={
+        "min": 0, "max": 100, "max_exclusive": True,
+        "doc": "a point fails when more than this share of its periods was discarded for gaps, percent"})
     response: str | None = field(default=None, metadata={
         "choices": RESPONSE_KINDS,
         "doc": "what the measured response is, for its summary: system (default), closed_loop, or open_loop "
