@@ -19,6 +19,7 @@ from bodebench.bench.procedure import SweepProcedure
 from bodebench.drivers.ports import ByteLog
 from bodebench.drivers.serial_framing import BinaryDeframer
 from bodebench.io.config import ConfigError, load_config, parse_config
+from bodebench.io.results import load_response
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -140,7 +141,8 @@ def test_can_fd_frames_on_the_virtual_bus(tmp_path: Path) -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("suffix", [".asc", ".blf", ".log"])  # .csv holds no direction
 def test_the_bus_log_holds_the_sessions_traffic(tmp_path: Path, suffix: str) -> None:
-    channel = f"log-{uuid.uuid4().hex[:8]}"
+    # python-can reads a channel number off a name's trailing digits: here one too big for BLF's 16-bit field
+    channel = f"log-{uuid.uuid4().hex[:8]}-{70000 + uuid.uuid4().int % 10000}"
     raw = load_config(ROOT / "configs" / "sim_can.toml")
     data = json.loads(json.dumps(raw.cases[0].raw))
     data["can"] = {"interface": "virtual", "channel": channel}
@@ -177,6 +179,71 @@ def test_the_bus_log_holds_the_sessions_traffic(tmp_path: Path, suffix: str) -> 
         stamps = [m.timestamp for m in direction]
         late = [i for i in range(1, len(stamps)) if stamps[i] < stamps[i - 1]]
         assert not late, f"{len(late)} stamps out of order, first at {late[0]}: {stamps[late[0] - 1:late[0] + 1]}"
+
+
+@pytest.mark.parametrize("number, logged", [("-12", 12), ("-65534", 65534), ("-65535", 0), ("-1234567", 0),
+                                            ("-rig", 0)])
+def test_a_blf_log_takes_any_channel_name(tmp_path: Path, number: str, logged: int) -> None:
+    """BLF keeps channel + 1 in 16 bits, the channel python-can reads off a name's trailing digits: a channel whose
+    number does not fit is logged as the writer's default (python-can reads that, channel 1, back as 0)."""
+    from bodebench.drivers.ports import CanPort, Frame
+
+    name = f"blf{uuid.uuid4().hex[:8]}x{number}"
+    peer = can.Bus(interface="virtual", channel=name)
+    port = CanPort(can.Bus(interface="virtual", channel=name), log=tmp_path / "bus.blf")
+    port.send(Frame(0x201, b"\x01\x02", False, 0.0))
+    peer.send(can.Message(arbitration_id=0x181, data=b"\x03", is_extended_id=False))
+    assert [f.id for f in port.recv(1.0)] == [0x181]
+    port.close()
+    peer.shutdown()
+    assert not port.log_failure
+    read = list(can.LogReader(tmp_path / "bus.blf"))
+    assert [(m.arbitration_id, m.is_rx, m.channel) for m in read] == [(0x201, False, logged), (0x181, True, logged)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("suffix", [".asc", ".blf"])
+def test_a_bus_log_that_cannot_be_written_leaves_the_sweep_going(tmp_path: Path, suffix: str,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """The log is a record, not the measurement: on a full disk (the log file on /dev/full) it stops recording
+    and the sweep goes on to its end; the failure is stated once in the output and in the run's record."""
+    from bodebench.apps.cli import main
+
+    channel = f"full-{uuid.uuid4().hex[:8]}"
+    raw = load_config(ROOT / "configs" / "sim_can.toml")
+    text = (ROOT / "configs" / "sim_can.toml").read_text()
+    text = text.replace('channel = "bodebench"', f'channel = "{channel}"')
+    text = text.replace("frequencies_hz = [2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 15, 20, 30, 50]",
+                        "frequencies_hz = [10, 20]")
+    text = text.replace("harmonics = [1, 3]", "harmonics = [1]").replace("tolerance_percent = 0.01",
+                                                                          "tolerance_percent = 0.1")
+    assert raw.cases[0].can is not None and text.count(channel) == 1
+    cfg = tmp_path / "full.toml"
+    cfg.write_text(text)
+    log = tmp_path / f"bus{suffix}"
+    log.symlink_to("/dev/full")
+    recorder = FrameRecorder(channel)
+    try:
+        status = main(["run", str(cfg), "--out", str(tmp_path / "out"), "--log-bus", str(log), "--plots", "none",
+                       "--quiet"])
+    finally:
+        frames = recorder.frames_seen()
+    out = capsys.readouterr().out
+    assert status == 0, out
+    failed = [line for line in out.splitlines() if "bus log failed" in line]
+    assert len(failed) == 1 and f"{log}: No space left on device" in failed[0], out
+    case_line = next(line for line in out.splitlines() if line.startswith("full: "))
+    assert case_line.startswith("full: 2 points, 0 not converged"), out
+    assert case_line.endswith("; drive left at setpoint 0, disabled"), out
+    # the drive's last setpoint on the bus was zero, the disable frame went out after it
+    layout = parse_config(json.loads(json.dumps(raw.cases[0].raw)), "sim_can.toml").cases[0].on_bench.layout
+    host = [m for m in frames if m.arbitration_id in (layout.setpoint.id, layout.disable.id)]
+    setpoints = [m for m in host if m.arbitration_id == layout.setpoint.id]
+    assert layout.setpoint.decode(bytes(setpoints[-1].data))["setpoint"] == 0.0
+    assert (host[-1].arbitration_id, bytes(host[-1].data)) == (layout.disable.id, bytes(layout.disable.data))
+    runs = json.loads((tmp_path / "out" / "response.json").read_text())["runs"]
+    assert runs[-1]["completed"] and runs[-1]["bus_log_failure"] in failed[0]
+    assert len(load_response(tmp_path / "out").points) == 2
 
 
 @pytest.mark.slow
