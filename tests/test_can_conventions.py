@@ -246,6 +246,14 @@ def test_a_bus_log_that_cannot_be_written_leaves_the_sweep_going(tmp_path: Path,
     assert len(load_response(tmp_path / "out").points) == 2
 
 
+def test_a_serial_byte_log_on_a_full_disk_stops_recording_and_says_why() -> None:
+    log = ByteLog("/dev/full")  # opens; every write fails, as on a full disk
+    log.write("TX", b"\x01\x02")
+    log.write("RX", b"\x03")
+    log.close()
+    assert log.failure.startswith("/dev/full: No space left on device; nothing logged after "), log.failure
+
+
 @pytest.mark.slow
 def test_a_serial_session_leaves_a_raw_byte_log(tmp_path: Path) -> None:
     config = load_config(ROOT / "configs" / "sim_serial.toml")
