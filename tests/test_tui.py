@@ -22,11 +22,12 @@ import numpy as np
 import pytest
 from helpers import BusRecorder
 from textual.widgets import Static
+from textual.widgets._footer import FooterKey
 
 from bodebench.apps.tui import BodeBenchApp
 from bodebench.apps.tui.braille import Axis, BrailleCanvas, HLine, PlotError, Trace, auto_axis, render_plot
 from bodebench.apps.tui.bridge import SessionBridge
-from bodebench.apps.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
+from bodebench.apps.tui.dialogs import ChoiceDialog, ConfirmDialog, InputDialog, MessageDialog
 from bodebench.apps.tui.model import (
     CONVERGED,
     FAILED,
@@ -43,12 +44,12 @@ from bodebench.apps.tui.model import (
     row_key,
 )
 from bodebench.apps.tui.widgets import PlotView, percent_cell
-from bodebench.bench.events import PointProgress
+from bodebench.bench.events import PointProgress, PointStarted
 from bodebench.core.autointegration import SeriesState
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.rules import Verdict
 from bodebench.io.config import ExperimentConfig, load_config
-from bodebench.io.results import load_response, save_response
+from bodebench.io.results import load_response, save_response, sidecar_runs
 
 ROOT = Path(__file__).resolve().parent.parent
 FREQS = (3.0, 8.0, 20.0)
@@ -301,11 +302,14 @@ class Gate:
         self.conditions = list(conditions)
         self.reached = threading.Event()
         self.release = threading.Event()
+        self.started: list[tuple[int, float]] = []  # (run, frequency) of every point started
         gate = self
 
         class GatedBridge(SessionBridge):
             def __call__(self, event: object) -> None:
                 super().__call__(event)
+                if isinstance(event, PointStarted):
+                    gate.started.append((self.run, event.frequency_hz))
                 if (gate.conditions and isinstance(event, PointProgress)
                         and event.frequency_hz == gate.conditions[0][0] and event.periods >= gate.conditions[0][1]):
                     gate.conditions.pop(0)
@@ -326,6 +330,11 @@ class Gate:
 
 def states(app: BodeBenchApp, frequency_hz: float) -> set[str]:
     return {r.state for r in app.model.rows.values() if r.frequency_hz == frequency_hz}
+
+
+def footer_keys(app: BodeBenchApp) -> set[str]:
+    """The keys the footer shows (it is on the first screen, under any dialog)."""
+    return {key.key for key in app.screen_stack[0].query(FooterKey)}
 
 
 def table_states(app: BodeBenchApp) -> list[str]:
@@ -447,6 +456,47 @@ async def test_abort_leaves_a_zero_setpoint_and_keeps_the_measured_points(tmp_pa
 
 @pytest.mark.slow
 @pytest.mark.asyncio
+async def test_resume_after_an_abort_measures_only_the_missing_frequencies(tmp_path: Path,
+                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    gate = Gate(monkeypatch, (8.0, 2))
+    config = write_bench_config(tmp_path, channel_name())
+    out = tmp_path / "out"
+    app = BodeBenchApp(config, out)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await pilot.pause(0.1)
+        assert footer_keys(app) == {"s", "t", "o", "q"}  # nothing measured: nothing to re-measure or save
+        await pilot.press("s")
+        await gate.wait(pilot, "8 Hz integrating")
+        assert footer_keys(app) == {"a", "p", "n", "r", "t", "w", "o", "q"}  # running, 3 Hz measured
+        await pilot.press("a")
+        gate.open()
+        await wait_for(pilot, lambda: finished(app), "the end of the aborted sweep")
+        assert app.state == "aborted"
+        assert app.exit_line == (f"bodebench: bench: stopped: aborted by the user; 2 points kept in {out}; "
+                                 "drive left at setpoint 0, disabled")
+        kept = load_response(out)
+        assert sorted(p.frequency_hz for p in kept.points) == [3.0, 3.0]
+        await pilot.press("s")
+        assert isinstance(app.screen, ChoiceDialog)
+        await pilot.pause(0.1)
+        assert "(1 of 3 frequencies measured)" in str(app.screen.query_one("#dialog-text").render())
+        await pilot.press("r")  # resume
+        await wait_for(pilot, lambda: app.control.run == 2 and finished(app), "the resumed sweep")
+        assert app.state == "done", app.worker_errors
+        assert table_states(app) == [CONVERGED] * 6  # the kept 3 Hz rows as well as the new ones
+        assert app.exit_line == ""
+    assert [f for run, f in gate.started if run == 1] == [3.0, 8.0]
+    assert [f for run, f in gate.started if run == 2] == [8.0, 20.0]  # only what the first run lacked
+    final = load_response(out)
+    assert sorted((p.frequency_hz, p.harmonic) for p in final.points) == [(f, k) for f in FREQS for k in (1, 3)]
+    assert [p for p in final.points if p.frequency_hz == 3.0] == list(kept.points)  # kept as they were
+    assert all(p.converged for p in final.points)
+    runs = sidecar_runs(out)
+    assert len(runs) == 2 and runs[1]["resumed"] is True
+
+
+@pytest.mark.slow
+@pytest.mark.asyncio
 async def test_tolerance_remeasure_after_the_sweep_save_and_overlay(tmp_path: Path) -> None:
     config = write_bench_config(tmp_path, channel_name(), freqs=(3.0, 20.0))
     out = tmp_path / "out"
@@ -518,6 +568,33 @@ async def test_quit_asks_while_a_sweep_runs_then_aborts_safely(tmp_path: Path,
         value, disabled = recorder.close()
     assert app.control.done.is_set()
     assert value == 0.0 and disabled
+
+
+@pytest.mark.asyncio
+async def test_q_in_the_quit_dialog_aborts_quits_and_says_so(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    gate = Gate(monkeypatch, (3.0, 1))
+    channel = channel_name()
+    recorder = BusRecorder(channel)
+    config = write_bench_config(tmp_path, channel)
+    app = BodeBenchApp(config, tmp_path / "out")
+    try:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("s")
+            await gate.wait(pilot, "3 Hz integrating")
+            await pilot.press("q")
+            assert isinstance(app.screen, ConfirmDialog)
+            await pilot.pause(0.1)
+            assert footer_keys(app) == {"a", "q"}  # under the question: abort, and quit (= yes)
+            await pilot.press("q")
+            gate.open()
+            await wait_for(pilot, lambda: not app.is_running, "the app to exit")
+    finally:
+        value, disabled = recorder.close()
+    assert app.control.done.is_set()
+    assert value == 0.0 and disabled
+    assert app.return_value == 1
+    assert app.exit_line == ("bodebench: bench: stopped: aborted by the user (quit); no point measured; "
+                             "drive left at setpoint 0, disabled")
 
 
 @pytest.mark.asyncio
@@ -594,10 +671,23 @@ def test_a_finished_sweep_is_loaded_from_its_results_directory(tmp_path: Path) -
                 phase = math.degrees(cmath.phase(1 / (1 + 1j * 2 * math.pi * f * LAG_TIME_CONSTANT_S)))
                 assert str(app.w_table.get_cell(row_key(i, 1, "position"), "gain")) == f"{gain_db:+.2f}"
                 assert str(app.w_table.get_cell(row_key(i, 1, "position"), "phase")) == f"{phase:.1f}"
+            assert footer_keys(app) == {"s", "r", "t", "w", "o", "q"}  # no sweep runs: nothing to abort or pause
             await pilot.press("s")  # a new sweep would replace these results: asked first
-            assert isinstance(app.screen, ConfirmDialog) and app.control is None
-            await pilot.press("n")
-            assert app.control is None and app.state == "loaded"
+            assert isinstance(app.screen, ChoiceDialog) and app.control is None
+            await pilot.pause(0.1)
+            text = str(app.screen.query_one("#dialog-text").render())
+            assert "made with another configuration" in text and "cannot be resumed" in text  # not this config's
+            assert footer_keys(app) == {"q"}  # under the dialog only q works
+            await pilot.press("r")  # no resume offered: nothing happens
+            assert isinstance(app.screen, ChoiceDialog) and app.control is None
+            await pilot.press("c")
+            assert app.control is None and app.state == "loaded" and not isinstance(app.screen, ChoiceDialog)
+            await pilot.pause(0.1)
+            assert footer_keys(app) == {"s", "r", "t", "w", "o", "q"}
+            await pilot.press("s")
+            await pilot.press("q")  # quits from the dialog: nothing runs
+            await wait_for(pilot, lambda: not app.is_running, "the app to exit")
+        assert app.return_value == 0 and app.control is None and app.exit_line == ""
 
     asyncio.run(check())
 

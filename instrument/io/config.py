@@ -483,9 +483,9 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>", overrides: S
     try:
         return _parse(data, source)
     except _Fault as fault:
-        override = names_override(fault.key, overrides, created)
-        if override is not None:
-            raise ConfigError(f"{source}: {override.option} {fault.key}: {fault.problem}", fault.key) from None
+        setter = names_override(fault.key, overrides, created)
+        if setter is not None:
+            raise ConfigError(f"{source}: {setter.option} {fault.key}: {fault.problem}", fault.key) from None
         raise _error(source, fault) from None
 
 
