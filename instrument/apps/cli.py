@@ -290,7 +290,7 @@ def _write_bench_copy(args: argparse.Namespace, reach: tuple[tuple[str, str], st
     drive (``reach``: key parts and value) and, on a CAN bus, without [simulator]; relative file names in it
     (frames.dbc, canopen.eds) made absolute when the copy goes to another directory. The copy is validated;
     raises ResultsError when it cannot be written."""
-    from bodebench.io.config import ConfigError, load_config, read_document
+    from bodebench.io.config import SIMULATED_DRIVE_EDS, ConfigError, load_config, read_document
     from bodebench.io.document import Override, OverrideError, apply_overrides, edited_copy
     from bodebench.io.results import ResultsError, atomic_write_text
 
@@ -312,6 +312,9 @@ def _write_bench_copy(args: argparse.Namespace, reach: tuple[tuple[str, str], st
     current = document.get(parts[0], {})
     if not isinstance(current, dict) or current.get(parts[1]) != value:
         overrides.append(Override(parts, value))
+    canopen = document.get("canopen")
+    if drop_simulator and isinstance(canopen, dict) and not canopen.get("eds"):
+        overrides.append(Override(("canopen", "eds"), str(SIMULATED_DRIVE_EDS)))  # the [simulator] brought it
     header = (f"written by bodebench sim-controller: {source}, {'.'.join(parts)} set to {value}, where it serves "
               "the simulated drive" + (" ([simulator] left out: the drive is the one served)" if drop_simulator
                                        else ""))
