@@ -692,6 +692,23 @@ def test_a_finished_sweep_is_loaded_from_its_results_directory(tmp_path: Path) -
     asyncio.run(check())
 
 
+def test_under_an_input_dialog_keys_are_typed_and_ctrl_q_quits(tmp_path: Path) -> None:
+    async def check() -> None:
+        app = BodeBenchApp(write_bench_config(tmp_path, channel_name()), tmp_path / "out")
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("o")
+            assert isinstance(app.screen, InputDialog)
+            await pilot.pause(0.1)
+            assert footer_keys(app) == set()  # q and a would be typed here: not shown
+            await pilot.press("ctrl+a", "ctrl+k", "q", "a")
+            assert isinstance(app.screen, InputDialog) and app.screen.query_one("#dialog-input").value == "qa"
+            await pilot.press("ctrl+q")
+            await wait_for(pilot, lambda: not app.is_running, "the app to exit")
+        assert app.return_value == 0 and app.exit_line == ""
+
+    asyncio.run(check())
+
+
 @pytest.mark.parametrize("size,keys", [((80, 24), ("2",)), ((80, 24), ("3",)), ((160, 45), ())],
                          ids=["sweep-80x24", "bode-80x24", "all-160x45"])
 def test_snapshots_of_the_main_screens(snap_compare, tmp_path: Path, size: tuple[int, int],
@@ -743,6 +760,57 @@ def test_the_command_in_tmux(tmp_path: Path) -> None:
     response = load_response(out)
     assert len(response.points) == 6 and all(p.converged for p in response.points)
     assert (out / "bode.png").exists()
+
+
+@pytest.mark.slow
+def test_abort_and_quit_in_tmux_prints_what_happened(tmp_path: Path) -> None:
+    """The real command: q while a sweep runs, q again to confirm; the terminal gets one line saying what was
+    kept where and how the drive was left, and the exit status is 1."""
+    tmux = shutil.which("tmux")
+    assert tmux is not None, "tmux is needed (apt-get install tmux)"
+    script = Path(sys.executable).parent / "bodebench"
+    command = str(script) if script.exists() else shutil.which("bodebench")
+    assert command, "the bodebench command is not installed (pip install -e .)"
+    # a sweep long enough to be running when the keys arrive: many frequencies to a tight tolerance
+    config = write_bench_config(tmp_path, channel_name(), freqs=tuple(float(f) for f in range(2, 40)),
+                                tolerance=0.002)
+    out = tmp_path / "results"
+    socket = f"bodebench-test-{uuid.uuid4().hex[:8]}"
+    base = [tmux, "-L", socket]
+    env = {**os.environ, "TERM": "xterm-256color"}
+    shell = f"cd {ROOT} && {command} tui {config.path} --out {out}; echo EXIT=$?; sleep 60"
+    subprocess.run([*base, "new-session", "-d", "-s", "tui", "-x", "200", "-y", "30", shell], check=True, env=env)
+
+    def screen() -> str:
+        return subprocess.run([*base, "capture-pane", "-p", "-J", "-t", "tui"], capture_output=True, text=True,
+                              check=True).stdout
+
+    def wait_screen(text: str, timeout: float) -> str:
+        deadline = time.monotonic() + timeout
+        while True:
+            shown = screen()
+            if text in shown:
+                return shown
+            if time.monotonic() > deadline:
+                raise AssertionError(f"{text!r} not on screen after {timeout:g} s:\n{shown}")
+            time.sleep(0.2)
+
+    try:
+        wait_screen("IDLE", 30)
+        subprocess.run([*base, "send-keys", "-t", "tui", "s"], check=True)
+        wait_screen("RUNNING", 60)
+        subprocess.run([*base, "send-keys", "-t", "tui", "q"], check=True)
+        wait_screen("Abort and quit", 30)
+        subprocess.run([*base, "send-keys", "-t", "tui", "q"], check=True)
+        shown = wait_screen("EXIT=", 90)
+    finally:
+        subprocess.run([*base, "kill-server"], capture_output=True)
+    assert "EXIT=1" in shown, shown
+    [line] = [text for text in shown.splitlines() if text.startswith("bodebench: ")]
+    kept = load_response(out).points if (out / "response.csv").exists() else []
+    where = f"{len(kept)} points kept in {out}" if kept else "no point measured"
+    assert line == f"bodebench: bench: stopped: aborted by the user (quit); {where}; drive left at setpoint 0, " \
+                   "disabled", shown
 
 
 @pytest.mark.asyncio

@@ -137,7 +137,7 @@ class BodeBenchApp(App[int]):
         Binding("t", "tolerance", "tol"),
         Binding("w", "save", "save"),
         Binding("o", "open", "open"),
-        Binding("q", "quit", "quit"),
+        Binding("q", "request_quit", "quit"),
         Binding("1", "view('live')", "live", show=False),
         Binding("2", "view('sweep')", "sweep", show=False),
         Binding("3", "view('bode')", "bode", show=False),
@@ -303,9 +303,9 @@ class BodeBenchApp(App[int]):
     # --------------------------------------------------------------------------------------------- actions
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
         """Whether a key works now: one that would do nothing is not shown. Under a dialog only the keys the
-        dialog passes on to the app (its ``APP_KEYS``) work, so the footer shows only those."""
-        if self._modal_open() and action not in getattr(self.screen, "APP_KEYS", ()):
-            return False
+        dialog passes on to the app (its ``APP_KEYS``) and Ctrl+Q work, so the footer shows only those."""
+        if self._modal_open() and action != "quit" and action not in getattr(self.screen, "APP_KEYS", ()):
+            return False  # "quit" is Ctrl+Q (not in the footer), which works everywhere
         running = self.running
         if action in ("abort", "pause", "skip"):
             return running
@@ -493,8 +493,12 @@ class BodeBenchApp(App[int]):
         self.push_screen(InputDialog("Open a results directory to overlay on the Bode plot", str(self.out.parent),
                                      check, placeholder="path/to/results"), done)
 
+    async def action_request_quit(self) -> None:
+        """q (in the question and message dialogs too; the input dialog types it)."""
+        await self.action_quit()
+
     async def action_quit(self) -> None:
-        """q (in any dialog but the input's too): quit; while a sweep runs, ask first (q again answers yes)."""
+        """q or Ctrl+Q: quit; while a sweep runs, ask first (q again answers yes)."""
         if self._quitting:
             return
         if not self.running:

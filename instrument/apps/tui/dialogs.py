@@ -2,7 +2,7 @@
 
 The question, the choice and the message pass two of the app's keys on: ``q`` quits (the app asks first
 while a sweep runs) and ``a`` aborts a running sweep (``APP_KEYS`` names them, so the app's footer shows what
-works). The input dialog passes none: every printable key is typed.
+works). The input dialog passes none: every printable key is typed (Ctrl+Q, the app's, quits everywhere).
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ DIALOG_CSS = """
 """
 
 
-APP_BINDINGS = [Binding("q", "app.quit", "quit", show=False), Binding("a", "app.abort", "abort", show=False)]
+APP_BINDINGS = [Binding("q", "app.request_quit", "quit", show=False),
+                Binding("a", "app.abort", "abort", show=False)]
 """The app's keys a dialog passes on (see the module docstring)."""
 
 
@@ -37,7 +38,7 @@ class ConfirmDialog(ModalScreen[bool]):
     DEFAULT_CSS = "ConfirmDialog { align: center middle; }\n" + DIALOG_CSS
     BINDINGS = [Binding("y", "answer(True)", "yes"), Binding("n", "answer(False)", "no"),
                 Binding("escape", "answer(False)", "no", show=False), *APP_BINDINGS]
-    APP_KEYS = ("quit", "abort")
+    APP_KEYS = ("request_quit", "abort")
 
     def __init__(self, question: str, yes: str = "Yes") -> None:
         super().__init__()
@@ -64,7 +65,7 @@ class ChoiceDialog(ModalScreen["str | None"]):
 
     DEFAULT_CSS = "ChoiceDialog { align: center middle; }\n" + DIALOG_CSS
     BINDINGS = [Binding("escape", "choose(None)", "cancel", show=False), *APP_BINDINGS]
-    APP_KEYS = ("quit", "abort")
+    APP_KEYS = ("request_quit", "abort")
 
     def __init__(self, question: str, choices: Sequence[tuple[str | None, str, str, str]]) -> None:
         super().__init__()
@@ -141,7 +142,7 @@ class MessageDialog(ModalScreen[None]):
     DEFAULT_CSS = "MessageDialog { align: center middle; }\n" + DIALOG_CSS
     BINDINGS = [Binding("escape", "close", "close", show=False), Binding("enter", "close", "close", show=False),
                 *APP_BINDINGS]
-    APP_KEYS = ("quit", "abort")
+    APP_KEYS = ("request_quit", "abort")
 
     def __init__(self, title: str, text: str, error: bool = False) -> None:
         super().__init__()
