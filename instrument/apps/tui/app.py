@@ -243,7 +243,8 @@ class BodeBenchApp(App[int]):
 
     def _sync_bindings(self) -> None:
         """Refresh the footer's keys when what they can do has changed (a footer rebuild is not free)."""
-        state = (self.running, bool(self.live_points), self.case_index in self.results, self._modal_open())
+        state = (self.running, bool(self.live_points), self.case_index in self.results, self._modal_open(),
+                 self._quitting)
         if state != self._bindings_state:
             self._bindings_state = state
             for screen in self.screen_stack:  # the footer is on the first screen, under any dialog
@@ -306,6 +307,8 @@ class BodeBenchApp(App[int]):
         dialog passes on to the app (its ``APP_KEYS``) and Ctrl+Q work, so the footer shows only those."""
         if self._modal_open() and action != "quit" and action not in getattr(self.screen, "APP_KEYS", ()):
             return False  # "quit" is Ctrl+Q (not in the footer), which works everywhere
+        if self._quitting:  # the sweep is being aborted before the app ends: nothing else to do
+            return action == "abort"
         running = self.running
         if action in ("abort", "pause", "skip"):
             return running
@@ -513,6 +516,7 @@ class BodeBenchApp(App[int]):
             self._quit_dialog = None
             if yes and not self._quitting:
                 self._quitting = True
+                self._sync_bindings()
                 if self.running:
                     self.action_abort()
                     self.notify("aborting the sweep before quitting ...")
