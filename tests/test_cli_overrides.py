@@ -218,6 +218,8 @@ def test_a_copy_keeps_the_file_and_changes_only_the_keys_set() -> None:
     removed = [line for line in text.splitlines() if line not in lines]
     assert removed == ["tolerance_percent = 0.01"]  # every other line stays, comments too
     assert 'port = "/dev/pts/7"' in lines and "tolerance_percent = 0.1" in lines
+    friction = edited_copy(text, [Override(("plant", "friction"), 0.009)])
+    assert "friction = 0.009     # F_ct: Fbar = F_ct / A_F = 0.8" in friction.splitlines()  # its comment kept
     parse_config(tomllib.loads(copy), "copy.toml")
 
 
@@ -227,6 +229,7 @@ def test_a_copy_keeps_the_file_and_changes_only_the_keys_set() -> None:
                                                                            str(SIMULATED_DRIVE_EDS))], ("simulator",)),
     ("sim_serial.toml", [Override(("safety", "feedback_limits", "position"), [-0.4, 0.4])], ()),  # an inline table
     ("sim_serial.toml", [Override(("excitation", "frequencies_hz"), [4, 12])], ()),  # a value over two lines
+    ("sim_serial.toml", [Override(("title", ), "a rehearsal")], ()),  # a top-level key
     ("paper2013.toml", [Override(("cases", "fbar_0.8", "plant", "friction"), 0.0085),
                         Override(("excitation", "frequencies_hz"), [5, 10])], ()),
 ])

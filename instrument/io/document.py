@@ -250,20 +250,32 @@ def _set_in_text(lines: list[str], parts: tuple[str, ...], value: Any) -> None:
     header replaced, or a line added after the header, or the table added at the end."""
     table, key = parts[:-1], parts[-1]
     line = f"{key_path([key])} = {toml_value(value)}"
-    if not table:
-        lines.insert(0, line)
-        return
-    start = next((i for i, text in enumerate(lines) if _header_path(text) == table), None)
-    if start is None:
-        lines.extend(["", f"[{key_path(table)}]", line])
-        return
+    if table:
+        start = next((i for i, text in enumerate(lines) if _header_path(text) == table), None)
+        if start is None:
+            lines.extend(["", f"[{key_path(table)}]", line])
+            return
+    else:
+        start = -1  # the top level: the lines before the first header
     end = next((i for i in range(start + 1, len(lines)) if _ANY_HEADER.match(lines[i])), len(lines))
     assignment = re.compile(rf"\s*({re.escape(key)}|\"{re.escape(key)}\"|'{re.escape(key)}')\s*=")
     for i in range(start + 1, end):
         if assignment.match(lines[i]):
-            lines[i] = line
+            lines[i] = line + _comment_of(lines[i])
             return
     lines.insert(start + 1, line)
+
+
+def _comment_of(line: str) -> str:
+    """The comment that ends a one-line assignment, with the spaces before it ("" when none)."""
+    for found in re.finditer("#", line):
+        head = line[: found.start()]
+        try:
+            tomllib.loads(head)
+        except tomllib.TOMLDecodeError:
+            continue  # a "#" inside a string
+        return line[len(head.rstrip()):]
+    return ""
 
 
 def edited_copy(text: str, overrides: Sequence[Override], remove: Sequence[str] = (), header: str = "") -> str:
