@@ -154,3 +154,32 @@ def test_the_adaptive_rule_predicts_its_own_stop(seed: int) -> None:
     assert stopped > 400  # long enough for the prediction to mean something
     at, to_go = next((n, g) for n, g in history if n >= stopped / 4 and g is not None)
     assert 1 / 1.6 < (at + to_go) / stopped < 1.6
+
+
+def test_any_progress_gives_a_finite_time_or_none() -> None:
+    """Random sweeps with whatever a series may report (NaN, inf, zero tolerance, ratios rising or flat, from
+    1e-300 to 1e300): the timer never raises, and its time left is None or finite and not negative."""
+    rng = np.random.default_rng(11)
+    values = [math.nan, math.inf, 0.0, 1e-300, 1e300, 1.0]
+    for _ in range(200):
+        freqs = tuple(sorted(set(np.round(10 ** rng.uniform(-1, 3, rng.integers(1, 6)), 3))))
+        timer = SweepTimer(freqs, extra_periods=float(rng.integers(0, 5)), max_periods=int(rng.integers(10, 10**6)),
+                           seconds_per_period=None if rng.random() < 0.5 else float(rng.uniform(0.01, 3)))
+        now = 0.0
+        scale, slope = float(10 ** rng.uniform(0, 300)), float(rng.uniform(-2.0, 0.5))
+        for f in freqs:
+            timer.point_started(f, now)
+            n = 0
+            for _ in range(int(rng.integers(0, 60))):
+                n += int(rng.integers(0, 50))
+                now += float(rng.exponential(0.1))
+                u = float(rng.choice(values)) if rng.random() < 0.1 else scale * max(n, 1) ** slope \
+                    if rng.random() < 0.7 else float(10 ** rng.uniform(-300, 300))
+                tol = float(rng.choice(values)) if rng.random() < 0.1 else 1.0
+                timer.progress(n, [SeriesState("y", 1, n, 1 + 0j, u, None, tol)], now)
+                if rng.random() < 0.1:
+                    (timer.pause if not timer.paused else timer.unpause)(now)
+                left = timer.remaining(now)
+                assert left is None or (math.isfinite(left) and left >= 0.0), left
+            timer.point_finished(f, None if rng.random() < 0.2 else n, now)
+        assert timer.remaining(now) == 0.0

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
 from typing import TextIO
 
 from bodebench.bench.events import BusStatus, PointFinished, PointProgress, PointStarted, SessionStarted
 from bodebench.core.eta import SweepTimer
+
+logger = logging.getLogger(__name__)
 
 
 class ProgressPrinter:
@@ -25,6 +28,7 @@ class ProgressPrinter:
         self.tty = self.stream.isatty()
         self.refresh_s = refresh_s
         self.timer: SweepTimer | None = None
+        self._eta_failed = False
         self._last = 0.0
         self._freq = 0.0
         self._bus = ""
@@ -34,7 +38,14 @@ class ProgressPrinter:
         return self.timer.done if self.timer is not None else 0
 
     def _eta(self) -> str:
-        left = self.timer.remaining(time.monotonic()) if self.timer is not None else None
+        if self.timer is None or self._eta_failed:
+            return "--"
+        try:
+            left = self.timer.remaining(time.monotonic())
+        except Exception:  # noqa: BLE001 - an estimate that fails must not stop the measurement
+            logger.exception("the time-to-go estimate failed; the progress line shows none from now on")
+            self._eta_failed = True
+            return "--"
         return "--" if left is None else f"{left:.0f} s"
 
     def _line(self, text: str, final: bool) -> None:

@@ -23,6 +23,8 @@ from bodebench.core.autointegration import SeriesState
 
 FIT_DECADE = 10.0
 """The power law is fitted on the series' last decade of periods (n >= n_last / FIT_DECADE)."""
+MAX_LOG_GROWTH = 30.0
+"""A power law that reaches the tolerance only beyond e**30 times the periods so far tells nothing."""
 NEAREST = 3
 """Measured points whose median predicts a frequency beyond them."""
 KEEP_VALUES = 256
@@ -52,10 +54,10 @@ def periods_to_go(periods: Sequence[float], ratio: Sequence[float]) -> float | N
     log_r_last = intercept + slope * math.log(n[-1])
     if log_r_last <= 0.0:
         return 0.0
-    n_reach = n[-1] * math.exp(-log_r_last / slope)
-    if not math.isfinite(n_reach):
+    growth = -log_r_last / slope  # log of n_reach / n_last
+    if not growth < MAX_LOG_GROWTH:  # beyond any cap on periods (or NaN)
         return None
-    return max(0.0, n_reach - float(n[-1]))
+    return max(0.0, float(n[-1]) * math.expm1(growth))
 
 
 @dataclass
