@@ -137,9 +137,20 @@ def test_simulate_refuses_to_overwrite_and_resumes(tmp_path: Path, kind: str) ->
     whole = load_response(out)
     kept = sorted(whole.points, key=lambda p: p.frequency_hz)[:2]  # what an interrupted sweep had saved
     save_response(FrequencyResponse(kept, config=whole.config, case=whole.case), out)
-    resumed = subprocess.run(command() + ["simulate", str(cfg), "--out", str(out), "--quiet", "--jobs", "1",
+    quiet = ["--quiet"] if kind == "offline" else []  # the bench's progress counts what was on disk
+    resumed = subprocess.run(command() + ["simulate", str(cfg), "--out", str(out), *quiet, "--jobs", "1",
                                           "--resume"], capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr
+    if kind == "bench":
+        series = len({(p.channel, p.harmonic) for p in whole.points})
+        on_disk = sum(1 for f in {p.frequency_hz for p in kept}
+                      if sum(1 for p in kept if p.frequency_hz == f) == series)
+        total = len({p.frequency_hz for p in whole.points})
+        lines = resumed.stderr.splitlines()
+        started = next(line for line in lines if f"{total} points on" in line)
+        assert f"{on_disk} already measured" in started, started
+        counts = [line.split()[1] for line in lines[1:] if " Hz converged in " in line]
+        assert counts == [f"{n}/{total}" for n in range(on_disk + 1, total + 1)], lines
     response = load_response(out)
     assert sorted(p.frequency_hz for p in response.points) == sorted(p.frequency_hz for p in whole.points)
     assert [p for p in response.points if p.frequency_hz in {k.frequency_hz for k in kept}] == kept

@@ -38,9 +38,7 @@ from bodebench.apps.tui.model import (
     BusRates,
     SweepModel,
     format_duration,
-    periods_to_go,
     relative_error_percent,
-    remaining_seconds,
     row_key,
 )
 from bodebench.apps.tui.widgets import PlotView, percent_cell
@@ -160,29 +158,11 @@ def test_auto_axis_covers_data_and_included_values() -> None:
 # -------------------------------------------------------------------------------------------------- model
 
 
-def test_periods_to_go_follows_a_power_law() -> None:
-    n = np.arange(1, 101, dtype=float)
-    e = 10.0 * n ** -0.5  # reaches 0.1 % at n = (10 / 0.1)**2 = 10000
-    assert periods_to_go(n, e, 0.1) == pytest.approx(10000 - 100, rel=1e-6)
-    assert periods_to_go(n, 5.0 / n, 0.01) == pytest.approx(500 - 100, rel=1e-6)
-    assert periods_to_go(n, e, 5.0) == 0.0
-    assert periods_to_go(n, 1.0 + 0.0 * n, 0.1) is None  # not falling
-    assert periods_to_go(n[:3], e[:3], 0.1) is None
-    assert periods_to_go([], [], 0.1) is None
-
-
 def test_relative_error_and_durations() -> None:
     assert relative_error_percent(complex(3, 4), 0.05) == pytest.approx(1.0)
     assert math.isnan(relative_error_percent(complex(3, 4), math.nan))
     assert math.isnan(relative_error_percent(0j, 1.0))
     assert format_duration(3725) == "1:02:05" and format_duration(65.4) == "1:05" and format_duration(None) == "--"
-
-
-def test_remaining_time_scales_with_the_period() -> None:
-    c = 12.0  # seconds x Hz: each point lasts c / f
-    done = [(2.0, c / 2.0), (5.0, c / 5.0)]
-    assert remaining_seconds(done, [10.0, 20.0]) == pytest.approx(c / 10 + c / 20)
-    assert remaining_seconds([], [10.0]) is None
 
 
 def test_bus_rates_from_counter_differences() -> None:
@@ -211,7 +191,7 @@ def test_sweep_model_follows_a_sweep_with_skip_and_remeasure() -> None:
     model.session_started(0.0)
     model.point_started(0, 3.0, 0.0, 0.1, "adaptive")
     assert model.rows[row_key(0, 1, "position")].state == SETTLING
-    model.progress(0, 2, (_state(1, 2, 1 + 0j, 0.01), _state(3, 2, 0.1j, 0.01)))
+    model.progress(0, 2, (_state(1, 2, 1 + 0j, 0.01), _state(3, 2, 0.1j, 0.01)), 0.5)
     assert model.rows[row_key(0, 1, "position")].state == INTEGRATING
     assert model.traces[0].rel_error == [pytest.approx(1.0)] and model.traces[1].rel_error == [pytest.approx(10.0)]
     model.point_finished(0, (_point(3.0, 1), _point(3.0, 3, "capped", False)), False, 1.0)
@@ -224,9 +204,10 @@ def test_sweep_model_follows_a_sweep_with_skip_and_remeasure() -> None:
     model.point_started(2, 3.0, 1.5)  # a re-measure: new index, same frequency
     assert model.current == 0 and model.rows[row_key(0, 1, "position")].state == SETTLING
     model.point_finished(2, (_point(3.0, 1), _point(3.0, 3)), False, 2.0)
-    assert model.done == 2 and len(model.durations) == 1  # a re-measure is not a new point for the ETA
-    # 20 Hz left: one point at 3 Hz took 1 s, so c = 3 s Hz and 20 Hz should take 3 / 20 s
-    assert model.eta(2.0) == pytest.approx(3.0 / 20.0)
+    assert model.done == 2
+    # 20 Hz left, predicted at the 12 periods the 3 Hz point took, at the seconds per period measured: twice
+    # 12 periods of 3 Hz in 1 s and 0.5 s (the session's timer knows no ramp), i.e. 1.5 s per 8 nominal s
+    assert model.eta(2.0) == pytest.approx(1.5 / 8.0 * 12 / 20.0)
     model.point_started(3, 20.0, 2.0)
     model.session_ended(2.5)
     assert model.rows[row_key(2, 1, "position")].state == FAILED
@@ -414,6 +395,11 @@ async def test_pause_skip_and_remeasure_during_a_sweep(tmp_path: Path, monkeypat
         await pilot.press("p")
         assert app.state == "running"
         await gate.wait(pilot, "8 Hz integrating")
+        await pilot.press("p")  # 3 Hz measured: the time left is known, and stands still while paused
+        eta = app.model.eta(time.monotonic())
+        await pilot.pause(0.5)
+        assert eta is not None and app.model.eta(time.monotonic()) == eta, "the ETA ran down while paused"
+        await pilot.press("p")
         await pilot.press("n")  # skip 8 Hz
         gate.open()
         await wait_for(pilot, lambda: finished(app), "the end of the sweep")

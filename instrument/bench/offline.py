@@ -59,7 +59,8 @@ def measure_point(case: CaseConfig, frequency_hz: float, samples_dir: str = "") 
     steps = analysis.steps_per_period
     h = 1.0 / (steps * frequency_hz)
     sampler = Autointegrator(frequency_hz, amplitude, (OUTPUT_CHANNEL,), analysis, t0=settle / frequency_hz)
-    record = PointSamples(frequency_hz, amplitude, (OUTPUT_CHANNEL,), source="offline") if keep_samples else None
+    record = PointSamples(frequency_hz, amplitude, (OUTPUT_CHANNEL,), settle / frequency_hz, source="offline") \
+        if keep_samples else None
     state = plant.initial_state()
     first_t, first_y = np.array([0.0]), np.zeros((1, 1))
     if record is not None:

@@ -348,15 +348,15 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
     if safety is None:
         raise _Fault("safety", "a bench config needs a [safety] table (at least max_amplitude)")
     excitation: ExcitationConfig = tables["excitation"]
-    if excitation.amplitude > safety.max_amplitude:
-        raise _Fault(key("excitation", "amplitude"),
-                             f"{excitation.amplitude:g} exceeds safety.max_amplitude ({safety.max_amplitude:g})")
     top = max(tables["analysis"].harmonics)
     for i, f in enumerate(excitation.frequencies_hz):
         at = (f"{key('excitation', 'frequencies_hz')}[{i}]" if excitation.frequencies is None
               else f"{key('excitation', 'frequencies')} (frequency {i})")
         amplitude = excitation.amplitude_at(f)
         if amplitude > safety.max_amplitude:
+            if excitation.amplitudes is None and excitation.amplitude_profile is None:
+                raise _Fault(key("excitation", "amplitude"),
+                             f"{amplitude:g} exceeds safety.max_amplitude ({safety.max_amplitude:g})")
             rule = "amplitudes" if excitation.amplitudes is not None else "amplitude_profile"
             raise _Fault(f"{key('excitation', rule)}" + (f"[{i}]" if rule == "amplitudes" else ""),
                          f"{amplitude:g} at {f:g} Hz exceeds safety.max_amplitude ({safety.max_amplitude:g})")

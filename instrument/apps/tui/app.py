@@ -389,6 +389,7 @@ class BodeBenchApp(App[int]):
             return
         control.paused = not control.paused
         control.procedure.set_paused(control.paused)
+        (self.model.pause if control.paused else self.model.unpause)(time.monotonic())
         self.state = "paused" if control.paused else "running"
         self._refresh_status()
 
@@ -629,7 +630,7 @@ class BodeBenchApp(App[int]):
         elif isinstance(event, SessionStarted):
             self.where = event.where
             self.watchdog = "armed"
-            self.model.session_started(now)
+            self.model.session_started(now, event.timer())
             self.state = "paused" if self.control is not None and self.control.paused else "running"
         elif isinstance(event, PointStarted):
             self.model.point_started(event.index, event.frequency_hz, now, event.tolerance_percent, event.criterion)
@@ -741,7 +742,7 @@ class BodeBenchApp(App[int]):
                 break  # its PointStarted is not handled yet
             queue.popleft()
             if item.index == model.current_index:
-                model.progress(item.index, item.periods, item.states)
+                model.progress(item.index, item.periods, item.states, item.at)
                 applied = True
         if applied:
             self._live_dirty = True
@@ -767,7 +768,8 @@ class BodeBenchApp(App[int]):
         model = self.model
         panel = self.w_live
         f = model.frequencies_hz[model.current] if model.current is not None else None
-        panel.show_convergence(f, model.periods, model.traces, model.tolerance_percent, model.criterion)
+        to_go = [model.series_to_go(t.channel, t.harmonic) for t in model.traces]
+        panel.show_convergence(f, model.periods, model.traces, to_go, model.tolerance_percent, model.criterion)
         bridge = self.bridge
         latest = bridge.latest_progress if bridge is not None else None
         if latest is not None and latest.index == model.current_index:
