@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -155,3 +156,29 @@ def test_simulate_refuses_to_overwrite_and_resumes(tmp_path: Path, kind: str) ->
     assert sorted(p.frequency_hz for p in response.points) == sorted(p.frequency_hz for p in whole.points)
     assert [p for p in response.points if p.frequency_hz in {k.frequency_hz for k in kept}] == kept
     assert all(p.converged for p in response.points)
+
+
+def test_a_sweep_resumes_on_another_port_or_channel_but_not_on_another_drive(tmp_path: Path) -> None:
+    """How the drive is reached (the serial port, the CAN interface and channel) is not what is measured: results
+    made on one port or bus channel resume on another; results made at another tolerance do not."""
+    from bodebench.bench.procedure import previous_run
+    from bodebench.io.config import parse_config
+    from bodebench.io.results import ResultsError
+
+    def case(source: str, **changes: dict) -> object:
+        data = tomllib.loads((Path(__file__).parent.parent / source).read_text())
+        for table, values in changes.items():
+            data[table] = {**data.get(table, {}), **values}
+        return parse_config(data, source).cases[0]
+
+    for source, moved in (("configs/sim_serial.toml", {"serial": {"port": "/dev/pts/7"}}),
+                          ("configs/sim_can.toml", {"can": {"channel": "another-bus", "interface": "socketcan"}})):
+        made = case(source)
+        out = tmp_path / Path(source).stem
+        out.mkdir()
+        save_response(FrequencyResponse(config=made.raw, case=made.name), out)
+        elsewhere = case(source, **moved)
+        assert elsewhere.raw != made.raw
+        assert previous_run(out, elsewhere, "resume") is not None
+        with pytest.raises(ResultsError, match=r"tables differ: analysis\)"):
+            previous_run(out, case(source, **moved, analysis={"tolerance_percent": 0.02}), "resume")
