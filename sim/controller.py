@@ -34,6 +34,9 @@ from bodebench.sim.faults import ValueFaults
 from bodebench.sim.plants import Plant
 
 CLOCKS = ("lockstep", "realtime")
+CATCH_UP_S = 10.0
+"""Realtime clock: a stall up to this long (s) is caught up tick by tick; a longer one (a suspended machine) is
+not."""
 DRIVE_PRIORITY = 10
 """SCHED_FIFO priority of a simulated drive's realtime loop where the OS permits it (below the bus worker's)."""
 
@@ -323,7 +326,10 @@ class SimulatedController:
             for out in self.tick():
                 self._transmit(port, out)
             next_tick += self.period
-            if time.perf_counter() - next_tick > 100 * self.period:  # fell far behind (suspended): resume now
+            # a drive's clock does not stop when its host is busy: ticks missed in a stall are stepped at once
+            # (the setpoint held), so the counter keeps to the wall clock; only after a suspension longer than
+            # CATCH_UP_S does the drive resume from now, its timeline shifted
+            if time.perf_counter() - next_tick > CATCH_UP_S:
                 next_tick = time.perf_counter() + self.period
 
 

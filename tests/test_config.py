@@ -313,11 +313,15 @@ def test_cross_field_max_periods_must_exceed_skip_periods() -> None:
         ({"excitation": {"amplitude": 1, "frequencies_hz": [1]}},
          "plant: missing: an offline experiment needs a [plant] table (only a real drive needs none)"),
         ({"plant": {"mass": 1.0}, "excitation": {"amplitude": 1, "frequencies_hz": [1]}}, "plant.model: missing"),
-        ({"plant": {"model": "lag"}}, "excitation.amplitude: missing"),
+        ({"plant": {"model": "lag"}},
+         "excitation.frequencies_hz: missing (give frequencies_hz = [...] or frequencies = {start_hz, stop_hz, "
+         "per_decade})"),
         ({"plant": {"model": "lag"}, "excitation": {"amplitude": 1}},
          "excitation.frequencies_hz: missing (give frequencies_hz = [...] or frequencies = {start_hz, stop_hz, "
          "per_decade})"),
-        ({"plant": {"model": "lag"}, "excitation": {"frequencies_hz": [1]}}, "excitation.amplitude: missing"),
+        ({"plant": {"model": "lag"}, "excitation": {"frequencies_hz": [1]}},
+         "excitation.amplitude: missing (give amplitude, amplitudes = [...] (one per frequency) or "
+         "amplitude_profile = {frequencies_hz, amplitudes})"),
     ],
 )
 def test_missing_required_keys(data: dict[str, Any], expected: str) -> None:

@@ -39,14 +39,14 @@ def test_a_log_spaced_range(start: float, stop: float, per_decade: int) -> None:
 
 def test_amplitude_per_frequency_and_profile_reach_the_points() -> None:
     freqs = [0.3, 1.0, 3.0]
-    listed = sweep(case({"amplitude": 1.0, "frequencies_hz": freqs, "amplitudes": [0.5, 2.0, 4.0]}))
+    listed = sweep(case({"frequencies_hz": freqs, "amplitudes": [0.5, 2.0, 4.0]}))
     by_f = {p.frequency_hz: p for p in listed}
     assert [by_f[f].amplitude for f in freqs] == [0.5, 2.0, 4.0]
     for f in freqs:  # linear: the gain does not depend on the amplitude
         assert by_f[f].gain == pytest.approx(exact_gain(f), rel=2e-3)
         assert by_f[f].magnitude == pytest.approx(exact_gain(f) * by_f[f].amplitude, rel=2e-3)
     profile = {"frequencies_hz": [0.5, 2.0], "amplitudes": [1.0, 8.0]}
-    shaped = sweep(case({"amplitude": 1.0, "frequencies_hz": freqs, "amplitude_profile": profile}))
+    shaped = sweep(case({"frequencies_hz": freqs, "amplitude_profile": profile}))
     expected = np.exp(np.interp(np.log(freqs), np.log([0.5, 2.0]), np.log([1.0, 8.0])))  # clamped at the ends
     assert [p.amplitude for p in sorted(shaped, key=lambda p: p.frequency_hz)] == pytest.approx(expected)
 
@@ -80,19 +80,24 @@ def test_settle_periods_pass_before_the_first_integrated_period() -> None:
      "plan.toml: excitation.frequencies.per_decade: missing"),
     ({"amplitude": 1.0, "frequencies": {"start_hz": 1.0, "stop_hz": 10.0, "per_decade": 1001}},
      "plan.toml: excitation.frequencies.per_decade: must be <= 1000, got 1001"),
-    ({"amplitude": 1.0, "frequencies_hz": [1.0, 2.0], "amplitudes": [1.0]},
+    ({"frequencies_hz": [1.0, 2.0], "amplitudes": [1.0]},
      "plan.toml: excitation.amplitudes: 1 values for 2 frequencies"),
-    ({"amplitude": 1.0, "frequencies_hz": [1.0, 2.0], "amplitudes": [1.0, -2.0]},
+    ({"frequencies_hz": [1.0, 2.0], "amplitudes": [1.0, -2.0]},
      "plan.toml: excitation.amplitudes[1]: must be > 0, got -2.0"),
-    ({"amplitude": 1.0, "frequencies_hz": [1.0], "amplitude_profile": {"frequencies_hz": [2.0, 1.0],
+    ({"frequencies_hz": [1.0], "amplitude_profile": {"frequencies_hz": [2.0, 1.0],
                                                                       "amplitudes": [1.0, 1.0]}},
      "plan.toml: excitation.amplitude_profile.frequencies_hz: knots must ascend: [1] = 1 Hz after 2 Hz"),
-    ({"amplitude": 1.0, "frequencies_hz": [1.0], "amplitudes": [1.0],
+    ({"frequencies_hz": [1.0], "amplitudes": [1.0],
       "amplitude_profile": {"frequencies_hz": [1.0], "amplitudes": [1.0]}},
      "plan.toml: excitation.amplitude_profile: give either this or excitation.amplitudes, not both"),
     ({"amplitude": 1.0, "frequencies_hz": [1.0], "settle_periods": 2, "settle_periods_per_frequency": [1]},
      "plan.toml: excitation.settle_periods_per_frequency: give either this or excitation.settle_periods, not "
      "both"),
+    ({"amplitude": 1.0, "frequencies_hz": [1.0, 2.0], "amplitudes": [1.0, 2.0]},
+     "plan.toml: excitation.amplitudes: give either this or excitation.amplitude, not both"),
+    ({"frequencies_hz": [1.0, 2.0]},
+     "plan.toml: excitation.amplitude: missing (give amplitude, amplitudes = [...] (one per frequency) or "
+     "amplitude_profile = {frequencies_hz, amplitudes})"),
     ({"amplitude": 1.0, "frequencies_hz": [1.0], "settle_periods": -1},
      "plan.toml: excitation.settle_periods: must be >= 0, got -1"),
 ])
@@ -113,7 +118,6 @@ BENCH = """
 model = "lag"
 time_constant = 0.01
 [excitation]
-amplitude = 0.01
 {plan}
 [analysis]
 tolerance_percent = 0.5
@@ -139,8 +143,8 @@ def test_the_bench_checks_every_planned_amplitude_and_sweeps_with_it(tmp_path: P
         load_config(config)
     assert str(info.value) == (f"{config}: excitation.amplitudes[1]: 0.03 at 20 Hz exceeds safety.max_amplitude "
                                "(0.02)")
-    config.write_text(BENCH.format(plan="frequencies = {start_hz = 200, stop_hz = 400, per_decade = 10}",
-                                   channel=channel))
+    config.write_text(BENCH.format(plan="frequencies = {start_hz = 200, stop_hz = 400, per_decade = 10}\n"
+                                        "amplitude = 0.01", channel=channel))
     with pytest.raises(ConfigError) as info:
         load_config(config)
     assert str(info.value).startswith(f"{config}: excitation.frequencies (frequency 0): 200 Hz: harmonic 1 needs")

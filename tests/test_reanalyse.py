@@ -65,8 +65,13 @@ def test_the_samples_file_holds_the_lags_exact_response(tmp_path: Path) -> None:
         assert t[-1] * f >= max(periods)  # the record covers every period the rule used
 
 
-def test_an_offline_sweep_analysed_again_is_bit_identical(tmp_path: Path) -> None:
-    sweep(offline(), tmp_path / "live")
+@pytest.mark.parametrize("settle", [0, 7])
+def test_an_offline_sweep_analysed_again_is_bit_identical(tmp_path: Path, settle: int) -> None:
+    """Also with settle periods: the record starts at rest, its period 1 where the live sampler's did."""
+    data = offline()
+    if settle:
+        data["excitation"] = {**data["excitation"], "settle_periods": settle}
+    sweep(data, tmp_path / "live")
     done = cli("analyse", str(tmp_path / "live"), "--out", str(tmp_path / "again"), "--quiet")
     assert done.returncode == 0, done.stderr
     assert f"{2 * len(FREQS)} identical to the stored points" in done.stdout

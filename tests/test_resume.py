@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -137,10 +138,47 @@ def test_simulate_refuses_to_overwrite_and_resumes(tmp_path: Path, kind: str) ->
     whole = load_response(out)
     kept = sorted(whole.points, key=lambda p: p.frequency_hz)[:2]  # what an interrupted sweep had saved
     save_response(FrequencyResponse(kept, config=whole.config, case=whole.case), out)
-    resumed = subprocess.run(command() + ["simulate", str(cfg), "--out", str(out), "--quiet", "--jobs", "1",
+    quiet = ["--quiet"] if kind == "offline" else []  # the bench's progress counts what was on disk
+    resumed = subprocess.run(command() + ["simulate", str(cfg), "--out", str(out), *quiet, "--jobs", "1",
                                           "--resume"], capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr
+    if kind == "bench":
+        series = len({(p.channel, p.harmonic) for p in whole.points})
+        on_disk = sum(1 for f in {p.frequency_hz for p in kept}
+                      if sum(1 for p in kept if p.frequency_hz == f) == series)
+        total = len({p.frequency_hz for p in whole.points})
+        lines = resumed.stderr.splitlines()
+        started = next(line for line in lines if f"{total} points on" in line)
+        assert f"{on_disk} already measured" in started, started
+        counts = [line.split()[1] for line in lines[1:] if " Hz converged in " in line]
+        assert counts == [f"{n}/{total}" for n in range(on_disk + 1, total + 1)], lines
     response = load_response(out)
     assert sorted(p.frequency_hz for p in response.points) == sorted(p.frequency_hz for p in whole.points)
     assert [p for p in response.points if p.frequency_hz in {k.frequency_hz for k in kept}] == kept
     assert all(p.converged for p in response.points)
+
+
+def test_a_sweep_resumes_on_another_port_or_channel_but_not_on_another_drive(tmp_path: Path) -> None:
+    """How the drive is reached (the serial port, the CAN interface and channel) is not what is measured: results
+    made on one port or bus channel resume on another; results made at another tolerance do not."""
+    from bodebench.bench.procedure import previous_run
+    from bodebench.io.config import parse_config
+    from bodebench.io.results import ResultsError
+
+    def case(source: str, **changes: dict) -> object:
+        data = tomllib.loads((Path(__file__).parent.parent / source).read_text())
+        for table, values in changes.items():
+            data[table] = {**data.get(table, {}), **values}
+        return parse_config(data, source).cases[0]
+
+    for source, moved in (("configs/sim_serial.toml", {"serial": {"port": "/dev/pts/7"}}),
+                          ("configs/sim_can.toml", {"can": {"channel": "another-bus", "interface": "socketcan"}})):
+        made = case(source)
+        out = tmp_path / Path(source).stem
+        out.mkdir()
+        save_response(FrequencyResponse(config=made.raw, case=made.name), out)
+        elsewhere = case(source, **moved)
+        assert elsewhere.raw != made.raw
+        assert previous_run(out, elsewhere, "resume") is not None
+        with pytest.raises(ResultsError, match=r"tables differ: analysis\)"):
+            previous_run(out, case(source, **moved, analysis={"tolerance_percent": 0.02}), "resume")

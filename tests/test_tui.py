@@ -22,11 +22,12 @@ import numpy as np
 import pytest
 from helpers import BusRecorder
 from textual.widgets import Static
+from textual.widgets._footer import FooterKey
 
 from bodebench.apps.tui import BodeBenchApp
 from bodebench.apps.tui.braille import Axis, BrailleCanvas, HLine, PlotError, Trace, auto_axis, render_plot
 from bodebench.apps.tui.bridge import SessionBridge
-from bodebench.apps.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
+from bodebench.apps.tui.dialogs import ChoiceDialog, ConfirmDialog, InputDialog, MessageDialog
 from bodebench.apps.tui.model import (
     CONVERGED,
     FAILED,
@@ -37,18 +38,16 @@ from bodebench.apps.tui.model import (
     BusRates,
     SweepModel,
     format_duration,
-    periods_to_go,
     relative_error_percent,
-    remaining_seconds,
     row_key,
 )
 from bodebench.apps.tui.widgets import PlotView, percent_cell
-from bodebench.bench.events import PointProgress
+from bodebench.bench.events import PointProgress, PointStarted
 from bodebench.core.autointegration import SeriesState
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.rules import Verdict
 from bodebench.io.config import ExperimentConfig, load_config
-from bodebench.io.results import load_response, save_response
+from bodebench.io.results import load_response, save_response, sidecar_runs
 
 ROOT = Path(__file__).resolve().parent.parent
 FREQS = (3.0, 8.0, 20.0)
@@ -159,29 +158,11 @@ def test_auto_axis_covers_data_and_included_values() -> None:
 # -------------------------------------------------------------------------------------------------- model
 
 
-def test_periods_to_go_follows_a_power_law() -> None:
-    n = np.arange(1, 101, dtype=float)
-    e = 10.0 * n ** -0.5  # reaches 0.1 % at n = (10 / 0.1)**2 = 10000
-    assert periods_to_go(n, e, 0.1) == pytest.approx(10000 - 100, rel=1e-6)
-    assert periods_to_go(n, 5.0 / n, 0.01) == pytest.approx(500 - 100, rel=1e-6)
-    assert periods_to_go(n, e, 5.0) == 0.0
-    assert periods_to_go(n, 1.0 + 0.0 * n, 0.1) is None  # not falling
-    assert periods_to_go(n[:3], e[:3], 0.1) is None
-    assert periods_to_go([], [], 0.1) is None
-
-
 def test_relative_error_and_durations() -> None:
     assert relative_error_percent(complex(3, 4), 0.05) == pytest.approx(1.0)
     assert math.isnan(relative_error_percent(complex(3, 4), math.nan))
     assert math.isnan(relative_error_percent(0j, 1.0))
     assert format_duration(3725) == "1:02:05" and format_duration(65.4) == "1:05" and format_duration(None) == "--"
-
-
-def test_remaining_time_scales_with_the_period() -> None:
-    c = 12.0  # seconds x Hz: each point lasts c / f
-    done = [(2.0, c / 2.0), (5.0, c / 5.0)]
-    assert remaining_seconds(done, [10.0, 20.0]) == pytest.approx(c / 10 + c / 20)
-    assert remaining_seconds([], [10.0]) is None
 
 
 def test_bus_rates_from_counter_differences() -> None:
@@ -210,7 +191,7 @@ def test_sweep_model_follows_a_sweep_with_skip_and_remeasure() -> None:
     model.session_started(0.0)
     model.point_started(0, 3.0, 0.0, 0.1, "adaptive")
     assert model.rows[row_key(0, 1, "position")].state == SETTLING
-    model.progress(0, 2, (_state(1, 2, 1 + 0j, 0.01), _state(3, 2, 0.1j, 0.01)))
+    model.progress(0, 2, (_state(1, 2, 1 + 0j, 0.01), _state(3, 2, 0.1j, 0.01)), 0.5)
     assert model.rows[row_key(0, 1, "position")].state == INTEGRATING
     assert model.traces[0].rel_error == [pytest.approx(1.0)] and model.traces[1].rel_error == [pytest.approx(10.0)]
     model.point_finished(0, (_point(3.0, 1), _point(3.0, 3, "capped", False)), False, 1.0)
@@ -223,9 +204,10 @@ def test_sweep_model_follows_a_sweep_with_skip_and_remeasure() -> None:
     model.point_started(2, 3.0, 1.5)  # a re-measure: new index, same frequency
     assert model.current == 0 and model.rows[row_key(0, 1, "position")].state == SETTLING
     model.point_finished(2, (_point(3.0, 1), _point(3.0, 3)), False, 2.0)
-    assert model.done == 2 and len(model.durations) == 1  # a re-measure is not a new point for the ETA
-    # 20 Hz left: one point at 3 Hz took 1 s, so c = 3 s Hz and 20 Hz should take 3 / 20 s
-    assert model.eta(2.0) == pytest.approx(3.0 / 20.0)
+    assert model.done == 2
+    # 20 Hz left, predicted at the 12 periods the 3 Hz point took, at the seconds per period measured: twice
+    # 12 periods of 3 Hz in 1 s and 0.5 s (the session's timer knows no ramp), i.e. 1.5 s per 8 nominal s
+    assert model.eta(2.0) == pytest.approx(1.5 / 8.0 * 12 / 20.0)
     model.point_started(3, 20.0, 2.0)
     model.session_ended(2.5)
     assert model.rows[row_key(2, 1, "position")].state == FAILED
@@ -301,11 +283,14 @@ class Gate:
         self.conditions = list(conditions)
         self.reached = threading.Event()
         self.release = threading.Event()
+        self.started: list[tuple[int, float]] = []  # (run, frequency) of every point started
         gate = self
 
         class GatedBridge(SessionBridge):
             def __call__(self, event: object) -> None:
                 super().__call__(event)
+                if isinstance(event, PointStarted):
+                    gate.started.append((self.run, event.frequency_hz))
                 if (gate.conditions and isinstance(event, PointProgress)
                         and event.frequency_hz == gate.conditions[0][0] and event.periods >= gate.conditions[0][1]):
                     gate.conditions.pop(0)
@@ -326,6 +311,11 @@ class Gate:
 
 def states(app: BodeBenchApp, frequency_hz: float) -> set[str]:
     return {r.state for r in app.model.rows.values() if r.frequency_hz == frequency_hz}
+
+
+def footer_keys(app: BodeBenchApp) -> set[str]:
+    """The keys the footer shows (it is on the first screen, under any dialog)."""
+    return {key.key for key in app.screen_stack[0].query(FooterKey)}
 
 
 def table_states(app: BodeBenchApp) -> list[str]:
@@ -405,6 +395,11 @@ async def test_pause_skip_and_remeasure_during_a_sweep(tmp_path: Path, monkeypat
         await pilot.press("p")
         assert app.state == "running"
         await gate.wait(pilot, "8 Hz integrating")
+        await pilot.press("p")  # 3 Hz measured: the time left is known, and stands still while paused
+        eta = app.model.eta(time.monotonic())
+        await pilot.pause(0.5)
+        assert eta is not None and app.model.eta(time.monotonic()) == eta, "the ETA ran down while paused"
+        await pilot.press("p")
         await pilot.press("n")  # skip 8 Hz
         gate.open()
         await wait_for(pilot, lambda: finished(app), "the end of the sweep")
@@ -443,6 +438,47 @@ async def test_abort_leaves_a_zero_setpoint_and_keeps_the_measured_points(tmp_pa
     assert value == 0.0 and disabled
     kept = load_response(out)
     assert sorted(p.frequency_hz for p in kept.points) == [3.0, 3.0]
+
+
+@pytest.mark.slow
+@pytest.mark.asyncio
+async def test_resume_after_an_abort_measures_only_the_missing_frequencies(tmp_path: Path,
+                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    gate = Gate(monkeypatch, (8.0, 2))
+    config = write_bench_config(tmp_path, channel_name())
+    out = tmp_path / "out"
+    app = BodeBenchApp(config, out)
+    async with app.run_test(size=(80, 24)) as pilot:
+        await pilot.pause(0.1)
+        assert footer_keys(app) == {"s", "t", "o", "q"}  # nothing measured: nothing to re-measure or save
+        await pilot.press("s")
+        await gate.wait(pilot, "8 Hz integrating")
+        assert footer_keys(app) == {"a", "p", "n", "r", "t", "w", "o", "q"}  # running, 3 Hz measured
+        await pilot.press("a")
+        gate.open()
+        await wait_for(pilot, lambda: finished(app), "the end of the aborted sweep")
+        assert app.state == "aborted"
+        assert app.exit_line == (f"bodebench: bench: stopped: aborted by the user; 2 points kept in {out}; "
+                                 "drive left at setpoint 0, disabled")
+        kept = load_response(out)
+        assert sorted(p.frequency_hz for p in kept.points) == [3.0, 3.0]
+        await pilot.press("s")
+        assert isinstance(app.screen, ChoiceDialog)
+        await pilot.pause(0.1)
+        assert "(1 of 3 frequencies measured)" in str(app.screen.query_one("#dialog-text").render())
+        await pilot.press("r")  # resume
+        await wait_for(pilot, lambda: app.control.run == 2 and finished(app), "the resumed sweep")
+        assert app.state == "done", app.worker_errors
+        assert table_states(app) == [CONVERGED] * 6  # the kept 3 Hz rows as well as the new ones
+        assert app.exit_line == ""
+    assert [f for run, f in gate.started if run == 1] == [3.0, 8.0]
+    assert [f for run, f in gate.started if run == 2] == [8.0, 20.0]  # only what the first run lacked
+    final = load_response(out)
+    assert sorted((p.frequency_hz, p.harmonic) for p in final.points) == [(f, k) for f in FREQS for k in (1, 3)]
+    assert [p for p in final.points if p.frequency_hz == 3.0] == list(kept.points)  # kept as they were
+    assert all(p.converged for p in final.points)
+    runs = sidecar_runs(out)
+    assert len(runs) == 2 and runs[1]["resumed"] is True
 
 
 @pytest.mark.slow
@@ -521,6 +557,33 @@ async def test_quit_asks_while_a_sweep_runs_then_aborts_safely(tmp_path: Path,
 
 
 @pytest.mark.asyncio
+async def test_q_in_the_quit_dialog_aborts_quits_and_says_so(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    gate = Gate(monkeypatch, (3.0, 1))
+    channel = channel_name()
+    recorder = BusRecorder(channel)
+    config = write_bench_config(tmp_path, channel)
+    app = BodeBenchApp(config, tmp_path / "out")
+    try:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("s")
+            await gate.wait(pilot, "3 Hz integrating")
+            await pilot.press("q")
+            assert isinstance(app.screen, ConfirmDialog)
+            await pilot.pause(0.1)
+            assert footer_keys(app) == {"a", "q"}  # under the question: abort, and quit (= yes)
+            await pilot.press("q")
+            gate.open()
+            await wait_for(pilot, lambda: not app.is_running, "the app to exit")
+    finally:
+        value, disabled = recorder.close()
+    assert app.control.done.is_set()
+    assert value == 0.0 and disabled
+    assert app.return_value == 1
+    assert app.exit_line == ("bodebench: bench: stopped: aborted by the user (quit); no point measured; "
+                             "drive left at setpoint 0, disabled")
+
+
+@pytest.mark.asyncio
 async def test_a_fault_is_explained_in_a_dialog(tmp_path: Path) -> None:
     """No drive on the bus: the watchdog trips; the dialog says so and what was kept; the bus ends at zero."""
     channel = channel_name()
@@ -594,10 +657,40 @@ def test_a_finished_sweep_is_loaded_from_its_results_directory(tmp_path: Path) -
                 phase = math.degrees(cmath.phase(1 / (1 + 1j * 2 * math.pi * f * LAG_TIME_CONSTANT_S)))
                 assert str(app.w_table.get_cell(row_key(i, 1, "position"), "gain")) == f"{gain_db:+.2f}"
                 assert str(app.w_table.get_cell(row_key(i, 1, "position"), "phase")) == f"{phase:.1f}"
+            assert footer_keys(app) == {"s", "r", "t", "w", "o", "q"}  # no sweep runs: nothing to abort or pause
             await pilot.press("s")  # a new sweep would replace these results: asked first
-            assert isinstance(app.screen, ConfirmDialog) and app.control is None
-            await pilot.press("n")
-            assert app.control is None and app.state == "loaded"
+            assert isinstance(app.screen, ChoiceDialog) and app.control is None
+            await pilot.pause(0.1)
+            text = str(app.screen.query_one("#dialog-text").render())
+            assert "made with another configuration" in text and "cannot be resumed" in text  # not this config's
+            assert footer_keys(app) == {"q"}  # under the dialog only q works
+            await pilot.press("r")  # no resume offered: nothing happens
+            assert isinstance(app.screen, ChoiceDialog) and app.control is None
+            await pilot.press("c")
+            assert app.control is None and app.state == "loaded" and not isinstance(app.screen, ChoiceDialog)
+            await pilot.pause(0.1)
+            assert footer_keys(app) == {"s", "r", "t", "w", "o", "q"}
+            await pilot.press("s")
+            await pilot.press("q")  # quits from the dialog: nothing runs
+            await wait_for(pilot, lambda: not app.is_running, "the app to exit")
+        assert app.return_value == 0 and app.control is None and app.exit_line == ""
+
+    asyncio.run(check())
+
+
+def test_under_an_input_dialog_keys_are_typed_and_ctrl_q_quits(tmp_path: Path) -> None:
+    async def check() -> None:
+        app = BodeBenchApp(write_bench_config(tmp_path, channel_name()), tmp_path / "out")
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.press("o")
+            assert isinstance(app.screen, InputDialog)
+            await pilot.pause(0.1)
+            assert footer_keys(app) == set()  # q and a would be typed here: not shown
+            await pilot.press("ctrl+a", "ctrl+k", "q", "a")
+            assert isinstance(app.screen, InputDialog) and app.screen.query_one("#dialog-input").value == "qa"
+            await pilot.press("ctrl+q")
+            await wait_for(pilot, lambda: not app.is_running, "the app to exit")
+        assert app.return_value == 0 and app.exit_line == ""
 
     asyncio.run(check())
 
@@ -653,6 +746,57 @@ def test_the_command_in_tmux(tmp_path: Path) -> None:
     response = load_response(out)
     assert len(response.points) == 6 and all(p.converged for p in response.points)
     assert (out / "bode.png").exists()
+
+
+@pytest.mark.slow
+def test_abort_and_quit_in_tmux_prints_what_happened(tmp_path: Path) -> None:
+    """The real command: q while a sweep runs, q again to confirm; the terminal gets one line saying what was
+    kept where and how the drive was left, and the exit status is 1."""
+    tmux = shutil.which("tmux")
+    assert tmux is not None, "tmux is needed (apt-get install tmux)"
+    script = Path(sys.executable).parent / "bodebench"
+    command = str(script) if script.exists() else shutil.which("bodebench")
+    assert command, "the bodebench command is not installed (pip install -e .)"
+    # a sweep long enough to be running when the keys arrive: many frequencies to a tight tolerance
+    config = write_bench_config(tmp_path, channel_name(), freqs=tuple(float(f) for f in range(2, 40)),
+                                tolerance=0.002)
+    out = tmp_path / "results"
+    socket = f"bodebench-test-{uuid.uuid4().hex[:8]}"
+    base = [tmux, "-L", socket]
+    env = {**os.environ, "TERM": "xterm-256color"}
+    shell = f"cd {ROOT} && {command} tui {config.path} --out {out}; echo EXIT=$?; sleep 60"
+    subprocess.run([*base, "new-session", "-d", "-s", "tui", "-x", "200", "-y", "30", shell], check=True, env=env)
+
+    def screen() -> str:
+        return subprocess.run([*base, "capture-pane", "-p", "-J", "-t", "tui"], capture_output=True, text=True,
+                              check=True).stdout
+
+    def wait_screen(text: str, timeout: float) -> str:
+        deadline = time.monotonic() + timeout
+        while True:
+            shown = screen()
+            if text in shown:
+                return shown
+            if time.monotonic() > deadline:
+                raise AssertionError(f"{text!r} not on screen after {timeout:g} s:\n{shown}")
+            time.sleep(0.2)
+
+    try:
+        wait_screen("IDLE", 30)
+        subprocess.run([*base, "send-keys", "-t", "tui", "s"], check=True)
+        wait_screen("RUNNING", 60)
+        subprocess.run([*base, "send-keys", "-t", "tui", "q"], check=True)
+        wait_screen("Abort and quit", 30)
+        subprocess.run([*base, "send-keys", "-t", "tui", "q"], check=True)
+        shown = wait_screen("EXIT=", 90)
+    finally:
+        subprocess.run([*base, "kill-server"], capture_output=True)
+    assert "EXIT=1" in shown, shown
+    [line] = [text for text in shown.splitlines() if text.startswith("bodebench: ")]
+    kept = load_response(out).points if (out / "response.csv").exists() else []
+    where = f"{len(kept)} points kept in {out}" if kept else "no point measured"
+    assert line == f"bodebench: bench: stopped: aborted by the user (quit); {where}; drive left at setpoint 0, " \
+                   "disabled", shown
 
 
 @pytest.mark.asyncio

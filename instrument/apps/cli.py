@@ -18,6 +18,7 @@ if TYPE_CHECKING:
     from bodebench.bench.procedure import PlotWriter
     from bodebench.core.summary import ResponseSummary
     from bodebench.io.config import ExperimentConfig
+    from bodebench.io.document import Override
 
 log = logging.getLogger("bodebench")
 
@@ -135,10 +136,46 @@ def _cause(exc: BaseException) -> str:
     return f"error: {type(exc).__name__}: {exc}"
 
 
-def _run(args: argparse.Namespace) -> int:
-    from bodebench.io.config import ConfigError, load_config
+class _ArgumentError(Exception):
+    """A bad option found once the configuration is read: one line and exit status 2, as argparse gives."""
 
-    config = load_config(args.config)
+
+def _override(text: str) -> Override:
+    """--set: one ``table.key=value``."""
+    from bodebench.io.document import parse_override
+
+    try:
+        return parse_override(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _load(args: argparse.Namespace) -> ExperimentConfig:
+    """The configuration ``args.config`` with the --set overrides (and --port, where the command has it)."""
+    from bodebench.io.config import load_config, read_document
+    from bodebench.io.document import OverrideError, apply_overrides, serial_port_overrides
+
+    overrides: list[Override] = list(args.set or ())
+    port = getattr(args, "port", None)
+    if port is not None:
+        try:
+            document, _ = apply_overrides(read_document(args.config), overrides)
+        except OverrideError:
+            document = None  # load_config names the --set at fault
+        if document is not None:
+            try:
+                overrides.extend(serial_port_overrides(document, port))
+            except ValueError as exc:
+                raise _ArgumentError(f"--port {port}: {exc}") from None
+    for override in overrides:
+        log.info("%s: %s %s", args.config, override.option, override)
+    return load_config(args.config, overrides)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from bodebench.io.config import ConfigError
+
+    config = _load(args)
     if not config.on_bench:
         raise ConfigError(f"{args.config}: bench: missing (bodebench run needs a bench config; "
                           "use bodebench simulate for an offline experiment)", "bench")
@@ -163,9 +200,9 @@ def _log_bus(value: str | None) -> Path | None:
 
 def _tui(args: argparse.Namespace) -> int:
     from bodebench.apps.tui import run_tui
-    from bodebench.io.config import ConfigError, load_config
+    from bodebench.io.config import ConfigError
 
-    config = load_config(args.config)
+    config = _load(args)
     if not config.on_bench:
         raise ConfigError(f"{args.config}: bench: missing (bodebench tui needs a bench config)", "bench")
     out = Path(args.out) if args.out else Path("results") / Path(args.config).stem
@@ -174,11 +211,13 @@ def _tui(args: argparse.Namespace) -> int:
 
 def _sim_controller(args: argparse.Namespace) -> int:
     from bodebench.bench.connection import simulator_spec
-    from bodebench.io.config import ConfigError, load_config
+    from bodebench.io.config import ConfigError
     from bodebench.sim.cia402_drive import ServingCanopen
     from bodebench.sim.serve import Serving, serve_can, serve_serial_pty, serve_slcan_pty
 
-    config = load_config(args.config)
+    config = _load(args)
+    if args.write_config is not None:
+        _check_copy_path(Path(args.config), Path(args.write_config))
     case = config.cases[0]
     if case.bench is None or case.simulator is None or case.plant is None:
         raise ConfigError(f"{args.config}: simulator: missing (sim-controller needs [bench], [plant] and "
@@ -186,9 +225,14 @@ def _sim_controller(args: argparse.Namespace) -> int:
     bench, layout = case.on_bench.bench, case.on_bench.layout
     spec = simulator_spec(case)
     serving: Serving | ServingCanopen
+    # what a bench config needs to reach this drive: the key to set, and whether [simulator] must go (a bench
+    # config that keeps it on a CAN bus serves a simulated drive of its own)
+    reach: tuple[tuple[str, str], str]
+    drop_simulator = False
     if bench.transport == "serial":
         serving, path = serve_serial_pty(spec)
         where = f"serial ({spec.framing} framing) on {path}: set [serial] port = \"{path}\""
+        reach = (("serial", "port"), path)
     elif bench.transport == "canopen":
         if case.can is not None and case.can.interface == "slcan":
             raise ConfigError(f"{args.config}: can.interface: the simulated CiA 402 drive is served on a python-can "
@@ -197,12 +241,22 @@ def _sim_controller(args: argparse.Namespace) -> int:
         serving = serve_can(spec)
         where = (f"CiA 402 drive, CANopen node {spec.canopen.node_id if spec.canopen else '?'}, on python-can "
                  f"{spec.can['interface']} channel {spec.can['channel']}")
+        reach, drop_simulator = (("can", "channel"), str(spec.can["channel"])), True
     elif case.can is not None and case.can.interface == "slcan":
         serving, path = serve_slcan_pty(spec)
         where = f"SLCAN adapter on {path}: set [can] channel = \"{path}\""
+        reach = (("can", "channel"), path)
     else:
         serving = serve_can(spec)
         where = f"python-can {spec.can['interface']} channel {spec.can['channel']}"
+        reach, drop_simulator = (("can", "channel"), str(spec.can["channel"])), True
+    if args.write_config is not None:
+        try:
+            written = _write_bench_copy(args, reach, drop_simulator)
+        except BaseException:
+            serving.close()
+            raise
+        where += f"; a bench config for it: {written} (bodebench run {written} --out DIR)"
     serving_started = time.monotonic()
 
     def report(text: str) -> None:  # each change of the drive's state, as the drive saw it
@@ -226,13 +280,71 @@ def _sim_controller(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_copy_path(config: Path, copy: Path) -> None:
+    """--write-config: a file in an existing directory, not the configuration itself."""
+    if copy.is_dir():
+        raise _ArgumentError(f"--write-config {copy}: is a directory")
+    if not copy.parent.is_dir():
+        raise _ArgumentError(f"--write-config {copy}: no directory {copy.parent}")
+    if copy.exists() and copy.resolve() == config.resolve():
+        raise _ArgumentError(f"--write-config {copy}: is the configuration itself (write the copy elsewhere)")
+
+
+def _write_bench_copy(args: argparse.Namespace, reach: tuple[tuple[str, str], str], drop_simulator: bool) -> Path:
+    """Write --write-config: the configuration file with its --set overrides, the key that reaches the served
+    drive (``reach``: key parts and value) and, on a CAN bus, without [simulator]; relative file names in it
+    (frames.dbc, canopen.eds) made absolute when the copy goes to another directory. The copy is validated;
+    raises ResultsError when it cannot be written."""
+    from bodebench.io.config import SIMULATED_DRIVE_EDS, ConfigError, load_config, read_document
+    from bodebench.io.document import Override, OverrideError, apply_overrides, edited_copy
+    from bodebench.io.results import ResultsError, atomic_write_text
+
+    source, target = Path(args.config), Path(args.write_config)
+    overrides: list[Override] = list(args.set or ())
+    document, _ = apply_overrides(read_document(source), overrides)
+    if source.resolve().parent != target.resolve().parent:
+        tables: list[tuple[tuple[str, ...], dict[str, Any]]] = [((), document)]
+        cases = document.get("cases")
+        if isinstance(cases, dict):
+            tables += [(("cases", str(name)), body) for name, body in cases.items() if isinstance(body, dict)]
+        for prefix, body in tables:
+            for table, key in (("frames", "dbc"), ("canopen", "eds")):
+                sub = body.get(table)
+                name = sub.get(key) if isinstance(sub, dict) else None
+                if isinstance(name, str) and name and not Path(name).is_absolute():
+                    overrides.append(Override((*prefix, table, key), str((source.parent / name).resolve())))
+    parts, value = reach
+    current = document.get(parts[0], {})
+    if not isinstance(current, dict) or current.get(parts[1]) != value:
+        overrides.append(Override(parts, value))
+    canopen = document.get("canopen")
+    if drop_simulator and isinstance(canopen, dict) and not canopen.get("eds"):
+        overrides.append(Override(("canopen", "eds"), str(SIMULATED_DRIVE_EDS)))  # the [simulator] brought it
+    header = (f"written by bodebench sim-controller: {source}, {'.'.join(parts)} set to {value}, where it serves "
+              "the simulated drive" + (" ([simulator] left out: the drive is the one served)" if drop_simulator
+                                       else ""))
+    try:
+        text = edited_copy(source.read_text(encoding="utf-8"), overrides,
+                           ("simulator",) if drop_simulator else (), header)
+    except (OverrideError, ValueError) as exc:
+        raise ResultsError(f"--write-config {target}: {exc}") from None
+    try:
+        atomic_write_text(target, text)
+    except OSError as exc:
+        raise ResultsError(f"--write-config {target}: cannot write: {exc.strerror or exc}") from None
+    try:
+        load_config(target)
+    except ConfigError as exc:
+        raise ResultsError(f"--write-config {target}: the copy does not validate: {exc}") from None
+    return target
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from bodebench.bench.events import CaseBegins, PointFinished
     from bodebench.bench.offline import ExecutorError, offline_executor
     from bodebench.bench.procedure import SweepProcedure
-    from bodebench.io.config import load_config
 
-    config: ExperimentConfig = load_config(args.config)
+    config: ExperimentConfig = _load(args)
     out = Path(args.out)
     started = time.perf_counter()
     if config.on_bench:
@@ -499,6 +611,12 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
 EXECUTOR_HELP = ("run the frequencies on a Dask cluster: a scheduler address (tcp://host:8786), or local to start "
                  "one here with --jobs workers (needs the dask extra)")
 PLOTS_HELP = "plot files per case: comma-separated png, svg, pdf, or none (default: png)"
+SET_HELP = ("set a key of the configuration before it is validated, as if the file said so (repeatable): "
+            "a TOML value, or a bare word taken as a string; for example analysis.tolerance_percent=0.1, "
+            "serial.port=/dev/ttyUSB0, excitation.frequencies_hz=[1,2,5], 'cases.\"fbar_0.8\".plant.friction=0.009'. "
+            "The results record the configuration with these values")
+PORT_HELP = ("the serial port of the drive: --set serial.port=PORT for every case (on a CAN bus, "
+             "--set can.channel=... instead)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -512,6 +630,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = add("simulate", help="sweep a simulated plant offline (the papers' computational experiment)")
     sim.add_argument("config", help="TOML experiment file")
+    sim.add_argument("--set", action="append", type=_override, metavar="KEY=VALUE", help=SET_HELP)
     sim.add_argument("--out", required=True, help="results directory (one sub-directory per case)")
     sim.add_argument("--jobs", type=_jobs, default=None,
                      help="worker processes (default: all cores; 1 runs in this process)")
@@ -525,6 +644,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.set_defaults(handler=_simulate)
     run = add("run", help="sweep a drive on the bench (CAN or serial), headless")
     run.add_argument("config", help="TOML bench file")
+    run.add_argument("--set", action="append", type=_override, metavar="KEY=VALUE", help=SET_HELP)
+    run.add_argument("--port", default=None, metavar="PORT", help=PORT_HELP)
     run.add_argument("--out", required=True, help="results directory")
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
@@ -535,10 +656,17 @@ def build_parser() -> argparse.ArgumentParser:
     run.set_defaults(handler=_run)
     ctl = add("sim-controller", help="run the simulated servo controller of a bench config standalone")
     ctl.add_argument("config", help="TOML bench file with [simulator]")
+    ctl.add_argument("--set", action="append", type=_override, metavar="KEY=VALUE", help=SET_HELP)
+    ctl.add_argument("--write-config", default=None, metavar="FILE",
+                     help="write FILE, a copy of the configuration (with the --set values) that reaches this drive: "
+                          "serial.port (or can.channel) set to what the simulator opened, [simulator] left out on a "
+                          "CAN bus; bodebench run FILE then sweeps it")
     ctl.add_argument("--seconds", type=float, default=0.0, help="stop after this long (default: until Ctrl-C)")
     ctl.set_defaults(handler=_sim_controller)
     tui = add("tui", help="sweep a drive on the bench in the terminal UI")
     tui.add_argument("config", help="TOML bench file")
+    tui.add_argument("--set", action="append", type=_override, metavar="KEY=VALUE", help=SET_HELP)
+    tui.add_argument("--port", default=None, metavar="PORT", help=PORT_HELP)
     tui.add_argument("--out", default=None, help="results directory (default: results/<config stem>)")
     tui.add_argument("--log-bus", metavar="FILE", default=None, help=LOG_BUS_HELP)
     tui.set_defaults(handler=_tui)
@@ -601,6 +729,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             return int(args.handler(args))
         with stop_on_signals():
             return int(args.handler(args))
+    except _ArgumentError as exc:
+        print(f"bodebench {args.command}: {exc} (see --help)", file=sys.stderr)
+        return 2
     except (ConfigError, ResultsError) as exc:
         print(f"bodebench: {exc}", file=sys.stderr)
         return 2

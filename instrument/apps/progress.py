@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
 from typing import TextIO
 
 from bodebench.bench.events import BusStatus, PointFinished, PointProgress, PointStarted, SessionStarted
+from bodebench.core.eta import SweepTimer
+
+logger = logging.getLogger(__name__)
 
 
 class ProgressPrinter:
     """A session listener writing to ``stream`` (stderr): one refreshed line on a terminal, a line per point
-    otherwise. ETA assumes the remaining points take as long as the average so far."""
+    otherwise. The count includes the points an interrupted sweep already holds; the ETA is the sweep's
+    :class:`~bodebench.core.eta.SweepTimer` estimate (the current point's periods to go by its rule's progress,
+    the others' from the points measured, at the bench's measured seconds per period)."""
 
     def __init__(self, label: str, total: int, stream: TextIO | None = None, quiet: bool = False,
                  refresh_s: float = 0.25) -> None:
@@ -21,17 +27,26 @@ class ProgressPrinter:
         self.quiet = quiet
         self.tty = self.stream.isatty()
         self.refresh_s = refresh_s
-        self.done = 0
-        self.started = time.monotonic()
+        self.timer: SweepTimer | None = None
+        self._eta_failed = False
         self._last = 0.0
         self._freq = 0.0
         self._bus = ""
 
+    @property
+    def done(self) -> int:
+        return self.timer.done if self.timer is not None else 0
+
     def _eta(self) -> str:
-        if not self.done:
+        if self.timer is None or self._eta_failed:
             return "--"
-        left = (time.monotonic() - self.started) / self.done * (self.total - self.done)
-        return f"{left:.0f} s"
+        try:
+            left = self.timer.remaining(time.monotonic())
+        except Exception:  # noqa: BLE001 - an estimate that fails must not stop the measurement
+            logger.exception("the time-to-go estimate failed; the progress line shows none from now on")
+            self._eta_failed = True
+            return "--"
+        return "--" if left is None else f"{left:.0f} s"
 
     def _line(self, text: str, final: bool) -> None:
         if self.quiet:
@@ -43,20 +58,29 @@ class ProgressPrinter:
         self.stream.flush()
 
     def __call__(self, event: object) -> None:
+        now = time.monotonic()
         if isinstance(event, SessionStarted):
-            self.started = time.monotonic()
-            self._line(f"{self.label}: {len(event.frequencies_hz)} points on {event.where}", True)
+            self.timer = event.timer()
+            self.total = self.timer.total
+            already = f", {self.timer.done} already measured" if self.timer.done else ""
+            self._line(f"{self.label}: {len(event.frequencies_hz)} points on {event.where}{already}", True)
         elif isinstance(event, PointStarted):
             self._freq = event.frequency_hz
+            if self.timer is not None:
+                self.timer.point_started(event.frequency_hz, now)
         elif isinstance(event, PointProgress):
-            now = time.monotonic()
+            if self.timer is not None:
+                self.timer.progress(event.periods, event.states, now)
             if now - self._last >= self.refresh_s:
                 self._last = now
                 gaps = f" ({event.discarded} discarded for gaps)" if event.discarded else ""
                 self._line(f"{self.label}: {self.done}/{self.total} done, {event.frequency_hz:g} Hz, "
                            f"period {event.periods}{gaps}, ETA {self._eta()}{self._bus}", False)
         elif isinstance(event, PointFinished):
-            self.done += 1
+            measured = not (event.refused or event.skipped)
+            if self.timer is not None:
+                self.timer.point_finished(self._freq, max(p.periods for p in event.points) if measured else None,
+                                          now)
             if event.refused:
                 self._line(f"{self.label}: {self.done}/{self.total} {self._freq:g} Hz REFUSED, not written: "
                            f"{event.refused}", True)

@@ -15,15 +15,35 @@ import numpy as np
 
 from bodebench.bench.worker import Health
 from bodebench.core.autointegration import SeriesState
+from bodebench.core.eta import SweepTimer
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.status import FaultKind
 
 
 @dataclass(frozen=True)
 class SessionStarted:
+    """A sweep of ``frequencies_hz`` (Hz, every one of the case's, in order) starts on ``where``.
+
+    measured: frequencies already on disk from an interrupted sweep, with the periods their slowest series
+    took (not measured again); extra_periods: per frequency, the periods a point spends besides those
+    integrated (ramp in, settle, ramp out); max_periods: the cap on integrated periods; realtime: the bench
+    paces periods in real time (a period lasts 1/f s).
+    """
+
     frequencies_hz: tuple[float, ...]
     channels: tuple[str, ...]
     where: str
+    measured: tuple[tuple[float, int], ...] = ()
+    extra_periods: tuple[float, ...] = ()
+    max_periods: int | None = None
+    realtime: bool = False
+
+    def timer(self) -> SweepTimer:
+        """A timer of this sweep, the frequencies already measured counted done."""
+        timer = SweepTimer(self.frequencies_hz, self.extra_periods or 0.0, self.max_periods,
+                           1.0 if self.realtime else None)
+        timer.already_measured(dict(self.measured))
+        return timer
 
 
 @dataclass(frozen=True)

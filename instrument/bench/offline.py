@@ -61,7 +61,8 @@ def measure_point(case: CaseConfig, frequency_hz: float, samples_dir: str = "") 
     # the steps are the computation's own, one every h: there are no gaps to look for
     sampler = Autointegrator(frequency_hz, amplitude, (OUTPUT_CHANNEL,), analysis, t0=settle / frequency_hz,
                              check_gaps=False)
-    record = PointSamples(frequency_hz, amplitude, (OUTPUT_CHANNEL,), source="offline") if keep_samples else None
+    record = PointSamples(frequency_hz, amplitude, (OUTPUT_CHANNEL,), settle / frequency_hz, source="offline") \
+        if keep_samples else None
     state = plant.initial_state()
     first_t, first_y = np.array([0.0]), np.zeros((1, 1))
     if record is not None:

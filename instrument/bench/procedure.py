@@ -73,12 +73,26 @@ def previous_run(directory: Path, case: CaseConfig, existing: str = "refuse") ->
         raise ResultsError(f"{directory / CSV_NAME}: results already here; --resume continues that sweep, "
                            "or choose another --out")
     previous = load_response(directory, drop_torn_row=True)
-    wanted = FrequencyResponse(config=case.raw).config
-    if previous.config != wanted:
-        changed = sorted(k for k in set(previous.config) | set(wanted) if previous.config.get(k) != wanted.get(k))
+    before, wanted = _what_is_measured(previous.config), _what_is_measured(FrequencyResponse(config=case.raw).config)
+    if before != wanted:
+        changed = sorted(k for k in set(before) | set(wanted) if before.get(k) != wanted.get(k))
         raise ResultsError(f"{directory / SIDECAR_NAME}: made with another configuration (tables differ: "
                            f"{', '.join(changed)}); cannot resume")
     return previous
+
+
+WHERE_THE_DRIVE_IS = {"serial": ("port",), "can": ("interface", "channel")}
+"""Keys that say only how the drive is reached (a pseudo-terminal's number changes every run, an adapter may be
+swapped): a sweep resumed with others is the same measurement."""
+
+
+def _what_is_measured(config: dict) -> dict:
+    """``config`` (a sidecar's) without the keys of :data:`WHERE_THE_DRIVE_IS`."""
+    out = dict(config)
+    for table, keys in WHERE_THE_DRIVE_IS.items():
+        if isinstance(out.get(table), dict):
+            out[table] = {k: v for k, v in out[table].items() if k not in keys}
+    return out
 
 
 @dataclass

@@ -163,8 +163,8 @@ class BenchSession:
         try:
             ready = self._expect(Ready, timeout=60.0)
             self.channels = ready.channels
-            self.listener(SessionStarted(self.case.excitation.frequencies_hz, ready.channels, self.plan.where))
             done = completed_frequencies(self.response, self.bench.output_channels, self.analysis.harmonics)
+            self.listener(self._started(ready.channels, done))
             queue = [f for f in self.case.excitation.frequencies_hz if f not in done]
             index = 0
             while queue or self.controls.remeasure:
@@ -199,6 +199,17 @@ class BenchSession:
         return SessionResult(self.response, completed, reason, stopped.last_setpoint if stopped else math.nan,
                              stopped.disabled if stopped else False, rt, self.last_health, self.periods_discarded,
                              stopped.log_failure if stopped else "")
+
+    def _started(self, channels: tuple[str, ...], done: set[float]) -> SessionStarted:
+        excitation, bench = self.case.excitation, self.bench
+        measured: dict[float, int] = {}
+        for p in self.response.points:
+            if p.frequency_hz in done:
+                measured[p.frequency_hz] = max(measured.get(p.frequency_hz, 0), p.periods)
+        extra = tuple(bench.ramp_in_periods + excitation.settle_at(f) + bench.ramp_out_periods
+                      for f in excitation.frequencies_hz)
+        return SessionStarted(excitation.frequencies_hz, channels, self.plan.where, tuple(measured.items()), extra,
+                              self.analysis.max_periods, bench.clock == "realtime")
 
     def _shutdown(self, reason: str, abort: bool) -> Stopped | None:
         try:

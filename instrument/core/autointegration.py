@@ -63,7 +63,8 @@ class SeriesState:
     """Where one series stands after the latest period (for progress displays).
 
     estimate: the rule's current coefficient estimate P + jQ (output units);
-    uncertainty: its confidence half-width (NaN until the rule can tell).
+    uncertainty: its confidence half-width (NaN until the rule can tell);
+    tolerance: the half-width at which the rule stops (output units, NaN until known).
     """
 
     channel: str
@@ -72,6 +73,7 @@ class SeriesState:
     estimate: complex
     uncertainty: float
     verdict: Verdict | None
+    tolerance: float = math.nan
 
 
 class Autointegrator:
@@ -251,7 +253,9 @@ class Autointegrator:
                     n = hist.n
                 else:
                     est, unc, n = complex("nan"), float("nan"), 0
-                out.append(SeriesState(name, harmonic, n, est, unc, verdict))
+                reference = self._last_references[c]
+                tol = self._rules[c][k].tolerance(est, reference) if n and math.isfinite(reference) else math.nan
+                out.append(SeriesState(name, harmonic, n, est, unc, verdict, tol))
         return out
 
     def history(self, channel: str, harmonic: int) -> np.ndarray:

@@ -13,7 +13,7 @@ import math
 import os
 import re
 import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -23,6 +23,7 @@ from bodebench.drivers.cia402 import TARGET_OBJECTS
 from bodebench.drivers.codec import COUNTER, TIMESTAMP
 from bodebench.drivers.errors import LayoutError
 from bodebench.drivers.layout import Layout, default_layout
+from bodebench.io.document import Override, OverrideError, apply_overrides, names_override
 from bodebench.io.schema import (
     ConfigError,
     FieldError,
@@ -71,6 +72,7 @@ __all__ = [
     "build_table",
     "load_config",
     "parse_config",
+    "read_document",
 ]
 
 CASE_NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]+")
@@ -346,15 +348,15 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
     if safety is None:
         raise _Fault("safety", "a bench config needs a [safety] table (at least max_amplitude)")
     excitation: ExcitationConfig = tables["excitation"]
-    if excitation.amplitude > safety.max_amplitude:
-        raise _Fault(key("excitation", "amplitude"),
-                             f"{excitation.amplitude:g} exceeds safety.max_amplitude ({safety.max_amplitude:g})")
     top = max(tables["analysis"].harmonics)
     for i, f in enumerate(excitation.frequencies_hz):
         at = (f"{key('excitation', 'frequencies_hz')}[{i}]" if excitation.frequencies is None
               else f"{key('excitation', 'frequencies')} (frequency {i})")
         amplitude = excitation.amplitude_at(f)
         if amplitude > safety.max_amplitude:
+            if excitation.amplitudes is None and excitation.amplitude_profile is None:
+                raise _Fault(key("excitation", "amplitude"),
+                             f"{amplitude:g} exceeds safety.max_amplitude ({safety.max_amplitude:g})")
             rule = "amplitudes" if excitation.amplitudes is not None else "amplitude_profile"
             raise _Fault(f"{key('excitation', rule)}" + (f"[{i}]" if rule == "amplitudes" else ""),
                          f"{amplitude:g} at {f:g} Hz exceeds safety.max_amplitude ({safety.max_amplitude:g})")
@@ -461,15 +463,35 @@ def _canopen_setup(table: CanopenConfig, simulated: bool, key: Callable[[str, st
                         table.state_timeout_s, table.fault_reset)
 
 
-def parse_config(data: Mapping[str, Any], source: str = "<config>") -> ExperimentConfig:
+def parse_config(data: Mapping[str, Any], source: str = "<config>", overrides: Sequence[Override] = ()
+                 ) -> ExperimentConfig:
     """Validate an already parsed configuration (a dict shaped like the TOML file).
 
     ``source`` names the configuration in error messages; its stem names the single case of a file without
-    ``[cases]`` and is the default title. Raises :class:`ConfigError`.
+    ``[cases]`` and is the default title. ``overrides`` (the command line's ``--set``) are set in the document
+    first, so they are validated as the file's own keys are, and an error at a key one of them set names it
+    with its option (``configs/x.toml: --set serial.prt: unknown key``). Raises :class:`ConfigError`.
     """
+    created: list[tuple[str, ...]] = []
+    cases = data.get("cases") if isinstance(data, Mapping) else None
+    for override in overrides:
+        if len(override.parts) > 1 and override.parts[0] == "cases" and isinstance(cases, Mapping) and \
+                override.parts[1] not in cases:
+            names = ", ".join(_key_path(name) for name in cases)
+            raise ConfigError(f"{source}: {override.option} {override.key}: no case {_key_path(override.parts[1])} "
+                              f"in the file (its cases: {names}; quote a name holding a dot: "
+                              'cases."fbar_0.8".plant.friction)', override.key)
+    if overrides:
+        try:
+            data, created = apply_overrides(data, overrides)
+        except OverrideError as exc:
+            raise ConfigError(f"{source}: {exc}", exc.key) from None
     try:
         return _parse(data, source)
     except _Fault as fault:
+        setter = names_override(fault.key, overrides, created)
+        if setter is not None:
+            raise ConfigError(f"{source}: {setter.option} {fault.key}: {fault.problem}", fault.key) from None
         raise _error(source, fault) from None
 
 
@@ -490,8 +512,8 @@ def _toml_error(source: str, text: str, err: tomllib.TOMLDecodeError) -> ConfigE
     return ConfigError(f"{source}: line {line} column {column}: {message}")
 
 
-def load_config(path: str | Path) -> ExperimentConfig:
-    """Read and validate a TOML configuration file. Raises :class:`ConfigError` (one-line message)."""
+def read_document(path: str | Path) -> dict[str, Any]:
+    """A TOML configuration file as parsed, not validated. Raises :class:`ConfigError` (one-line message)."""
     source = str(path)
     try:
         blob = Path(path).read_bytes()
@@ -502,7 +524,12 @@ def load_config(path: str | Path) -> ExperimentConfig:
     except UnicodeDecodeError as err:
         raise ConfigError(f"{source}: cannot read: not UTF-8 (byte {err.start})") from None
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise _toml_error(source, text, err) from None
-    return parse_config(data, source)
+
+
+def load_config(path: str | Path, overrides: Sequence[Override] = ()) -> ExperimentConfig:
+    """Read and validate a TOML configuration file, ``overrides`` set in it first (see :func:`parse_config`).
+    Raises :class:`ConfigError` (one-line message)."""
+    return parse_config(read_document(path), str(path), overrides)

@@ -235,10 +235,11 @@ class ExcitationConfig:
     """The sine input: the frequencies to measure at (a list or a log-spaced range), the amplitude at each (a
     constant, a list or a profile), and the periods to settle at each before the analysis."""
 
-    amplitude: float = field(
+    amplitude: float | None = field(
+        default=None,
         metadata={"min": 0, "min_exclusive": True,
-                  "doc": "input amplitude A_i (A_F for the friction link); at every frequency unless amplitudes or "
-                         "amplitude_profile is given"}
+                  "doc": "input amplitude A_i (A_F for the friction link) at every frequency (or give amplitudes or "
+                         "amplitude_profile)"}
     )
     frequencies_hz: tuple[float, ...] = field(
         default=(),
@@ -275,9 +276,13 @@ class ExcitationConfig:
         if self.frequencies is not None and self.frequencies_hz != self.frequencies.expand():
             raise FieldError("frequencies", f"give either this or {where('frequencies_hz')}, not both")
         n = len(self.frequencies_hz)
+        rules = [name for name in ("amplitude", "amplitudes", "amplitude_profile") if getattr(self, name) is not None]
+        if not rules:
+            raise FieldError("amplitude", "missing (give amplitude, amplitudes = [...] (one per frequency) or "
+                                          "amplitude_profile = {frequencies_hz, amplitudes})")
+        if len(rules) > 1:
+            raise FieldError(rules[1], f"give either this or {where(rules[0])}, not both")
         if self.amplitudes is not None:
-            if self.amplitude_profile is not None:
-                raise FieldError("amplitude_profile", f"give either this or {where('amplitudes')}, not both")
             if len(self.amplitudes) != n:
                 raise FieldError("amplitudes", f"{len(self.amplitudes)} values for {n} frequencies")
         if self.settle_periods_per_frequency is not None:
@@ -300,6 +305,7 @@ class ExcitationConfig:
             return self.amplitudes[self._index(frequency_hz)]
         if self.amplitude_profile is not None:
             return self.amplitude_profile.at(frequency_hz)
+        assert self.amplitude is not None  # validate() saw one amplitude rule
         return self.amplitude
 
     def settle_at(self, frequency_hz: float) -> int:

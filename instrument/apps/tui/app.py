@@ -3,7 +3,10 @@
 The sweep runs in a Textual thread worker; its listener (:class:`~bodebench.apps.tui.bridge.SessionBridge`)
 queues rare events as messages and leaves the frequent ones for a refresh timer, so the measurement never
 waits on the screen. Every way out of the app (q, Ctrl+Q, an error) aborts a running sweep and joins its
-thread first: the session leaves the drive at setpoint zero, disabled.
+thread first: the session leaves the drive at setpoint zero, disabled. When the last sweep did not complete,
+:func:`run_tui` prints one line on exit saying why, how many points are kept where, and how the drive was left.
+Exit status: 0 after a quit with no sweep running, 1 when the quit aborted a running sweep, 128 + N after signal
+N (SIGTERM, SIGHUP).
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import math
 import signal
+import sys
 import threading
 import time
 import traceback
@@ -23,11 +27,12 @@ from rich.text import Text
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
+from textual.screen import ModalScreen, Screen
 from textual.widget import Widget
 from textual.widgets import Static
 
 from bodebench.apps.tui.bridge import SessionBridge, SessionEvent, WorkerReport
-from bodebench.apps.tui.dialogs import ConfirmDialog, InputDialog, MessageDialog
+from bodebench.apps.tui.dialogs import ChoiceDialog, ConfirmDialog, InputDialog, MessageDialog
 from bodebench.apps.tui.model import BusRates, SweepModel, format_duration
 from bodebench.apps.tui.widgets import (
     STATE_STYLES,
@@ -50,7 +55,8 @@ from bodebench.bench.events import (
     SessionFault,
     SessionStarted,
 )
-from bodebench.bench.procedure import CaseOutcome, SweepProcedure, case_directory
+from bodebench.bench.procedure import CaseOutcome, SweepProcedure, case_directory, previous_run
+from bodebench.bench.session import completed_frequencies
 from bodebench.bench.worker import Health
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.summary import summarize_response
@@ -131,7 +137,7 @@ class BodeBenchApp(App[int]):
         Binding("t", "tolerance", "tol"),
         Binding("w", "save", "save"),
         Binding("o", "open", "open"),
-        Binding("q", "quit", "quit"),
+        Binding("q", "request_quit", "quit"),
         Binding("1", "view('live')", "live", show=False),
         Binding("2", "view('sweep')", "sweep", show=False),
         Binding("3", "view('bode')", "bode", show=False),
@@ -183,7 +189,10 @@ class BodeBenchApp(App[int]):
         self._scope_index: int | None = None
         self.worker_errors: list[str] = []
         self._status_text = Text()
-        self._bindings_running = False
+        self._bindings_state: tuple[bool, ...] = ()
+        self._resumed: dict[int, FrequencyResponse] = {}  # per case: the points the running sweep continues
+        self._quit_dialog: ConfirmDialog | None = None
+        self.exit_line = ""  # printed on exit: how the last sweep ended, when it did not complete
         self._display_error_shown = False
         self._ticks = 0
 
@@ -234,9 +243,22 @@ class BodeBenchApp(App[int]):
 
     def _sync_bindings(self) -> None:
         """Refresh the footer's keys when what they can do has changed (a footer rebuild is not free)."""
-        if self.running != self._bindings_running:
-            self._bindings_running = self.running
-            self.refresh_bindings()
+        state = (self.running, bool(self.live_points), self.case_index in self.results, self._modal_open(),
+                 self._quitting)
+        if state != self._bindings_state:
+            self._bindings_state = state
+            for screen in self.screen_stack:  # the footer is on the first screen, under any dialog
+                screen.refresh_bindings()
+
+    def _modal_open(self) -> bool:
+        try:
+            return isinstance(self.screen, ModalScreen)
+        except Exception:  # noqa: BLE001 - no screen yet (or any more)
+            return False
+
+    def _screen_changed(self, screen: Screen[Any]) -> None:
+        """A dialog opened or closed: the footer shows the keys that work under it."""
+        self._sync_bindings()
 
     def _panels(self) -> dict[str, Widget]:
         return {"live": self.w_live, "sweep": self.w_sweep, "bode": self.w_bode, "bus": self.w_bus}
@@ -252,6 +274,7 @@ class BodeBenchApp(App[int]):
             except (NotImplementedError, RuntimeError, ValueError):  # not the main thread: the signal stays as it is
                 continue
             self._signals.append(signum)
+        self.screen_change_signal.subscribe(self, self._screen_changed)
         for view in VIEWS:
             self._panels()[view].border_title = VIEW_TITLES[view]
         self._load_previous()
@@ -280,11 +303,21 @@ class BodeBenchApp(App[int]):
 
     # --------------------------------------------------------------------------------------------- actions
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        """Whether a key works now: one that would do nothing is not shown. Under a dialog only the keys the
+        dialog passes on to the app (its ``APP_KEYS``) and Ctrl+Q work, so the footer shows only those."""
+        if self._modal_open() and action != "quit" and action not in getattr(self.screen, "APP_KEYS", ()):
+            return False  # "quit" is Ctrl+Q (not in the footer), which works everywhere
+        if self._quitting:  # the sweep is being aborted before the app ends: nothing else to do
+            return action == "abort"
         running = self.running
         if action in ("abort", "pause", "skip"):
-            return True if running else None
+            return running
         if action == "start":
-            return None if running else True
+            return not running
+        if action == "remeasure":
+            return running or self.case_index in self.results
+        if action == "save":
+            return bool(self.live_points)
         return True
 
     def action_view(self, view: str) -> None:
@@ -301,18 +334,45 @@ class BodeBenchApp(App[int]):
         if self.running:
             self.notify("a sweep is already running", severity="warning")
             return
-        existing = [case_directory(self.config, self.out, c) for c in self.config.cases]
-        existing = [d for d in existing if (d / CSV_NAME).exists()]
-        if not existing:
+        found: list[str] = []
+        resumable: dict[int, FrequencyResponse] = {}
+        refused = ""
+        for i, case in enumerate(self.config.cases):
+            directory = case_directory(self.config, self.out, case)
+            if not (directory / CSV_NAME).exists():
+                continue
+            try:
+                previous = previous_run(directory, case, "resume")
+            except ResultsError as exc:  # another configuration's, or unreadable: to be replaced, not continued
+                found.append(str(directory))
+                refused = refused or str(exc)
+                continue
+            if previous is not None:
+                resumable[i] = previous
+                done = completed_frequencies(previous, case.on_bench.bench.output_channels, case.analysis.harmonics)
+                found.append(f"{directory} ({len(done)} of {len(case.excitation.frequencies_hz)} frequencies "
+                             "measured)")
+        if not found:
             self._launch(None)
             return
 
-        def answered(yes: bool | None) -> None:
-            if yes:
+        def answered(answer: str | None) -> None:
+            if answer == "resume":
+                self._launch(None, resume=resumable)
+            elif answer == "replace":
                 self._launch(None)
 
-        self.push_screen(ConfirmDialog(f"Start a new sweep? It replaces the results in "
-                                       f"{', '.join(str(d) for d in existing)}.", "Start"), answered)
+        where = "; ".join(found)
+        if refused:
+            self.push_screen(ChoiceDialog(f"Results are already in {where}, and cannot be resumed: {refused}. "
+                                          "Replace them with a new sweep?",
+                                          [("replace", "Replace", "x", "error"), (None, "Cancel", "c", "default")]),
+                             answered)
+            return
+        self.push_screen(ChoiceDialog(f"Results are already in {where}. Resume measures only the missing "
+                                      "frequencies and keeps the others; replace starts again and overwrites them.",
+                                      [("resume", "Resume", "r", "primary"), ("replace", "Replace", "x", "error"),
+                                       (None, "Cancel", "c", "default")]), answered)
 
     def action_abort(self) -> None:
         control = self.control
@@ -329,6 +389,7 @@ class BodeBenchApp(App[int]):
             return
         control.paused = not control.paused
         control.procedure.set_paused(control.paused)
+        (self.model.pause if control.paused else self.model.unpause)(time.monotonic())
         self.state = "paused" if control.paused else "running"
         self._refresh_status()
 
@@ -436,23 +497,37 @@ class BodeBenchApp(App[int]):
         self.push_screen(InputDialog("Open a results directory to overlay on the Bode plot", str(self.out.parent),
                                      check, placeholder="path/to/results"), done)
 
+    async def action_request_quit(self) -> None:
+        """q (in the question and message dialogs too; the input dialog types it)."""
+        await self.action_quit()
+
     async def action_quit(self) -> None:
+        """q or Ctrl+Q: quit; while a sweep runs, ask first (q again answers yes)."""
         if self._quitting:
             return
         if not self.running:
             self._quitting = True
             self.exit(0)
             return
+        if self._quit_dialog is not None and self.screen is self._quit_dialog:
+            self._quit_dialog.dismiss(True)
+            return
 
         def answered(yes: bool | None) -> None:
-            if yes:
+            self._quit_dialog = None
+            if yes and not self._quitting:
                 self._quitting = True
-                self.action_abort()
-                self.notify("aborting the sweep before quitting ...")
-                self.set_timer(JOIN_TIMEOUT_S, lambda: self.exit(1))
+                self._sync_bindings()
+                if self.running:
+                    self.action_abort()
+                    self.notify("aborting the sweep before quitting ...")
+                    self.set_timer(JOIN_TIMEOUT_S, partial(self._exit_unjoined, 1))
+                else:  # it ended while the question was open
+                    self.exit(0)
 
-        self.push_screen(ConfirmDialog("A sweep is running. Abort it (setpoint to zero, drive disabled) and "
-                                       "quit?", "Abort and quit"), answered)
+        self._quit_dialog = ConfirmDialog("A sweep is running. Abort it (setpoint to zero, drive disabled) and "
+                                          "quit? (y or q: yes)", "Abort and quit")
+        self.push_screen(self._quit_dialog, answered)
 
     # ------------------------------------------------------------------------------------------ the session
     def _log_path(self) -> Path | None:
@@ -461,13 +536,17 @@ class BodeBenchApp(App[int]):
             return self.log_bus
         return self.log_bus.with_name(f"{self.log_bus.stem}.run{self._runs}{self.log_bus.suffix}")
 
-    def _launch(self, frequency_hz: float | None) -> None:
-        """Start a sweep of every case (``frequency_hz``: re-measure that frequency of the current case)."""
+    def _launch(self, frequency_hz: float | None, resume: dict[int, FrequencyResponse] | None = None) -> None:
+        """Start a sweep of every case (``frequency_hz``: re-measure that frequency of the current case; ``resume``:
+        continue the interrupted sweeps whose points these are, measuring only what they lack)."""
         from bodebench.apps.plots import write_plots  # matplotlib: only once a sweep starts
 
         self._runs += 1
+        self._resumed = dict(resume or {})
+        self.exit_line = ""
         bridge = SessionBridge(self.post_message, self._runs)
-        procedure = SweepProcedure(self.config, self.out, listener=bridge, existing="replace",
+        procedure = SweepProcedure(self.config, self.out, listener=bridge,
+                                   existing="resume" if resume is not None else "replace",
                                    worker_mode=self.config.cases[0].on_bench.bench.worker_mode(beside_a_ui=True),
                                    plots=write_plots, log_bus=self._log_path())
         if self.tolerance_percent is not None:
@@ -535,9 +614,12 @@ class BodeBenchApp(App[int]):
             self.case_index = event.index
             if event.frequency_hz is None:
                 self.model = self._new_model(self.case)
+                resumed = self._resumed.get(event.index)
+                if resumed is not None:  # a resumed sweep: the points it keeps are finished rows
+                    self.model.load_points(resumed.points)
                 self.w_table.fill(self.model.rows)
                 self.model.take_changed()
-                self.live_points = []
+                self.live_points = list(resumed.points) if resumed is not None else []
             self._bode_dirty = True
         elif isinstance(event, CaseSaved):
             assert isinstance(event.response, FrequencyResponse)
@@ -548,7 +630,7 @@ class BodeBenchApp(App[int]):
         elif isinstance(event, SessionStarted):
             self.where = event.where
             self.watchdog = "armed"
-            self.model.session_started(now)
+            self.model.session_started(now, event.timer())
             self.state = "paused" if self.control is not None and self.control.paused else "running"
         elif isinstance(event, PointStarted):
             self.model.point_started(event.index, event.frequency_hz, now, event.tolerance_percent, event.criterion)
@@ -588,12 +670,38 @@ class BodeBenchApp(App[int]):
         if self._quitting:
             self.exit(128 + signal.Signals[self.stopped_by] if self.stopped_by else 0 if message.completed else 1)
 
+    def _stop_line(self, message: WorkerReport) -> str:
+        """One line on a sweep that did not complete, as the command line's run gives it: why it stopped, the
+        points kept and where, and how the drive was left."""
+        fault, ended = self.last_fault, self.last_ended
+        if self.stopped_by:
+            cause = f"interrupted ({self.stopped_by})"
+        elif message.aborted or (fault is not None and fault.kind == FaultKind.ABORT):
+            cause = "aborted by the user" + (" (quit)" if self._quitting else "")
+        else:
+            cause = message.error or "the sweep stopped"
+        kept = fault.kept if fault is not None else len(self.live_points)
+        where = (f"{kept} points kept in {message.saved}" if kept and message.saved else
+                 "no point measured" if not kept else f"{kept} points measured, none written")
+        drive = ended.drive_state() if ended is not None else "nothing was sent to the drive"
+        return f"bodebench: {self.case.name}: stopped: {cause}; {where}; {drive}"
+
+    def _exit_unjoined(self, status: int) -> None:
+        """The sweep's thread has not ended in time: exit all the same, saying the drive's state is not known."""
+        control = self.control
+        if control is not None and not control.done.is_set():
+            self.exit_line = (f"bodebench: {self.case.name}: stopped: the sweep did not end within "
+                              f"{JOIN_TIMEOUT_S:g} s of the abort; the drive's state is unknown (points measured are "
+                              f"in {case_directory(self.config, self.out, self.case)})")
+        self.exit(status)
+
     def _worker_report(self, message: WorkerReport) -> None:
         self._drain()
         if self.watchdog != "TRIPPED":
             self.watchdog = "off"
         self.model.session_ended(time.monotonic())
         fault, ended = self.last_fault, self.last_ended
+        self.exit_line = "" if message.completed else self._stop_line(message)
         if message.completed:
             self.state = "done"
             self.notify(f"sweep complete: results in {message.saved}", timeout=8)
@@ -634,7 +742,7 @@ class BodeBenchApp(App[int]):
                 break  # its PointStarted is not handled yet
             queue.popleft()
             if item.index == model.current_index:
-                model.progress(item.index, item.periods, item.states)
+                model.progress(item.index, item.periods, item.states, item.at)
                 applied = True
         if applied:
             self._live_dirty = True
@@ -660,7 +768,8 @@ class BodeBenchApp(App[int]):
         model = self.model
         panel = self.w_live
         f = model.frequencies_hz[model.current] if model.current is not None else None
-        panel.show_convergence(f, model.periods, model.traces, model.tolerance_percent, model.criterion)
+        to_go = [model.series_to_go(t.channel, t.harmonic) for t in model.traces]
+        panel.show_convergence(f, model.periods, model.traces, to_go, model.tolerance_percent, model.criterion)
         bridge = self.bridge
         latest = bridge.latest_progress if bridge is not None else None
         if latest is not None and latest.index == model.current_index:
@@ -762,7 +871,7 @@ class BodeBenchApp(App[int]):
         self._quitting = True
         if self.running:
             self.action_abort()
-            self.set_timer(JOIN_TIMEOUT_S, lambda: self.exit(128 + signum))
+            self.set_timer(JOIN_TIMEOUT_S, partial(self._exit_unjoined, 128 + signum))
         else:
             self.exit(128 + signum)
 
@@ -787,4 +896,6 @@ def run_tui(config: ExperimentConfig, out: Path, **options: Any) -> int:
     """Open the UI on a bench config; returns the exit status (0: quit normally)."""
     app = BodeBenchApp(config, out, **options)
     status = app.run()
+    if app.exit_line:
+        print(app.exit_line, file=sys.stderr)
     return int(status or 0)

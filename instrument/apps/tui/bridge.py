@@ -48,11 +48,12 @@ class WorkerReport(Message):
 
 @dataclass(frozen=True)
 class ProgressSummary:
-    """What the convergence plot needs from one PointProgress."""
+    """What the convergence plot and the ETA need from one PointProgress; ``at``: when it came (monotonic s)."""
 
     index: int
     periods: int
     states: tuple[SeriesState, ...]
+    at: float
 
 
 class SessionBridge:
@@ -69,7 +70,7 @@ class SessionBridge:
     def __call__(self, event: object) -> None:
         self.calls += 1
         if isinstance(event, PointProgress):
-            self.progress.append(ProgressSummary(event.index, event.periods, event.states))
+            self.progress.append(ProgressSummary(event.index, event.periods, event.states, time.monotonic()))
             self.latest_progress = event
         elif isinstance(event, BusStatus):
             self.latest_health = (time.monotonic(), event.health)

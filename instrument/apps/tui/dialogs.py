@@ -1,9 +1,15 @@
-"""Modal dialogs: a yes/no question, a one-line input with validation, a message."""
+"""Modal dialogs: a yes/no question, a choice among a few answers, a one-line input with validation, a message.
+
+The question, the choice and the message pass two of the app's keys on: ``q`` quits (the app asks first
+while a sweep runs) and ``a`` aborts a running sweep (``APP_KEYS`` names them, so the app's footer shows what
+works). The input dialog passes none: every printable key is typed (Ctrl+Q, the app's, quits everywhere).
+"""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
+from textual import events
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
@@ -21,12 +27,18 @@ DIALOG_CSS = """
 """
 
 
+APP_BINDINGS = [Binding("q", "app.request_quit", "quit", show=False),
+                Binding("a", "app.abort", "abort", show=False)]
+"""The app's keys a dialog passes on (see the module docstring)."""
+
+
 class ConfirmDialog(ModalScreen[bool]):
     """A question answered yes (y) or no (n, escape)."""
 
     DEFAULT_CSS = "ConfirmDialog { align: center middle; }\n" + DIALOG_CSS
     BINDINGS = [Binding("y", "answer(True)", "yes"), Binding("n", "answer(False)", "no"),
-                Binding("escape", "answer(False)", "no", show=False)]
+                Binding("escape", "answer(False)", "no", show=False), *APP_BINDINGS]
+    APP_KEYS = ("request_quit", "abort")
 
     def __init__(self, question: str, yes: str = "Yes") -> None:
         super().__init__()
@@ -45,6 +57,45 @@ class ConfirmDialog(ModalScreen[bool]):
 
     def action_answer(self, yes: bool) -> None:
         self.dismiss(yes)
+
+
+class ChoiceDialog(ModalScreen["str | None"]):
+    """A question with a few answers, each a button and a key: ``choices`` are (answer, label, key, variant); the
+    answer is dismissed with, escape answers None (the last choice should say so, for example Cancel)."""
+
+    DEFAULT_CSS = "ChoiceDialog { align: center middle; }\n" + DIALOG_CSS
+    BINDINGS = [Binding("escape", "choose(None)", "cancel", show=False), *APP_BINDINGS]
+    APP_KEYS = ("request_quit", "abort")
+
+    def __init__(self, question: str, choices: Sequence[tuple[str | None, str, str, str]]) -> None:
+        super().__init__()
+        self.question = question
+        self.choices = list(choices)
+        taken = {b.key for b in self.BINDINGS if isinstance(b, Binding)}
+        keys = [key for _, _, key, _ in self.choices]
+        if len(set(keys)) != len(keys) or taken & set(keys):
+            raise ValueError(f"each choice needs its own key, not one of {sorted(taken)}: {keys}")
+
+    def compose(self) -> ComposeResult:
+        with Vertical(classes="dialog-box"):
+            yield Static(self.question, classes="dialog-title", id="dialog-text")
+            with Horizontal(classes="dialog-buttons"):
+                for i, (_, label, key, variant) in enumerate(self.choices):
+                    yield Button(f"{label} ({key})", variant=variant, id=f"choice-{i}")  # type: ignore[arg-type]
+
+    def on_key(self, event: events.Key) -> None:
+        for answer, _, key, _ in self.choices:
+            if event.key == key:
+                event.stop()
+                self.dismiss(answer)
+                return
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        index = int((event.button.id or "choice-0").removeprefix("choice-"))
+        self.dismiss(self.choices[index][0])
+
+    def action_choose(self, answer: str | None) -> None:
+        self.dismiss(answer)
 
 
 class InputDialog(ModalScreen["str | None"]):
@@ -89,7 +140,9 @@ class MessageDialog(ModalScreen[None]):
     """A message (an error: red border) closed with enter or escape."""
 
     DEFAULT_CSS = "MessageDialog { align: center middle; }\n" + DIALOG_CSS
-    BINDINGS = [Binding("escape", "close", "close", show=False), Binding("enter", "close", "close", show=False)]
+    BINDINGS = [Binding("escape", "close", "close", show=False), Binding("enter", "close", "close", show=False),
+                *APP_BINDINGS]
+    APP_KEYS = ("request_quit", "abort")
 
     def __init__(self, title: str, text: str, error: bool = False) -> None:
         super().__init__()

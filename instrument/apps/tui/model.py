@@ -10,9 +10,8 @@ from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from bodebench.core.autointegration import SeriesState
+from bodebench.core.eta import SweepTimer
 from bodebench.core.response import ResponsePoint
 from bodebench.status import PointStatus
 
@@ -29,39 +28,6 @@ def relative_error_percent(estimate: complex, uncertainty: float) -> float:
     if not (math.isfinite(magnitude) and math.isfinite(uncertainty)) or magnitude == 0.0:
         return math.nan
     return 100.0 * uncertainty / magnitude
-
-
-def periods_to_go(periods: Sequence[float], rel_error: Sequence[float], tolerance_percent: float,
-                  fit_points: int = 40) -> float | None:
-    """Periods left until the relative error reaches the tolerance, from a power law ``e = C n**b`` fitted
-    (least squares in log-log) to the last ``fit_points`` finite values; 0 when already within the tolerance;
-    None when unknown (fewer than 4 values, or the error is not falling)."""
-    n = np.asarray(periods, dtype=float)
-    e = np.asarray(rel_error, dtype=float)
-    ok = np.isfinite(n) & np.isfinite(e) & (n > 0) & (e > 0)
-    n, e = n[ok][-fit_points:], e[ok][-fit_points:]
-    if n.size == 0:
-        return None
-    if e[-1] <= tolerance_percent:
-        return 0.0
-    if n.size < 4 or np.ptp(np.log(n)) == 0.0:
-        return None
-    slope, intercept = np.polyfit(np.log(n), np.log(e), 1)
-    if not slope < -1e-3:
-        return None
-    n_reach = math.exp((math.log(tolerance_percent) - intercept) / slope)
-    if not math.isfinite(n_reach):
-        return None
-    return max(0.0, n_reach - float(n[-1]))
-
-
-def remaining_seconds(done: Sequence[tuple[float, float]], remaining_hz: Iterable[float]) -> float | None:
-    """Time to measure the frequencies ``remaining_hz`` (s), assuming a point at f takes c / f seconds with c the
-    mean of ``seconds * f`` over ``done`` = [(frequency_hz, seconds), ...]; None before any point is done."""
-    if not done:
-        return None
-    c = float(np.mean([s * f for f, s in done]))
-    return sum(c / f for f in remaining_hz)
 
 
 def format_duration(seconds: float | None) -> str:
@@ -155,8 +121,7 @@ class SweepModel:
         self.periods = 0
         self.started_at: float | None = None
         self.ended_at: float | None = None
-        self._point_started: float | None = None
-        self.durations: list[tuple[float, float]] = []
+        self.timer = SweepTimer(self.frequencies_hz)
         self.finished: set[int] = set()
         self.changed: set[str] = set(self.rows)
         self.state_changed = True  # a row changed more than its period count since take_changed
@@ -183,8 +148,21 @@ class SweepModel:
         self.changed.add(key)
 
     # --- events
-    def session_started(self, now: float) -> None:
+    def session_started(self, now: float, timer: SweepTimer | None = None) -> None:
+        """A session starts; ``timer`` times it (from its SessionStarted: what is already measured, ramp and
+        settle periods, the clock), else a timer knowing only the frequencies."""
         self.started_at, self.ended_at = now, None
+        paused = self.timer.paused
+        self.timer = timer or SweepTimer(self.frequencies_hz)
+        if paused:
+            self.timer.pause(now)
+
+    def pause(self, now: float) -> None:
+        """The sweep is paused: the ETA stands still."""
+        self.timer.pause(now)
+
+    def unpause(self, now: float) -> None:
+        self.timer.unpause(now)
 
     def point_started(self, index: int, frequency_hz: float, now: float, tolerance_percent: float = math.nan,
                       criterion: str = "") -> None:
@@ -194,15 +172,16 @@ class SweepModel:
         self.current, self.current_index = position, index
         self.traces = [SeriesTrace(c, k) for c in self.channels for k in self.harmonics]
         self.periods = 0
-        self._point_started = now
+        self.timer.point_started(frequency_hz, now)
         for key in self.keys_at(position):
             self._set(key, state=SETTLING, gain_db=math.nan, phase_deg=math.nan, periods=0, thd=math.nan,
                       coherence=math.nan)
 
-    def progress(self, index: int, periods: int, states: Sequence[SeriesState]) -> None:
+    def progress(self, index: int, periods: int, states: Sequence[SeriesState], now: float) -> None:
         if index != self.current_index or self.current is None:
             return
         self.periods = periods
+        self.timer.progress(periods, states, now)
         by_series = {(t.channel, t.harmonic): t for t in self.traces}
         for s in states:
             trace = by_series.get((s.channel, s.harmonic))
@@ -229,11 +208,11 @@ class SweepModel:
         for p in points:
             self._set(row_key(position, p.harmonic, p.channel), state=point_state(p), gain_db=p.gain_db,
                       phase_deg=p.phase_deg, periods=p.periods, thd=p.thd, coherence=p.coherence)
-        if self._point_started is not None and not skipped and position not in self.finished:
-            self.durations.append((self.frequencies_hz[position], now - self._point_started))
+        if index == self.current_index:
+            self.timer.point_finished(self.frequencies_hz[position],
+                                      max(p.periods for p in points) if points and not skipped else None, now)
         self.finished.add(position)
         self.current = self.current_index = None
-        self._point_started = None
 
     def fail_current(self) -> None:
         """The sweep stopped inside a point: its unfinished rows failed."""
@@ -274,16 +253,15 @@ class SweepModel:
         return (self.ended_at if self.ended_at is not None else now) - self.started_at
 
     def eta(self, now: float) -> float | None:
-        """Seconds to finish the sweep: the points left (the current one counted whole, less its time so far)."""
+        """Seconds to finish the sweep (see :class:`~bodebench.core.eta.SweepTimer`); None when no session runs or
+        the time is not known yet."""
         if self.started_at is None or self.ended_at is not None:
             return None
-        left = [f for i, f in enumerate(self.frequencies_hz) if i not in self.finished]
-        total = remaining_seconds(self.durations, left)
-        if total is None:
-            return None
-        if self._point_started is not None:
-            total = max(0.0, total - (now - self._point_started))
-        return total
+        return self.timer.remaining(now)
+
+    def series_to_go(self, channel: str, harmonic: int) -> float | None:
+        """Periods the current point's series still needs by its rule's progress (0: done; None: unknown)."""
+        return self.timer.series_to_go().get((channel, harmonic))
 
     def take_changed(self) -> list[str]:
         """Keys of rows changed since the last call."""

@@ -30,7 +30,6 @@ from bodebench.apps.tui.model import (
     SKIPPED,
     Row,
     SeriesTrace,
-    periods_to_go,
 )
 from bodebench.bench.worker import Health
 from bodebench.core.response import FrequencyResponse
@@ -151,7 +150,8 @@ class LivePanel(Vertical):
         yield PlotView("scope", "no samples yet", id="scope")
 
     def show_convergence(self, frequency_hz: float | None, periods: int, traces: Sequence[SeriesTrace],
-                         tolerance_percent: float, criterion: str) -> None:
+                         to_go: Sequence[float | None], tolerance_percent: float, criterion: str) -> None:
+        """The current point's figures; ``to_go``: per trace, the periods its rule still needs (None: unknown)."""
         stats = Text()
         if frequency_hz is None:
             stats.append("no point being measured", style="bright_black")
@@ -161,14 +161,13 @@ class LivePanel(Vertical):
         plot_traces: list[Trace] = []
         values: list[np.ndarray] = []
         xs: list[np.ndarray] = []
-        for i, tr in enumerate(traces):
+        for i, (tr, left) in enumerate(zip(traces, to_go, strict=True)):
             colour = PALETTE[i % len(PALETTE)]
             rel = tr.rel_error[-1] if tr.rel_error else math.nan
-            to_go = 0.0 if tr.done else periods_to_go(tr.periods, tr.rel_error, tolerance_percent)
             stats.append("\n● ", style=colour)
             stats.append(f"k={tr.harmonic} {tr.channel}  n {tr.periods[-1] if tr.periods else 0}  "
                          f"u {_number(tr.uncertainty, '.3g')}  rel {_number(rel, '.3g')} %  "
-                         f"to go {'done' if tr.done else ('--' if to_go is None else f'~{to_go:.0f}')}")
+                         f"to go {'done' if tr.done else ('--' if left is None else f'~{left:.0f}')}")
             if tr.periods:
                 x, y = np.array(tr.periods, dtype=float), np.array(tr.rel_error, dtype=float)
                 plot_traces.append(Trace(x, y, colour))
