@@ -263,3 +263,48 @@ def test_a_point_with_gaps_in_every_period_is_refused_and_the_drive_left_safe(tm
     assert finished[0].refused == why and not finished[0].points
     assert result.periods_discarded == 20 and not session.response.points
     assert not (tmp_path / "out").exists()  # nothing measured, nothing written
+
+
+@pytest.mark.slow
+def test_a_stalled_pacing_process_leaves_out_what_answered_a_stale_setpoint(tmp_path: Path) -> None:
+    """On the realtime clock the bus worker (its own process) is stopped for 0.4 s mid-point, as a loaded bench PC
+    stops it: the drive holds the last setpoint meanwhile, so the feedback of that stretch answers no sine. It is
+    left out like a gap: the periods it touched are discarded and counted, and the gain is the exact one."""
+    import multiprocessing
+    import os
+    import signal as signals
+    import threading
+
+    from bodebench.bench.events import PointProgress
+
+    f = 5.0
+    data = {
+        "plant": {"model": "lag", "time_constant": 0.02, "gain": 2.0},
+        "excitation": {"amplitude": 0.01, "frequencies_hz": [f]},
+        "analysis": {"harmonics": [1], "tolerance_percent": 0.05},
+        "bench": {"transport": "can", "rate_hz": RATE_HZ, "clock": "realtime", "timebase": "counter",
+                  "worker": "process"},
+        "can": {"interface": "virtual", "channel": f"stale-{uuid.uuid4().hex[:8]}"},
+        "safety": {"max_amplitude": 0.02, "watchdog_s": 5.0},
+        "simulator": {},
+    }
+    stopped: list[int] = []
+
+    def listener(event: object) -> None:
+        if isinstance(event, PointProgress) and event.periods >= 8 and not stopped:
+            worker = multiprocessing.active_children()[0]
+            assert worker.pid is not None
+            stopped.append(worker.pid)
+            os.kill(worker.pid, signals.SIGSTOP)
+            threading.Timer(0.4, os.kill, (worker.pid, signals.SIGCONT)).start()
+
+    out = tmp_path / "out"
+    outcome = SweepProcedure(parse_config(data, "stale.toml"), out, listener=listener).run()[0]
+    assert stopped and outcome.result is not None
+    assert outcome.result.stale_samples > 0
+    (p,) = load_response(out)
+    assert p.converged and p.periods_discarded >= 2, p
+    gain = abs(exact(f, 1.0))  # the drive's clock holds each setpoint a period: the discretised lag's gain
+    assert abs(p.gain - gain) <= 0.05 / 100 * gain + p.uncertainty / p.amplitude, p
+    runs = json.loads((out / "response.json").read_text())["runs"]
+    assert runs[-1]["samples"]["stale_setpoint"] == outcome.result.stale_samples

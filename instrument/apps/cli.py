@@ -99,8 +99,10 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
         print(f"{outcome.case.name}: {len(outcome.response.points)} points, {len(unconverged)} not "
               f"converged{refused}{rt} -> {outcome.directory}/response.csv{_also(outcome.files)}; {drive}")
         if result.periods_discarded:
+            stale = (f"; {result.stale_samples} samples answered a setpoint sent late (pacing)"
+                     if result.stale_samples else "")
             print(f"  {result.periods_discarded} periods discarded for gaps in the feedback (column "
-                  "periods_discarded)")
+                  f"periods_discarded){stale}")
         if result.log_failure:
             print(f"  bus log failed, the sweep went on without it: {result.log_failure}")
         _print_summary(outcome.summary)

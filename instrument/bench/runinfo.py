@@ -91,7 +91,7 @@ def run_record(case: CaseConfig, clock: RunClock, *, direct: bool, points: int, 
         record["pacing"] = json_safe(health.pacing) if health.pacing is not None else "lockstep clock (no pacing)"
         record["samples"] = {"time_conflicts": health.time_conflicts, "invalid": health.invalid_samples,
                              "missed_replies": health.missed_replies, "counter_anomalies": health.counter_anomalies,
-                             "periods_discarded": result.periods_discarded}
+                             "periods_discarded": result.periods_discarded, "stale_setpoint": result.stale_samples}
     if result is not None and result.log_failure:
         record["bus_log_failure"] = result.log_failure
     return record

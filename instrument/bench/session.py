@@ -67,6 +67,9 @@ class SessionResult:
     """Periods of the sweep's points not integrated for gaps in the feedback (refused points' included)."""
     log_failure: str = ""
     """Why the bus log stopped recording before the sweep ended ("" when it did not, or there was none)."""
+    stale_samples: int = 0
+    """Realtime: feedback samples left out because the drive held a stale setpoint (the periods they were in
+    are among ``periods_discarded``)."""
 
 
 @dataclass
@@ -105,6 +108,7 @@ class BenchSession:
         self.ended: SessionEnded | None = None
         self.refused: list[tuple[float, str]] = []  # (frequency, reason) of points not written
         self.periods_discarded = 0  # periods not integrated for gaps in the feedback, all points so far
+        self.stale_samples = 0  # realtime: feedback samples left out, the drive holding a stale setpoint
         self.last_samples: PointSamples | None = None
         """The samples of the frequency measured last (saved in ``samples/`` when there is a results directory)."""
         self._writer: ResultsWriter | None = None
@@ -198,7 +202,7 @@ class BenchSession:
         rt = self.last_health.round_trip_s if self.last_health else math.nan
         return SessionResult(self.response, completed, reason, stopped.last_setpoint if stopped else math.nan,
                              stopped.disabled if stopped else False, rt, self.last_health, self.periods_discarded,
-                             stopped.log_failure if stopped else "")
+                             stopped.log_failure if stopped else "", self.stale_samples)
 
     def _started(self, channels: tuple[str, ...], done: set[float]) -> SessionStarted:
         excitation, bench = self.case.excitation, self.bench
@@ -304,6 +308,11 @@ class BenchSession:
         record = PointSamples(f, amplitude, outputs, t0, reference, "bench")
         ticks_per_period = max(1, math.ceil(1.0 / (f * self.period)))
         held: tuple[float, np.ndarray] | None = None  # the last sample at or before t0
+        # realtime: stretches (s) in which the drive held a stale setpoint (one sent late, ticks skipped) longer
+        # than the longest gap a period may hold: their feedback answers no sine, so it is left out, and the periods
+        # it touches are discarded as for a gap in the feedback (a shorter one, like a shorter gap, is integrated)
+        stale: list[tuple[float, float]] = []
+        longest_gap_s = sampler.max_gap_periods / f
         scope: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self.controls.skip.clear()
         while not sampler.done:
@@ -322,6 +331,13 @@ class BenchSession:
             if t.size:  # keep what covers the last two periods, however the batches were cut
                 while len(scope) > 1 and scope[1][0].size and scope[1][0][0] <= t[-1] - 2.0 / f:
                     del scope[0]
+            stale.extend((a, b) for a, b in message.held if b - a > longest_gap_s)
+            if stale and t.size:
+                stale = [(a, b) for a, b in stale if b >= t[0]]
+                fresh = outside(t, stale) | (t <= t0)  # before period 1 (the ramp) nothing is integrated
+                if not fresh.all():
+                    self.stale_samples += int(fresh.size - np.count_nonzero(fresh))
+                    t, values = t[fresh], values[fresh]
             keep = t > t0
             if held is None or not np.all(keep):
                 before = np.flatnonzero(~keep)
@@ -372,6 +388,14 @@ class BenchSession:
         for p in points:
             self.response.add(p)
         self.listener(PointFinished(index, tuple(points)))
+
+
+def outside(t: np.ndarray, stretches: list[tuple[float, float]]) -> np.ndarray:
+    """(n,) True for each time of ``t`` (s) in none of the closed ``stretches`` [(start, end), ...] (s)."""
+    keep = np.ones(t.shape, dtype=bool)
+    for a, b in stretches:
+        keep &= (t < a) | (t > b)
+    return keep
 
 
 def _absurd_point(p: ResponsePoint, window: tuple[float, float] | None) -> str:

@@ -80,12 +80,15 @@ class SineStarted:
 
 @dataclass(frozen=True)
 class Samples:
-    """Feedback samples: session time t (s), values (n, channels), and the setpoint sent at each sample's tick."""
+    """Feedback samples: session time t (s), values (n, channels), and the setpoint sent at each sample's tick;
+    ``held``: realtime clock, the stretches (start, end) of session time (s) since the last batch in which the drive
+    held a stale setpoint, because one went out more than a control period late or the pacing skipped ticks."""
 
     t: np.ndarray
     values: np.ndarray
     setpoint: np.ndarray
     last_tick: int
+    held: tuple[tuple[float, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -309,6 +312,7 @@ class BusWorker:
         self._t: list[float] = []
         self._v: list[tuple[float, ...]] = []
         self._u: list[float] = []
+        self._held: list[tuple[float, float]] = []  # realtime: stretches of session time with a stale setpoint
         self._last_t = -math.inf
         self.time_conflicts = 0  # samples dropped because their time did not increase
         self.invalid_samples = 0  # samples with NaN or infinite values, dropped
@@ -328,8 +332,8 @@ class BusWorker:
     def _ship(self) -> None:
         if self._t:
             self._post(Samples(np.array(self._t), np.array(self._v, dtype=float).reshape(len(self._t), -1),
-                               np.array(self._u), self.tick - 1))
-            self._t, self._v, self._u = [], [], []
+                               np.array(self._u), self.tick - 1, tuple(self._held)))
+            self._t, self._v, self._u, self._held = [], [], [], []
 
     def _session_can_take(self) -> bool:
         """Whether a message to the session goes out now without blocking (its end of the pipe has room)."""
@@ -542,8 +546,9 @@ class BusWorker:
         if self._echo_index is not None:
             self._remember_sent(u)
         self.send_errors.add(actual - scheduled)
-        if actual - scheduled > self.h:
+        if actual - scheduled > self.h:  # the drive held the previous setpoint for that long
             self.overruns += 1
+            self._held.append((self.tick * self.h, self.tick * self.h + actual - scheduled))
         self._accept(self.driver.receive(0.0), None)
         self._watchdog()
         self.tick += 1
@@ -607,6 +612,7 @@ class BusWorker:
                         # suspended: resume from now, skipping the ticks missed so that tick * period stays the
                         # time of the schedule (the drive's clock went on; the session times points by ticks)
                         missed = math.floor(behind / self.h) + 1
+                        self._held.append((self.tick * self.h, (self.tick + missed) * self.h))
                         self.tick += missed
                         scheduled += missed * self.h
                 now = time.monotonic()
