@@ -79,7 +79,8 @@ def test_to_mat_round_trips_through_loadmat(response: bodebench.Response, tmp_pa
     assert np.array_equal(data["frequency_hz"], [p.frequency_hz for p in points])
     assert np.array_equal(data["harmonic"], [p.harmonic for p in points])
     assert np.array_equal(data["response"], response.complex_response())
-    for name in ("gain", "gain_db", "phase_deg", "gain_ci", "gain_db_ci", "phase_ci_deg", "uncertainty", "p", "q"):
+    for name in ("gain", "gain_db", "phase_deg", "gain_ci", "gain_db_ci", "phase_ci_deg", "uncertainty", "p", "q",
+                 "thd", "coherence", "periods", "periods_needed", "periods_discarded"):
         assert np.array_equal(data[name], [getattr(p, name) for p in points], equal_nan=True), name
     assert list(data["status"]) == [p.status for p in points]
     assert list(data["channel"]) == [p.channel for p in points]

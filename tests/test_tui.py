@@ -705,44 +705,57 @@ def test_snapshots_of_the_main_screens(snap_compare, tmp_path: Path, size: tuple
 # -------------------------------------------------------------------------------------------- the command
 
 
-@pytest.mark.slow
-def test_the_command_in_tmux(tmp_path: Path) -> None:
-    tmux = shutil.which("tmux")
-    assert tmux is not None, "tmux is needed (apt-get install tmux)"
-    script = Path(sys.executable).parent / "bodebench"
-    command = str(script) if script.exists() else shutil.which("bodebench")
-    assert command, "the bodebench command is not installed (pip install -e .)"
-    config = write_bench_config(tmp_path, channel_name(), worker="auto")
-    out = tmp_path / "results"
-    socket = f"bodebench-test-{uuid.uuid4().hex[:8]}"
-    base = [tmux, "-L", socket]
-    env = {**os.environ, "TERM": "xterm-256color"}
-    shell = f"cd {ROOT} && {command} tui {config.path} --out {out}; echo EXIT=$?; sleep 60"
-    subprocess.run([*base, "new-session", "-d", "-s", "tui", "-x", "100", "-y", "30", shell], check=True, env=env)
+class TmuxTui:
+    """``bodebench tui CONFIG --out OUT`` in a real terminal: a tmux session of its own (``width`` columns), read
+    off its screen; ``EXIT=<status>`` is printed when the command ends."""
 
-    def screen() -> str:
-        return subprocess.run([*base, "capture-pane", "-p", "-t", "tui"], capture_output=True, text=True,
+    def __init__(self, config: Path, out: Path, width: int) -> None:
+        tmux = shutil.which("tmux")
+        assert tmux is not None, "tmux is needed (apt-get install tmux)"
+        script = Path(sys.executable).parent / "bodebench"
+        command = str(script) if script.exists() else shutil.which("bodebench")
+        assert command, "the bodebench command is not installed (pip install -e .)"
+        self.base = [tmux, "-L", f"bodebench-test-{uuid.uuid4().hex[:8]}"]
+        shell = f"cd {ROOT} && {command} tui {config} --out {out}; echo EXIT=$?; sleep 60"
+        subprocess.run([*self.base, "new-session", "-d", "-s", "tui", "-x", str(width), "-y", "30", shell],
+                       check=True, env={**os.environ, "TERM": "xterm-256color"})
+
+    def screen(self) -> str:
+        return subprocess.run([*self.base, "capture-pane", "-p", "-J", "-t", "tui"], capture_output=True, text=True,
                               check=True).stdout
 
-    def wait_screen(text: str, timeout: float) -> str:
+    def wait(self, text: str, timeout: float) -> str:
+        """The screen once it shows ``text``; AssertionError with the screen after ``timeout`` s."""
         deadline = time.monotonic() + timeout
         while True:
-            shown = screen()
+            shown = self.screen()
             if text in shown:
                 return shown
             if time.monotonic() > deadline:
                 raise AssertionError(f"{text!r} not on screen after {timeout:g} s:\n{shown}")
             time.sleep(0.2)
 
+    def press(self, key: str) -> None:
+        subprocess.run([*self.base, "send-keys", "-t", "tui", key], check=True)
+
+    def close(self) -> None:
+        subprocess.run([*self.base, "kill-server"], capture_output=True)
+
+
+@pytest.mark.slow
+def test_the_command_in_tmux(tmp_path: Path) -> None:
+    config = write_bench_config(tmp_path, channel_name(), worker="auto")
+    out = tmp_path / "results"
+    tui = TmuxTui(config.path, out, 100)
     try:
-        wait_screen("IDLE", 30)
-        subprocess.run([*base, "send-keys", "-t", "tui", "s"], check=True)
-        shown = wait_screen("DONE", 60)
+        tui.wait("IDLE", 30)
+        tui.press("s")
+        shown = tui.wait("DONE", 60)
         assert "3/3" in shown
-        subprocess.run([*base, "send-keys", "-t", "tui", "q"], check=True)
-        wait_screen("EXIT=0", 30)
+        tui.press("q")
+        tui.wait("EXIT=0", 30)
     finally:
-        subprocess.run([*base, "kill-server"], capture_output=True)
+        tui.close()
     response = load_response(out)
     assert len(response.points) == 6 and all(p.converged for p in response.points)
     assert (out / "bode.png").exists()
@@ -752,45 +765,21 @@ def test_the_command_in_tmux(tmp_path: Path) -> None:
 def test_abort_and_quit_in_tmux_prints_what_happened(tmp_path: Path) -> None:
     """The real command: q while a sweep runs, q again to confirm; the terminal gets one line saying what was
     kept where and how the drive was left, and the exit status is 1."""
-    tmux = shutil.which("tmux")
-    assert tmux is not None, "tmux is needed (apt-get install tmux)"
-    script = Path(sys.executable).parent / "bodebench"
-    command = str(script) if script.exists() else shutil.which("bodebench")
-    assert command, "the bodebench command is not installed (pip install -e .)"
     # a sweep long enough to be running when the keys arrive: many frequencies to a tight tolerance
     config = write_bench_config(tmp_path, channel_name(), freqs=tuple(float(f) for f in range(2, 40)),
                                 tolerance=0.002)
     out = tmp_path / "results"
-    socket = f"bodebench-test-{uuid.uuid4().hex[:8]}"
-    base = [tmux, "-L", socket]
-    env = {**os.environ, "TERM": "xterm-256color"}
-    shell = f"cd {ROOT} && {command} tui {config.path} --out {out}; echo EXIT=$?; sleep 60"
-    subprocess.run([*base, "new-session", "-d", "-s", "tui", "-x", "200", "-y", "30", shell], check=True, env=env)
-
-    def screen() -> str:
-        return subprocess.run([*base, "capture-pane", "-p", "-J", "-t", "tui"], capture_output=True, text=True,
-                              check=True).stdout
-
-    def wait_screen(text: str, timeout: float) -> str:
-        deadline = time.monotonic() + timeout
-        while True:
-            shown = screen()
-            if text in shown:
-                return shown
-            if time.monotonic() > deadline:
-                raise AssertionError(f"{text!r} not on screen after {timeout:g} s:\n{shown}")
-            time.sleep(0.2)
-
+    tui = TmuxTui(config.path, out, 200)
     try:
-        wait_screen("IDLE", 30)
-        subprocess.run([*base, "send-keys", "-t", "tui", "s"], check=True)
-        wait_screen("RUNNING", 60)
-        subprocess.run([*base, "send-keys", "-t", "tui", "q"], check=True)
-        wait_screen("Abort and quit", 30)
-        subprocess.run([*base, "send-keys", "-t", "tui", "q"], check=True)
-        shown = wait_screen("EXIT=", 90)
+        tui.wait("IDLE", 30)
+        tui.press("s")
+        tui.wait("RUNNING", 60)
+        tui.press("q")
+        tui.wait("Abort and quit", 30)
+        tui.press("q")
+        shown = tui.wait("EXIT=", 90)
     finally:
-        subprocess.run([*base, "kill-server"], capture_output=True)
+        tui.close()
     assert "EXIT=1" in shown, shown
     [line] = [text for text in shown.splitlines() if text.startswith("bodebench: ")]
     kept = load_response(out).points if (out / "response.csv").exists() else []

@@ -28,7 +28,7 @@ class MissingDependency(ImportError):
 MAT_COLUMNS: tuple[str, ...] = (
     "frequency_hz", "harmonic", "channel", "amplitude", "p", "q", "gain", "gain_db", "phase_deg", "uncertainty",
     "uncertainty_1d", "gain_ci", "gain_db_ci", "phase_ci_deg", "periods", "converged", "within_eps",
-    "periods_needed", "status",
+    "periods_needed", "periods_discarded", "thd", "coherence", "status",
 )
 
 
@@ -70,7 +70,7 @@ def _column(response: FrequencyResponse, name: str) -> np.ndarray:
     values = [getattr(point, name) for point in response.points]
     if name in ("channel", "status"):
         return np.array([str(v) for v in values], dtype=object)  # plain str: a str enum would become a struct
-    if name in ("harmonic", "periods", "periods_needed"):
+    if name in ("harmonic", "periods", "periods_needed", "periods_discarded"):
         return np.array(values, dtype=np.int64)
     if name in ("converged", "within_eps"):
         return np.array(values, dtype=bool)
@@ -106,7 +106,8 @@ def save_mat(response: FrequencyResponse, path: str | Path) -> Path:
     Per point (column vectors in measurement order): ``frequency_hz``, ``harmonic``, ``channel`` and ``status``
     (cell arrays of char), ``amplitude``, ``p``, ``q``, ``response`` (complex), ``gain``, ``gain_db``,
     ``phase_deg``, the 95 % figures ``uncertainty``, ``uncertainty_1d``, ``gain_ci``, ``gain_db_ci``,
-    ``phase_ci_deg``, and ``periods``, ``converged``, ``within_eps``, ``periods_needed``. ``series.<channel>_h<k>``
+    ``phase_ci_deg``, and ``periods``, ``converged``, ``within_eps``, ``periods_needed``, ``periods_discarded``,
+    ``thd``, ``coherence``. ``series.<channel>_h<k>``
     is a struct per channel and harmonic, sorted by frequency: ``frequency_hz``, ``response``, ``gain``,
     ``phase_deg``, ``gain_ci``, ``phase_ci_deg``, ``status``. ``case`` names the case."""
     sio = _require("scipy.io", "scipy", "to_mat")
