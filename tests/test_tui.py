@@ -318,6 +318,14 @@ def footer_keys(app: BodeBenchApp) -> set[str]:
     return {key.key for key in app.screen_stack[0].query(FooterKey)}
 
 
+async def expect_footer(pilot, app: BodeBenchApp, keys: set[str], timeout: float = 30.0) -> None:  # type: ignore[no-untyped-def]
+    """The footer comes to show exactly ``keys`` (a loaded machine may take a while to lay it out)."""
+    deadline = time.monotonic() + timeout
+    while footer_keys(app) != keys and time.monotonic() < deadline:
+        await pilot.pause(0.05)
+    assert footer_keys(app) == keys
+
+
 def table_states(app: BodeBenchApp) -> list[str]:
     """The state column as the table shows it (cells addressed by row and column keys)."""
     table = app.w_table
@@ -450,10 +458,10 @@ async def test_resume_after_an_abort_measures_only_the_missing_frequencies(tmp_p
     app = BodeBenchApp(config, out)
     async with app.run_test(size=(80, 24)) as pilot:
         await pilot.pause(0.1)
-        assert footer_keys(app) == {"s", "t", "o", "q"}  # nothing measured: nothing to re-measure or save
+        await expect_footer(pilot, app, {"s", "t", "o", "q"})  # nothing measured: nothing to re-measure or save
         await pilot.press("s")
         await gate.wait(pilot, "8 Hz integrating")
-        assert footer_keys(app) == {"a", "p", "n", "r", "t", "w", "o", "q"}  # running, 3 Hz measured
+        await expect_footer(pilot, app, {"a", "p", "n", "r", "t", "w", "o", "q"})  # running, 3 Hz measured
         await pilot.press("a")
         gate.open()
         await wait_for(pilot, lambda: finished(app), "the end of the aborted sweep")
@@ -570,7 +578,7 @@ async def test_q_in_the_quit_dialog_aborts_quits_and_says_so(tmp_path: Path, mon
             await pilot.press("q")
             assert isinstance(app.screen, ConfirmDialog)
             await pilot.pause(0.1)
-            assert footer_keys(app) == {"a", "q"}  # under the question: abort, and quit (= yes)
+            await expect_footer(pilot, app, {"a", "q"})  # under the question: abort, and quit (= yes)
             await pilot.press("q")
             gate.open()
             await wait_for(pilot, lambda: not app.is_running, "the app to exit")
@@ -657,19 +665,19 @@ def test_a_finished_sweep_is_loaded_from_its_results_directory(tmp_path: Path) -
                 phase = math.degrees(cmath.phase(1 / (1 + 1j * 2 * math.pi * f * LAG_TIME_CONSTANT_S)))
                 assert str(app.w_table.get_cell(row_key(i, 1, "position"), "gain")) == f"{gain_db:+.2f}"
                 assert str(app.w_table.get_cell(row_key(i, 1, "position"), "phase")) == f"{phase:.1f}"
-            assert footer_keys(app) == {"s", "r", "t", "w", "o", "q"}  # no sweep runs: nothing to abort or pause
+            await expect_footer(pilot, app, {"s", "r", "t", "w", "o", "q"})  # no sweep runs: nothing to abort or pause
             await pilot.press("s")  # a new sweep would replace these results: asked first
             assert isinstance(app.screen, ChoiceDialog) and app.control is None
             await pilot.pause(0.1)
             text = str(app.screen.query_one("#dialog-text").render())
             assert "made with another configuration" in text and "cannot be resumed" in text  # not this config's
-            assert footer_keys(app) == {"q"}  # under the dialog only q works
+            await expect_footer(pilot, app, {"q"})  # under the dialog only q works
             await pilot.press("r")  # no resume offered: nothing happens
             assert isinstance(app.screen, ChoiceDialog) and app.control is None
             await pilot.press("c")
             assert app.control is None and app.state == "loaded" and not isinstance(app.screen, ChoiceDialog)
             await pilot.pause(0.1)
-            assert footer_keys(app) == {"s", "r", "t", "w", "o", "q"}
+            await expect_footer(pilot, app, {"s", "r", "t", "w", "o", "q"})
             await pilot.press("s")
             await pilot.press("q")  # quits from the dialog: nothing runs
             await wait_for(pilot, lambda: not app.is_running, "the app to exit")
@@ -685,7 +693,7 @@ def test_under_an_input_dialog_keys_are_typed_and_ctrl_q_quits(tmp_path: Path) -
             await pilot.press("o")
             assert isinstance(app.screen, InputDialog)
             await pilot.pause(0.1)
-            assert footer_keys(app) == set()  # q and a would be typed here: not shown
+            await expect_footer(pilot, app, set())  # q and a would be typed here: not shown
             await pilot.press("ctrl+a", "ctrl+k", "q", "a")
             assert isinstance(app.screen, InputDialog) and app.screen.query_one("#dialog-input").value == "qa"
             await pilot.press("ctrl+q")

@@ -338,6 +338,12 @@ class BenchSession:
                 if not fresh.all():
                     self.stale_samples += int(fresh.size - np.count_nonzero(fresh))
                     t, values = t[fresh], values[fresh]
+            if held is None and t.size and t[0] > t0:
+                # the drive's first sample of the point came after t0 (it answered late): period 1 is the first
+                # whole period after it (t0 moves by whole periods, so the excitation's phase stays zero there)
+                t0 += math.ceil((t[0] - t0) * f) / f
+                sampler = Autointegrator(f, amplitude, outputs, analysis, t0=t0, reference=reference or None)
+                record = PointSamples(f, amplitude, outputs, t0, reference, "bench")
             keep = t > t0
             if held is None or not np.all(keep):
                 before = np.flatnonzero(~keep)

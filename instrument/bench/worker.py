@@ -313,6 +313,7 @@ class BusWorker:
         self._v: list[tuple[float, ...]] = []
         self._u: list[float] = []
         self._held: list[tuple[float, float]] = []  # realtime: stretches of session time with a stale setpoint
+        self._credit_shipped = -1  # lockstep: the credit whose end the session has been told of
         self._last_t = -math.inf
         self.time_conflicts = 0  # samples dropped because their time did not increase
         self.invalid_samples = 0  # samples with NaN or infinite values, dropped
@@ -329,10 +330,14 @@ class BusWorker:
         except (OSError, EOFError, BrokenPipeError):
             raise _Trip("error", "session went away") from None
 
-    def _ship(self) -> None:
-        if self._t:
-            self._post(Samples(np.array(self._t), np.array(self._v, dtype=float).reshape(len(self._t), -1),
-                               np.array(self._u), self.tick - 1, tuple(self._held)))
+    def _ship(self, even_empty: bool = False) -> None:
+        """Post the samples gathered since the last batch; ``even_empty``: a batch of none too (lockstep, at the
+        end of the credit: the session answers every batch with the next credit, so it must hear of this stretch
+        even when every reply in it was lost)."""
+        if self._t or even_empty:
+            self._post(Samples(np.array(self._t, dtype=float),
+                               np.array(self._v, dtype=float).reshape(len(self._t), len(self.layout_channels)),
+                               np.array(self._u, dtype=float), self.tick - 1, tuple(self._held)))
             self._t, self._v, self._u, self._held = [], [], [], []
 
     def _session_can_take(self) -> bool:
@@ -594,7 +599,8 @@ class BusWorker:
                 if self.lockstep:
                     # without credit the worker waits, except to ramp out and start a requested sine
                     if self.tick > self.credit and self.pending is None and not (self.stopping and self.program):
-                        self._ship()
+                        self._ship(even_empty=self.program is not None and self._credit_shipped != self.credit)
+                        self._credit_shipped = self.credit
                         self._health()
                         self._poll_commands(min(0.5, self._heartbeat_s) if self._heartbeat_s else 0.5)
                         # a lockstep drive answers setpoints only: its silence while none is asked for (a paused
