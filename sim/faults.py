@@ -39,6 +39,7 @@ class FaultConfig:
     nan: a float channel value reads NaN (half of them +-inf).
     out_of_range_after_s: from then on the position reads +1e6 (a broken sensor).
     stop_after_s: from then on the drive answers nothing (cable pulled, drive crashed).
+    silent_until_s: before then the drive answers nothing (still booting), its clock going on.
     bus_off_after_s: from then on the drive sends only error frames (its CAN controller went bus-off).
     stall_every_s, stall_s: the last ``stall_s`` of every ``stall_every_s`` the drive answers nothing (a stalled bus,
     frames lost in a burst): its clock and counter go on, so the host's samples have a gap there.
@@ -63,6 +64,7 @@ class FaultConfig:
     nan: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per feedback frame"})
     out_of_range_after_s: float = field(default=-1.0, metadata={"doc": "controller time, s (negative: never)"})
     stop_after_s: float = field(default=-1.0, metadata={"doc": "controller time, s (negative: never)"})
+    silent_until_s: float = field(default=0.0, metadata={"min": 0, "doc": "controller time, s"})
     bus_off_after_s: float = field(default=-1.0, metadata={"doc": "controller time, s (negative: never)"})
     stall_every_s: float = field(default=0.0, metadata={"min": 0, "doc": "controller time, s (0: never)"})
     stall_s: float = field(default=0.0, metadata={"min": 0, "doc": "s of each stall_every_s without an answer"})
@@ -84,6 +86,8 @@ class ValueFaults:
     def silent(self, time_s: float) -> bool:
         """The drive answers nothing (stopped) at controller time ``time_s``."""
         c = self.config
+        if time_s < c.silent_until_s:
+            return True
         if c.stall_every_s > 0 and time_s % c.stall_every_s >= c.stall_every_s - c.stall_s:
             return True
         return 0 <= c.stop_after_s <= time_s

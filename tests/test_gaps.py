@@ -308,3 +308,26 @@ def test_a_stalled_pacing_process_leaves_out_what_answered_a_stale_setpoint(tmp_
     assert abs(p.gain - gain) <= 0.05 / 100 * gain + p.uncertainty / p.amplitude, p
     runs = json.loads((out / "response.json").read_text())["runs"]
     assert runs[-1]["samples"]["stale_setpoint"] == outcome.result.stale_samples
+
+
+@pytest.mark.slow
+def test_a_drive_that_answers_only_after_t0_is_measured_from_its_first_whole_period(tmp_path: Path) -> None:
+    """On the realtime clock the drive says nothing for its first second (booting, its clock going on): the
+    first point's ramp (0.4 s at 5 Hz) is over before any sample comes, so period 1 is the first whole period
+    after the first sample, and the point has the exact gain."""
+    f = 5.0
+    data = {
+        "plant": {"model": "lag", "time_constant": 0.02, "gain": 2.0},
+        "excitation": {"amplitude": 0.01, "frequencies_hz": [f]},
+        "analysis": {"harmonics": [1], "tolerance_percent": 0.05},
+        "bench": {"transport": "can", "rate_hz": RATE_HZ, "clock": "realtime", "timebase": "counter"},
+        "can": {"interface": "virtual", "channel": f"late-{uuid.uuid4().hex[:8]}"},
+        "safety": {"max_amplitude": 0.02, "watchdog_s": 5.0},
+        "simulator": {"faults": {"silent_until_s": 1.0}},
+    }
+    out = tmp_path / "out"
+    outcome = SweepProcedure(parse_config(data, "late.toml"), out).run()[0]
+    assert outcome.session is not None and not outcome.session.refused
+    (p,) = load_response(out)
+    gain = abs(exact(f, 1.0))  # the drive's clock holds each setpoint a period: the discretised lag's gain
+    assert p.converged and abs(p.gain - gain) <= 0.05 / 100 * gain + p.uncertainty / p.amplitude, p
