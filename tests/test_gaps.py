@@ -331,3 +331,20 @@ def test_a_drive_that_answers_only_after_t0_is_measured_from_its_first_whole_per
     (p,) = load_response(out)
     gain = abs(exact(f, 1.0))  # the drive's clock holds each setpoint a period: the discretised lag's gain
     assert p.converged and abs(p.gain - gain) <= 0.05 / 100 * gain + p.uncertainty / p.amplitude, p
+
+
+def test_periods_whose_reference_shows_no_sine_are_discarded() -> None:
+    """Two-channel mode: in periods 4 to 6 the echoed setpoint reads zero (the drive saw no sine), which would
+    divide by nothing; they are discarded, and the point is the exact ratio of the others."""
+    settings = fixed(harmonics=(1,))
+    sampler = Autointegrator(F, 1.0, ["y"], settings, t0=T0, reference="echo")
+    u = np.arange(40 * K + 1) / K
+    echo = 0.5 * np.sin(2 * np.pi * u)
+    echo[(u >= 3) & (u <= 6)] = 0.0
+    y = np.column_stack([A * np.sin(2 * np.pi * u + PHI), echo])
+    sampler.feed(T0 + u / F, y)
+    assert sampler.done and not sampler.failure
+    (point,) = sampler.points()
+    # output over input, times the commanded amplitude: A / 0.5 at phase PHI
+    assert complex(point.p, point.q) == pytest.approx(2 * A * cmath.exp(1j * PHI), abs=1e-12)
+    assert point.periods_discarded == 3

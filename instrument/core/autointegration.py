@@ -23,7 +23,7 @@ import numpy as np
 from bodebench.core.fourier import PeriodIntegrator
 from bodebench.core.quality import coherence, coherence_periods, total_harmonic_distortion
 from bodebench.core.response import ResponsePoint
-from bodebench.core.rules import SeriesHistory, StoppingRule, Verdict, make_rule
+from bodebench.core.rules import RESOLUTION, SeriesHistory, StoppingRule, Verdict, make_rule
 
 
 class AnalysisSettings(Protocol):
@@ -149,6 +149,7 @@ class Autointegrator:
     def feed(self, t: np.ndarray, y: np.ndarray) -> int:
         """Take samples (t in s, increasing; y shaped (n, channels)); returns the whole periods completed."""
         p, q, whole = self._integrator.feed_marked(t, y)
+        whole &= self._usable(p, q)
         if not whole.all():
             if self.done:
                 p, q = p[whole], q[whole]
@@ -160,6 +161,14 @@ class Autointegrator:
             return m
         self._integrate(p, q)
         return m
+
+    def _usable(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """(m,) periods with finite coefficients whose reference fundamental, in two-channel mode, shows the sine
+        (at least RESOLUTION of the amplitude: the others would divide by nothing); the rest are discarded."""
+        ok = np.isfinite(p).all(axis=(1, 2)) & np.isfinite(q).all(axis=(1, 2))
+        if self.reference is not None:
+            ok &= np.hypot(p[:, -1, self._ref_index], q[:, -1, self._ref_index]) >= RESOLUTION * self.amplitude
+        return ok
 
     def _feed_with_gaps(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> int:
         """Periods some of which a gap touched: each run of whole periods integrated, each discarded one counted
