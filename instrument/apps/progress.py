@@ -77,17 +77,15 @@ class ProgressPrinter:
                 self._line(f"{self.label}: {self.done}/{self.total} done, {event.frequency_hz:g} Hz, "
                            f"period {event.periods}{gaps}, ETA {self._eta()}{self._bus}", False)
         elif isinstance(event, PointFinished):
-            measured = not (event.refused or event.skipped)
+            worst = max((p.periods for p in event.points), default=None)  # none: skipped or refused, not timed
             if self.timer is not None:
-                self.timer.point_finished(self._freq, max(p.periods for p in event.points) if measured else None,
-                                          now)
+                self.timer.point_finished(self._freq, worst, now)
             if event.refused:
                 self._line(f"{self.label}: {self.done}/{self.total} {self._freq:g} Hz REFUSED, not written: "
                            f"{event.refused}", True)
             elif event.skipped:
                 self._line(f"{self.label}: {self.done}/{self.total} {self._freq:g} Hz skipped", True)
             else:
-                worst = max(p.periods for p in event.points)
                 state = "converged" if all(p.converged for p in event.points) else "NOT converged"
                 discarded = max(p.periods_discarded for p in event.points)
                 gaps = f" (+{discarded} discarded for gaps in the feedback)" if discarded else ""

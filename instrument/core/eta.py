@@ -181,7 +181,7 @@ class SweepTimer:
         prediction from the measured points; capped by max_periods; None when unknown."""
         if self._current is None:
             return None
-        done = self._last[1] if self._last else 0
+        done = self._periods_done
         to_go = list(self.series_to_go().values())
         known = [v for v in to_go if v is not None]
         predicted = self.predicted_periods(self._current)
@@ -239,30 +239,30 @@ class SweepTimer:
         if model is None:
             return None
         overhead, ratio = model
+        done = self._periods_done
+        to_go = self.current_periods_to_go()  # None without a current point
+        current_total = None if to_go is None else done + to_go  # what points measured by none are expected to take
         total = 0.0
         for f in left:
             periods = self.predicted_periods(f)
             if periods is None:
-                periods = self._current_total()
+                periods = current_total
             if periods is None:
                 return None
             total += overhead + ratio * (periods + self._extra.get(f, 0.0)) / f
         if self._current is not None:
-            f = self._current
-            to_go = self.current_periods_to_go()
             if to_go is None:
                 return None
-            done = self._last[1] if self._last else 0
+            f = self._current
             predicted = overhead + ratio * (done + to_go + self._extra.get(f, 0.0)) / f
             total += max(predicted - self._wall(now), ratio * to_go / f)
         return total
 
     # --- internals
-    def _current_total(self) -> float | None:
-        to_go = self.current_periods_to_go()
-        if to_go is None:
-            return None
-        return to_go + (self._last[1] if self._last else 0)
+    @property
+    def _periods_done(self) -> int:
+        """Periods the current point has integrated (0 before its first)."""
+        return self._last[1] if self._last else 0
 
     def _wall(self, now: float) -> float:
         """The current point's wall seconds so far, pauses excluded."""

@@ -209,8 +209,8 @@ class SweepModel:
             self._set(row_key(position, p.harmonic, p.channel), state=point_state(p), gain_db=p.gain_db,
                       phase_deg=p.phase_deg, periods=p.periods, thd=p.thd, coherence=p.coherence)
         if index == self.current_index:
-            self.timer.point_finished(self.frequencies_hz[position],
-                                      max(p.periods for p in points) if points and not skipped else None, now)
+            self.timer.point_finished(self.frequencies_hz[position], max((p.periods for p in points), default=None),
+                                      now)  # no points: skipped or refused, not timed
         self.finished.add(position)
         self.current = self.current_index = None
 
