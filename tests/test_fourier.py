@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from bodebench.core.fourier import PeriodIntegrator
+from bodebench.core.fourier import GridPeriodIntegrator, PeriodIntegrator
 
 # Test signal y = a sin(w x + phi) + b sin(2 w x + psi) + dc, x = t - t0, w = 2 pi f.
 F = 7.3
@@ -406,3 +406,73 @@ def test_bad_constructor_arguments(kwargs: dict[str, object], word: str) -> None
     args.update(kwargs)
     with pytest.raises(ValueError, match=word):
         PeriodIntegrator(**args)  # type: ignore[arg-type]
+
+
+# ----------------------------------------------------------------- the grid of a computation
+
+
+def grid_stream(rng: np.random.Generator, steps: int, periods: int, t0_steps: int, channels: int
+                ) -> tuple[float, np.ndarray, np.ndarray]:
+    """t0 and the samples of a computation: every h = 1/(steps F) from t = 0, t0 a grid point."""
+    h = 1.0 / (steps * F)
+    # one sample past the last edge at least, so that the general integrator closes the period even if rounded early
+    t = np.arange((t0_steps + periods) * steps + 2 + int(rng.integers(0, steps))) * h
+    y = np.column_stack([two_tone(t, t0_steps * h)] + [rng.normal(size=t.size) + 50.0 * c
+                                                         for c in range(1, channels)])
+    return t0_steps * h, t, y
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_grid_integrator_matches_the_general_one(seed: int) -> None:
+    rng = np.random.default_rng(300 + seed)
+    steps = int(rng.choice([2, 3, 16, 200, 257]))
+    harmonics = tuple(int(k) for k in rng.choice([1, 2, 3, 5], size=int(rng.integers(1, 4)), replace=False))
+    channels = int(rng.integers(1, 4))
+    t0, t, y = grid_stream(rng, steps, int(rng.integers(1, 9)), int(rng.integers(0, 4)), channels)
+    general = PeriodIntegrator(F, harmonics, channels, t0)
+    grid = GridPeriodIntegrator(F, harmonics, channels, steps, t0)
+    p_ref, q_ref = general.feed(t, y)
+    p, q = feed_chunks(grid, t, y, random_sizes(rng, len(t)))
+    assert grid.periods_done == general.periods_done == p_ref.shape[0] > 0
+    scale = max(1.0, float(np.abs(y).max()))
+    np.testing.assert_allclose(p, p_ref, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(q, q_ref, rtol=0, atol=1e-12 * scale)
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e6])
+def test_grid_integrator_is_exact_for_trig_polynomials_far_from_zero(offset: float) -> None:
+    steps = 64
+    t = np.arange(6 * steps + 1) / (steps * F)
+    p, q = GridPeriodIntegrator(F, HARMONICS, 1, steps, t0=0.0).feed(t, two_tone(t, 0.0) + offset)
+    assert p.shape == (6, 1, 3)
+    # the samples themselves carry the offset's rounding, ~1e-10 at 1e6
+    atol = 1e-13 + 1e-15 * offset
+    np.testing.assert_allclose(p[:, 0, :], np.broadcast_to(EXACT_P, (6, 3)), rtol=0, atol=atol)
+    np.testing.assert_allclose(q[:, 0, :], np.broadcast_to(EXACT_Q, (6, 3)), rtol=0, atol=atol)
+
+
+def test_grid_integrator_takes_whole_periods_only_and_no_samples_before_t0() -> None:
+    steps = 10
+    h = 1.0 / (steps * F)
+    t = np.arange(35) * h  # t0 at step 10: periods 1 and 2 end at steps 20 and 30
+    y = np.where(t < 10 * h, 1e9, two_tone(t, 10 * h))
+    grid = GridPeriodIntegrator(F, (1,), 1, steps, t0=10 * h)
+    p, q, whole = grid.feed_marked(t, y)
+    assert p.shape == (2, 1, 1) and whole.tolist() == [True, True]
+    np.testing.assert_allclose(p[:, 0, 0], EXACT_P[0], rtol=0, atol=1e-12)
+    p, _ = grid.feed(np.arange(35, 41) * h, two_tone(np.arange(35, 41) * h, 10 * h))
+    assert p.shape[0] == 1 and grid.periods_done == 3
+
+
+def test_grid_integrator_names_a_sample_off_the_grid_or_skipped() -> None:
+    h = 1.0 / (20 * F)
+    grid = GridPeriodIntegrator(F, (1,), 1, 20)
+    t = np.arange(10) * h
+    t[6] += 0.3 * h
+    with pytest.raises(ValueError, match=r"t\[6\].*grid of 20 steps"):
+        grid.feed(t, np.zeros(10))
+    grid.feed(np.arange(5) * h, np.zeros(5))  # the failed call left the state alone
+    with pytest.raises(ValueError, match="step 5 comes next"):
+        grid.feed(np.arange(6, 9) * h, np.zeros(3))
+    with pytest.raises(ValueError, match="steps_per_period"):
+        GridPeriodIntegrator(F, (1,), 1, 1)

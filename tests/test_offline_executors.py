@@ -8,8 +8,9 @@ import os
 import subprocess
 import sys
 import textwrap
+import threading
 import tomllib
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from functools import partial
 from pathlib import Path
 
@@ -19,6 +20,7 @@ import pytest
 from bodebench.apps.cli import main
 from bodebench.apps.plots import write_plots
 from bodebench.bench.events import CaseBegins, CaseSaved, PointFinished
+from bodebench.bench.offline import in_flight_limit, measure_cases
 from bodebench.bench.procedure import SweepProcedure
 from bodebench.io.config import parse_config
 from bodebench.io.results import load_response
@@ -160,11 +162,48 @@ def test_a_missing_dask_scheduler_is_one_line(tmp_path: Path) -> None:
     assert len(proc.stderr.strip().splitlines()) == 1
 
 
+class CountingPool(ThreadPoolExecutor):
+    """A thread pool that keeps the most tasks it ever held submitted and not yet done."""
+
+    def __init__(self, workers: int) -> None:
+        super().__init__(workers)
+        self.outstanding = self.most = 0
+        self._count = threading.Lock()
+
+    def submit(self, fn, /, *args, **kwargs):  # type: ignore[no-untyped-def]
+        with self._count:
+            self.outstanding += 1
+            self.most = max(self.most, self.outstanding)
+        future: Future[object] = super().submit(fn, *args, **kwargs)
+        future.add_done_callback(self._done)
+        return future
+
+    def _done(self, _: Future[object]) -> None:
+        with self._count:
+            self.outstanding -= 1
+
+
+def test_a_limited_number_of_frequencies_in_flight_gives_every_point_once_and_the_same_points(
+        tmp_path: Path) -> None:
+    config = parse_config(tomllib.loads(CASES), "cases.toml")
+    everything = sorted((k, p.frequency_hz, p.harmonic, p.gain, p.phase_deg, p.periods)
+                        for k, points in measure_cases(config.cases) for p in points)
+    for limit in (1, 3, None):
+        with CountingPool(2) as pool:
+            found = sorted((k, p.frequency_hz, p.harmonic, p.gain, p.phase_deg, p.periods)
+                           for k, points in measure_cases(config.cases, pool, in_flight=limit) for p in points)
+        assert found == everything  # twelve frequencies, each once, bit for bit
+        assert pool.most <= (12 if limit is None else limit)  # never more submitted and not done
+    with ProcessPoolExecutor(3) as pool:
+        assert in_flight_limit(pool) == 6
+    assert in_flight_limit(None) is None
+
+
 COMPILE_ONCE = textwrap.dedent("""
-    import json, os, time
+    import json, multiprocessing, os, sys, time
     from bodebench.bench.offline import default_executor
 
-    def stats(_):
+    def stats(_=None):
         import numba
         from bodebench.sim import _kernels
         time.sleep(0.5)  # long enough that every worker of the pool takes one of these
@@ -177,29 +216,39 @@ COMPILE_ONCE = textwrap.dedent("""
         return os.getpid(), misses, hits
 
     if __name__ == "__main__":
+        multiprocessing.set_start_method(sys.argv[1])
         with default_executor(2, models=("lag",)) as pool:
+            here = stats()[1:]
             found = {}
             for _ in range(10):
                 for pid, misses, hits in pool.map(stats, range(2)):
                     found[pid] = (misses, hits)
                 if len(found) == 2:
                     break
-        print(json.dumps(sorted(found.values())))
+        print(json.dumps({"here": here, "workers": sorted(found.values())}))
 """)
 
 
 @pytest.mark.slow
-def test_the_pool_compiles_the_kernels_once_into_an_empty_cache(tmp_path: Path) -> None:
+@pytest.mark.parametrize("start", ["fork", "spawn"])
+def test_the_pool_compiles_the_kernels_once_into_an_empty_cache(tmp_path: Path, start: str) -> None:
     script = tmp_path / "compile_once.py"
     script.write_text(COMPILE_ONCE)
     cache = tmp_path / "cache"
     cache.mkdir()
-    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=900,
+    proc = subprocess.run([sys.executable, str(script), start], capture_output=True, text=True, timeout=900,
                           env=dict(os.environ, NUMBA_CACHE_DIR=str(cache)))
     assert proc.returncode == 0, proc.stderr
-    workers = json.loads(proc.stdout)
+    found = json.loads(proc.stdout)
+    workers = found["workers"]
     assert len(workers) == 2
-    (loaded_misses, loaded_hits), (compiled_misses, _) = workers
-    assert compiled_misses > 0  # one worker compiled the lag's kernels ...
-    assert loaded_misses == 0 and loaded_hits == compiled_misses  # ... the other loaded every one of them
+    if start == "fork":  # compiled here, before the pool forked: the workers have this process' kernels
+        here_misses, here_hits = found["here"]
+        assert here_misses > 0 and here_hits == 0
+        assert workers == [found["here"], found["here"]]
+    else:  # this process loads nothing; one worker compiled the lag's kernels, the other loaded every one of them
+        assert found["here"] == [0, 0]
+        (loaded_misses, loaded_hits), (compiled_misses, _) = workers
+        assert compiled_misses > 0
+        assert loaded_misses == 0 and loaded_hits == compiled_misses
     assert list(cache.rglob("*.nbi"))

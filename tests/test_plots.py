@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from matplotlib.collections import LineCollection
 from matplotlib.colors import to_hex
 
 from bodebench.apps.cli import main
@@ -60,7 +61,7 @@ def test_below_resolution_points_are_upper_bounds_not_data() -> None:
 def test_confidence_bands_are_the_point_intervals() -> None:
     r = response()
     ax_gain = bode_figure(r).axes[0]
-    bands = ax_gain.collections
+    bands = [c for c in ax_gain.collections if not isinstance(c, LineCollection)]  # not the minor grid
     assert len(bands) == 2  # k = 1 and k = 3; none for the zero harmonic
     first = r.select(harmonic=1)
     path = bands[0].get_paths()[0].vertices
@@ -81,6 +82,45 @@ def test_log_ticks_are_plain_numbers_and_the_title_is_shown() -> None:
         minor = [t.get_text() for t in axis.get_minorticklabels() if t.get_text()]
         assert minor == []  # no minor labels to overlap
         assert all("10^" not in t.get_text() and "$" not in t.get_text() for t in axis.get_majorticklabels())
+
+
+def wide_response(periods: int, low_db: float, high_db: float) -> FrequencyResponse:
+    """Gains from low_db to high_db over 0.1 .. 2000 Hz, phases down to -720 deg, every point ``periods`` long."""
+    out = FrequencyResponse(case="wide")
+    freqs = np.geomspace(0.1, 2000.0, 30)
+    for i, f in enumerate(freqs):
+        gain = 10.0 ** ((low_db + (high_db - low_db) * i / (freqs.size - 1)) / 20.0)
+        value = gain * np.exp(-1j * np.pi * 4.0 * i / (freqs.size - 1))
+        out.add(ResponsePoint(float(f), 1, "position", 1.0, value.real, value.imag, periods, True, "converged",
+                              uncertainty=1e-3 * gain, uncertainty_1d=1e-3 * gain))
+    return out
+
+
+@pytest.mark.parametrize("periods, low_db, high_db", [(12, -320.0, 140.0), (20000, -0.5, 0.5), (3, 40.0, 90.0)])
+def test_nothing_drawn_falls_off_the_figure(periods: int, low_db: float, high_db: float) -> None:
+    r = wide_response(periods, low_db, high_db)
+    for fig in (bode_figure(r, title="Electrohydraulic actuator, axis 2, valve spool loop (rig B)",
+                            summary=summarize_response(r)), bode_figure(r), periods_figure(r, title="rig B"),
+                periods_figure(r)):
+        fig.canvas.draw()
+        box = fig.get_tightbbox(fig.canvas.get_renderer())  # inches
+        width, height = fig.get_size_inches()
+        assert box.x0 >= 0.0 and box.y0 >= 0.0 and box.x1 <= width and box.y1 <= height, (box, width, height)
+
+
+def test_the_minor_grid_is_at_every_integer_of_each_decade_between_the_major_ticks() -> None:
+    fig = periods_figure(wide_response(20000, 0.0, 1.0))
+    ax = fig.axes[0]
+    grids = [c for c in ax.collections if isinstance(c, LineCollection)]
+    assert len(grids) == 2
+
+    def expected(low: float, high: float) -> list[float]:
+        return [s * 10.0 ** d for d in range(-6, 9) for s in (3, 4, 6, 7, 8, 9) if low <= s * 10.0 ** d <= high]
+
+    x_at = [float(seg[0][0]) for seg in grids[0].get_segments()]
+    y_at = [float(seg[0][1]) for seg in grids[1].get_segments()]
+    assert x_at == pytest.approx(expected(*ax.get_xlim())) and y_at == pytest.approx(expected(*ax.get_ylim()))
+    assert 900.0 in x_at and 30000.0 in y_at and len(x_at) == 3 + 6 * 4 + 1  # 0.07 .. 0.09, four decades, 3000 Hz
 
 
 def test_each_harmonic_has_one_colour_in_every_figure() -> None:

@@ -35,11 +35,20 @@ class Reanalysis:
     failed: tuple[tuple[float, str], ...] = ()
 
 
+def _grid_steps_per_period(samples: PointSamples) -> int:
+    """The steps per period of an offline record's grid (its samples are every h = 1/(N f) from t = 0)."""
+    t = samples.t
+    if t.size < 2 or not t[-1] > t[0]:
+        raise ValueError(f"the offline record of {samples.frequency_hz:g} Hz holds fewer than two sample times")
+    return round((t.size - 1) / (samples.frequency_hz * (t[-1] - t[0])))
+
+
 def reanalyse_point(samples: PointSamples, analysis: AnalysisSettings) -> tuple[list[ResponsePoint], bool]:
     """The points of one frequency from its samples; True when the record ended before every series stopped.
     ValueError saying why when too many of its periods had gaps."""
+    grid = _grid_steps_per_period(samples) if samples.source == "offline" else 0
     sampler = Autointegrator(samples.frequency_hz, samples.amplitude, samples.channels, analysis, t0=samples.t0,
-                             reference=samples.reference or None, check_gaps=samples.source != "offline")
+                             reference=samples.reference or None, grid_steps_per_period=grid)
     for t, y in samples.batches:
         if sampler.done:
             break

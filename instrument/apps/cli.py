@@ -366,8 +366,11 @@ def _simulate(args: argparse.Namespace) -> int:
                   file=sys.stderr)
 
     models = {case.plant.model for case in config.cases if case.plant is not None}
+    imports: tuple[str, ...] = ()
+    if args.plots:
+        from bodebench.apps.plots import DRAWING_MODULES as imports
     try:
-        with offline_executor(args.jobs, args.executor, models) as executor:
+        with offline_executor(args.jobs, args.executor, models, imports) as executor:
             procedure = SweepProcedure(config, out, listener=listener, executor=executor, plots=_plot_writer(args),
                                        existing="resume" if args.resume else "refuse",
                                        keep_samples=args.samples)

@@ -32,6 +32,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DEFAULT_FORMATS",
+    "DRAWING_MODULES",
     "FORMATS",
     "check_formats",
     "HARMONIC_COLOURS",
@@ -51,6 +52,10 @@ FORMATS = ("png", "svg", "pdf")
 """The file formats the plots can be written in (PNG raster at 120 dpi; SVG and PDF vector)."""
 
 DEFAULT_FORMATS = ("png",)
+
+DRAWING_MODULES = ("matplotlib.backends.backend_agg", "matplotlib.figure", "matplotlib.lines", "matplotlib.patches",
+                   "matplotlib.ticker")
+"""What drawing a figure imports (a pool loads them before its workers start, see bodebench.bench.offline)."""
 
 
 def check_formats(formats: Sequence[str]) -> tuple[str, ...]:
@@ -96,14 +101,30 @@ def _label(*parts: str) -> str:
     return " ".join(part for part in parts if part)
 
 
+_WIDTH_IN = 8.0
+# A fixed layout (inches): room for five-digit tick labels and the axis label at the left, the frequency axis below,
+# the title above. Fixed, the figure is drawn once (a layout engine draws it once more to measure it).
+_LEFT_IN, _RIGHT_IN, _BOTTOM_IN, _TOP_IN, _TITLE_IN, _GAP_IN = 0.95, 0.2, 0.55, 0.2, 0.3, 0.25
+
+
 def _new_figure(rows: int, height_in: float) -> tuple[Figure, Any]:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(8.0, height_in), layout="constrained")
+    fig = Figure(figsize=(_WIDTH_IN, height_in))
     FigureCanvasAgg(fig)
     axes = fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0]
+    _place_axes(fig, rows, titled=False)
     return fig, axes
+
+
+def _place_axes(fig: Figure, rows: int, titled: bool) -> None:
+    """The fixed layout: margins and the gap between rows, with room for a title above when ``titled``."""
+    width, height = fig.get_size_inches()
+    top = _TOP_IN + (_TITLE_IN if titled else 0.0)
+    axes_height = (height - top - _BOTTOM_IN - (rows - 1) * _GAP_IN) / rows
+    fig.subplots_adjust(left=_LEFT_IN / width, right=1.0 - _RIGHT_IN / width, bottom=_BOTTOM_IN / height,
+                        top=1.0 - top / height, hspace=_GAP_IN / axes_height)
 
 
 def _save(fig: Figure, path_stem: str | Path, formats: Sequence[str] = DEFAULT_FORMATS) -> list[Path]:
@@ -116,13 +137,39 @@ def _save(fig: Figure, path_stem: str | Path, formats: Sequence[str] = DEFAULT_F
 
 
 def _plain_log_axis(axis: Any) -> None:
-    """Log-axis ticks at 1, 2 and 5 of every decade, labelled as plain numbers (no 2x10^0), no minor labels."""
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+    """Log-axis ticks at 1, 2 and 5 of every decade, labelled as plain numbers (no 2x10^0); the minor grid comes
+    from :func:`_minor_log_grid`."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 
     axis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
     axis.set_major_formatter(FuncFormatter(lambda value, _pos: f"{value:g}"))
-    axis.set_minor_locator(LogLocator(base=10.0, subs=tuple(float(s) for s in range(1, 10))))
-    axis.set_minor_formatter(NullFormatter())
+    axis.set_minor_locator(NullLocator())
+
+
+_MINOR_SUBS = (3.0, 4.0, 6.0, 7.0, 8.0, 9.0)  # the 1 .. 9 of every decade less the major ticks
+_MINOR_ALPHA = 0.2
+
+
+def _minor_log_grid(ax: Any, which: str) -> None:
+    """The minor grid of a log axis (``which`` "x" or "y") of ``ax``: a line at 3, 4, 6, 7, 8 and 9 of every decade
+    within the axis' final limits, all in one collection (a minor tick each would cost most of the drawing).
+    Call once everything is plotted."""
+    from matplotlib.collections import LineCollection
+
+    low, high = sorted(ax.get_xlim() if which == "x" else ax.get_ylim())
+    if not (low > 0.0 and math.isfinite(high)):
+        return
+    at = [sub * 10.0 ** decade for decade in range(math.floor(math.log10(low)), math.ceil(math.log10(high)) + 1)
+          for sub in _MINOR_SUBS]
+    at = [v for v in at if low <= v <= high]
+    if which == "x":
+        segments, transform = [[(v, 0.0), (v, 1.0)] for v in at], ax.get_xaxis_transform()
+    else:
+        segments, transform = [[(0.0, v), (1.0, v)] for v in at], ax.get_yaxis_transform()
+    grid = ax.xaxis.get_gridlines()[0] if which == "x" else ax.yaxis.get_gridlines()[0]
+    ax.add_collection(LineCollection(segments, transform=transform, colors=[grid.get_color()],
+                                     linewidths=grid.get_linewidth(), linestyles=grid.get_linestyle(),
+                                     alpha=_MINOR_ALPHA, zorder=grid.get_zorder()), autolim=False)
 
 
 def _series_groups(curves: Mapping[str, FrequencyResponse]) -> list[tuple[str, str]]:
@@ -259,7 +306,6 @@ def bode_figure(
     ax_phase.yaxis.set_major_locator(MaxNLocator(nbins=8, steps=[1, 1.5, 3, 4.5, 9, 10]))
     for ax in (ax_gain, ax_phase):
         ax.grid(True, which="major", alpha=0.5)
-        ax.grid(True, which="minor", alpha=0.2)
     handles, labels = ax_gain.get_legend_handles_labels()
     if any_band:
         handles.append(Patch(color="0.3", alpha=_BAND_ALPHA, lw=0))
@@ -276,6 +322,9 @@ def bode_figure(
     ax_gain.legend(handles, labels, fontsize="small")
     if title:
         fig.suptitle(title)
+        _place_axes(fig, 2, titled=True)
+    for ax in (ax_gain, ax_phase):
+        _minor_log_grid(ax, "x")
     return fig
 
 
@@ -326,7 +375,6 @@ def periods_figure(responses: Mapping[str, FrequencyResponse] | FrequencyRespons
     ax.set_xlabel("Frequency (Hz)")
     ax.set_ylabel("Periods")
     ax.grid(True, which="major", alpha=0.5)
-    ax.grid(True, which="minor", alpha=0.2)
     handles, labels = ax.get_legend_handles_labels()
     if any_capped:
         handles.append(Line2D([], [], marker="x", color="0.3", linestyle="none", ms=9.0, mew=2.0))
@@ -334,6 +382,9 @@ def periods_figure(responses: Mapping[str, FrequencyResponse] | FrequencyRespons
     ax.legend(handles, labels, fontsize="small")
     if title:
         ax.set_title(title)
+        _place_axes(fig, 1, titled=True)
+    _minor_log_grid(ax, "x")
+    _minor_log_grid(ax, "y")
     return fig
 
 

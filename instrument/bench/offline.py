@@ -7,9 +7,10 @@ others, so frequencies run in parallel on any ``concurrent.futures.Executor``
 
 from __future__ import annotations
 
+import itertools
 import multiprocessing
 import os
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager, nullcontext
 from dataclasses import asdict
 from pathlib import Path
@@ -58,9 +59,9 @@ def measure_point(case: CaseConfig, frequency_hz: float, samples_dir: str = "") 
     amplitude = case.excitation.amplitude_at(frequency_hz)
     steps = analysis.steps_per_period
     h = 1.0 / (steps * frequency_hz)
-    # the steps are the computation's own, one every h: there are no gaps to look for
+    # the steps are the computation's own, one every h from t = 0: a grid that t0 (whole periods) lies on
     sampler = Autointegrator(frequency_hz, amplitude, (OUTPUT_CHANNEL,), analysis, t0=settle / frequency_hz,
-                             check_gaps=False)
+                             grid_steps_per_period=steps)
     record = PointSamples(frequency_hz, amplitude, (OUTPUT_CHANNEL,), settle / frequency_hz, source="offline") \
         if keep_samples else None
     state = plant.initial_state()
@@ -86,22 +87,34 @@ def measure_point(case: CaseConfig, frequency_hz: float, samples_dir: str = "") 
     return points
 
 
-def default_executor(max_workers: int | None = None, models: Collection[str] = ()) -> ProcessPoolExecutor:
+def default_executor(max_workers: int | None = None, models: Collection[str] = (),
+                     imports: Collection[str] = ()) -> ProcessPoolExecutor:
     """A process pool over the machine's cores (frequencies are CPU-bound and independent).
 
-    models: plant models whose compiled step loops each worker loads before its first task, one worker at a time,
-    so that on a machine with no compiled copy yet they are compiled once (by the first worker, into numba's
-    on-disk cache) rather than once per worker."""
-    if not models:
-        return ProcessPoolExecutor(max_workers=max_workers or os.cpu_count() or 1)
+    models: plant models whose compiled step loops the workers run; imports: modules they use (the plots' own,
+    say). Where workers are forks of this process (POSIX's default), both are loaded here, once, before the pool
+    starts, and every worker has them from its first task; otherwise each worker loads them before its first
+    task, the compiled loops one worker at a time, so that on a machine with no compiled copy yet they are
+    compiled once (by the first worker, into numba's on-disk cache) rather than once per worker."""
+    workers = max_workers or os.cpu_count() or 1
+    if not models and not imports:
+        return ProcessPoolExecutor(max_workers=workers)
     context = multiprocessing.get_context()
-    return ProcessPoolExecutor(max_workers=max_workers or os.cpu_count() or 1, mp_context=context,
-                               initializer=_load_kernels, initargs=(context.Lock(), tuple(sorted(models))))
+    loaded = (tuple(sorted(models)), tuple(sorted(imports)))
+    if context.get_start_method() == "fork":
+        _load_kernels(None, *loaded)
+        return ProcessPoolExecutor(max_workers=workers, mp_context=context)
+    return ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_load_kernels,
+                               initargs=(context.Lock(), *loaded))
 
 
-def _load_kernels(lock: Any, models: tuple[str, ...]) -> None:
+def _load_kernels(lock: Any, models: tuple[str, ...], imports: tuple[str, ...] = ()) -> None:
+    import importlib
+
     from bodebench.sim.models import load_kernels
 
+    for name in imports:
+        importlib.import_module(name)
     with lock if lock is not None else nullcontext():
         load_kernels(models)
 
@@ -112,20 +125,20 @@ class ExecutorError(Exception):
 
 @contextmanager
 def offline_executor(jobs: int | None = None, scheduler: str | None = None,
-                     models: Collection[str] = ()) -> Iterator[Executor | None]:
+                     models: Collection[str] = (), imports: Collection[str] = ()) -> Iterator[Executor | None]:
     """The executor an offline sweep runs on, shut down (queued work cancelled) when the block ends.
 
     scheduler: a Dask scheduler's address (``tcp://host:8786``), or "local" for a Dask cluster started here with
     ``jobs`` single-threaded worker processes; None: a process pool of ``jobs`` workers (None: one per core), or no
-    executor at all for ``jobs == 1`` (this process, in order). models: plant models whose compiled step loops the
-    workers load first (see :func:`default_executor`)."""
+    executor at all for ``jobs == 1`` (this process, in order). models, imports: plant models whose compiled step
+    loops and modules the workers load first (see :func:`default_executor`)."""
     if jobs is not None and jobs < 1:
         raise ExecutorError(f"--jobs must be >= 1, got {jobs}")
     if scheduler is None:
         if jobs == 1:
             yield None
             return
-        pool = default_executor(jobs, models)
+        pool = default_executor(jobs, models, imports)
         try:
             yield pool
         finally:
@@ -150,7 +163,7 @@ def offline_executor(jobs: int | None = None, scheduler: str | None = None,
     try:
         if models:  # compiled by one worker (into the shared on-disk cache) before the others load them
             client.submit(_load_kernels, None, tuple(sorted(models)), pure=False).result()
-            client.run(_load_kernels, None, tuple(sorted(models)))
+            client.run(_load_kernels, None, tuple(sorted(models)), tuple(sorted(imports)))
         executor = client.get_executor(pure=False)
         try:
             yield executor
@@ -187,15 +200,25 @@ def sort_points(response: FrequencyResponse) -> None:
     response.points.sort(key=lambda p: (p.channel, p.harmonic, p.frequency_hz))
 
 
+def in_flight_limit(executor: Executor | None) -> int | None:
+    """How many frequencies to keep submitted at once on ``executor``: twice its workers for a pool of this process
+    (so that work submitted later, a finished case's plots, waits for at most that many), None (all at once) for
+    one whose size is not known here (a Dask cluster schedules on its own)."""
+    workers = getattr(executor, "_max_workers", None)  # concurrent.futures' process and thread pools
+    return 2 * workers if isinstance(workers, int) and workers > 0 else None
+
+
 def measure_cases(cases: Sequence[CaseConfig], executor: Executor | None = None,
-                  skip: Sequence[Collection[float]] = (), samples_dirs: Sequence[str] = ()
-                  ) -> Iterator[tuple[int, list[ResponsePoint]]]:
+                  skip: Sequence[Collection[float]] = (), samples_dirs: Sequence[str] = (),
+                  in_flight: int | None = None) -> Iterator[tuple[int, list[ResponsePoint]]]:
     """Every frequency of every case, all on one executor: (case index, that frequency's points), in the order they
     are done (None: in this process, case by case, frequency by frequency).
 
     skip: per case, the frequencies (Hz) not to measure. samples_dirs: per case, the results directory whose
     ``samples/`` gets each frequency's samples, written by the process that measured them before its points are
-    yielded ("" or absent: none). Frequencies not yet started are cancelled when the caller stops iterating."""
+    yielded ("" or absent: none). in_flight: at most this many frequencies submitted and not yet done, the next
+    submitted as one is (None: all at once). Frequencies not yet started are cancelled when the caller stops
+    iterating."""
     tasks = [(i, f) for i, case in enumerate(cases) for f in case.excitation.frequencies_hz
              if not (i < len(skip) and f in skip[i])]
 
@@ -206,12 +229,21 @@ def measure_cases(cases: Sequence[CaseConfig], executor: Executor | None = None,
         for i, f in tasks:
             yield i, measure_point(cases[i], f, where(i))
         return
-    futures: dict[Future[list[ResponsePoint]], int] = {executor.submit(measure_point, cases[i], f, where(i)): i
-                                                       for i, f in tasks}
+    queued = iter(tasks)
+    running: dict[Future[list[ResponsePoint]], int] = {}
+
+    def submit(count: int) -> None:
+        for i, f in itertools.islice(queued, count):
+            running[executor.submit(measure_point, cases[i], f, where(i))] = i
+
+    submit(len(tasks) if in_flight is None else max(1, in_flight))
     try:
-        for fut in as_completed(futures):
-            yield futures[fut], fut.result()
+        while running:
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for fut in [f for f in running if f in done]:  # in the order submitted
+                i = running.pop(fut)
+                submit(1)
+                yield i, fut.result()
     finally:
-        for fut in futures:
-            if not fut.done():
-                fut.cancel()
+        for fut in running:
+            fut.cancel()

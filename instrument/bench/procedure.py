@@ -291,7 +291,7 @@ class SweepProcedure:
         """Simulated plants: every frequency of every case in ``indices`` on the one executor, each point appended
         to its case's file as it is done; events case by case (a later case's points, done early, are announced
         when its turn comes); each case's plots drawn on the executor too, while later cases are measured."""
-        from bodebench.bench.offline import measure_cases, sort_points
+        from bodebench.bench.offline import in_flight_limit, measure_cases, sort_points
         from bodebench.sim._jit import HAVE_NUMBA
 
         if not HAVE_NUMBA:
@@ -335,7 +335,7 @@ class SweepProcedure:
 
         advance()
         samples_dirs = [str(o.directory) if self.keep_samples else "" for o in outcomes]
-        for k, points in measure_cases(cases, self.executor, skips, samples_dirs):
+        for k, points in measure_cases(cases, self.executor, skips, samples_dirs, in_flight_limit(self.executor)):
             writers[k].append(points)
             for point in points:
                 outcomes[k].response.add(point)

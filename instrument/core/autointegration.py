@@ -20,7 +20,7 @@ from typing import Protocol
 
 import numpy as np
 
-from bodebench.core.fourier import PeriodIntegrator
+from bodebench.core.fourier import GridPeriodIntegrator, PeriodIntegrator
 from bodebench.core.quality import coherence, coherence_periods, total_harmonic_distortion
 from bodebench.core.response import ResponsePoint
 from bodebench.core.rules import RESOLUTION, SeriesHistory, StoppingRule, Verdict, make_rule
@@ -90,8 +90,10 @@ class Autointegrator:
     are output over input whatever delay or amplitude error the path to the
     drive added, and the rules judge that ratio.
 
-    check_gaps: discard the periods gaps in the samples touch (samples of a computation, on a uniform grid of the
-    step chosen, have none: False takes every period).
+    check_gaps: discard the periods gaps in the samples touch (False takes every period).
+    grid_steps_per_period: the samples of a computation, on a uniform grid of this many steps per period that t0
+    lies on (:class:`~bodebench.core.fourier.GridPeriodIntegrator`: the same coefficients as a matrix product per
+    chunk; a grid has no gaps); 0: samples at any times, as a bench delivers them.
 
     periods: whole periods integrated; discarded: periods a gap in the samples touched, up to the period at which
     the rules stopped (see the module docstring); failure: why the point is not a measurement ("" while it is).
@@ -99,7 +101,7 @@ class Autointegrator:
 
     def __init__(self, frequency_hz: float, amplitude: float, channels: Sequence[str],
                  analysis: AnalysisSettings, t0: float = 0.0, reference: str | None = None,
-                 check_gaps: bool = True) -> None:
+                 check_gaps: bool = True, grid_steps_per_period: int = 0) -> None:
         self.frequency_hz = frequency_hz
         self.amplitude = amplitude
         self.channels = tuple(channels)
@@ -112,8 +114,12 @@ class Autointegrator:
         self.max_gap_periods = analysis.max_gap_cycles / max(harmonics)
         """Longest interval between two samples a whole period may contain, in periods of f."""
         self.max_discarded_percent = analysis.max_discarded_percent
-        self._integrator = PeriodIntegrator(frequency_hz, harmonics, len(self.channels) + (reference is not None),
-                                            t0, max_gap=self.max_gap_periods if check_gaps else math.inf)
+        columns = len(self.channels) + (reference is not None)
+        self._integrator = (
+            GridPeriodIntegrator(frequency_hz, harmonics, columns, grid_steps_per_period, t0)
+            if grid_steps_per_period else
+            PeriodIntegrator(frequency_hz, harmonics, columns, t0,
+                             max_gap=self.max_gap_periods if check_gaps else math.inf))
         self._histories = [[SeriesHistory() for _ in self.harmonics] for _ in self.channels]
         self._rules: list[list[StoppingRule]] = [
             [make_rule(analysis.criterion, tolerance_percent=analysis.tolerance_percent,
