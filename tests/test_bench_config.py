@@ -167,3 +167,22 @@ def test_a_dbc_signal_with_scale_zero_is_refused(tmp_path) -> None:  # type: ign
 def test_a_malformed_dbc_byte_order_is_refused(tmp_path) -> None:  # type: ignore[no-untyped-def]
     text = dbc_error(tmp_path, order="9")
     assert "frames.dbc: drive.dbc line 14: signal \"ActPos\": @9- is not a byte order" in text
+
+
+def test_the_in_process_drive_gets_a_worker_process_for_a_long_sweep_only() -> None:
+    from pathlib import Path
+
+    from bodebench.bench.procedure import LEAST_ANALYSED_PERIODS, least_setpoints
+    from bodebench.io.config import load_config
+    from bodebench.io.tables import SETPOINTS_FOR_A_PROCESS
+
+    case = load_config(Path(__file__).resolve().parent.parent / "configs" / "sim_can.toml").cases[0]
+    bench, excitation = case.on_bench.bench, case.excitation
+    by_hand = sum(bench.rate_hz * (excitation.settle_at(f) + case.analysis.skip_periods + LEAST_ANALYSED_PERIODS) / f
+                  for f in excitation.frequencies_hz)
+    assert least_setpoints(case) == int(by_hand) >= SETPOINTS_FOR_A_PROCESS
+    assert bench.worker == "auto" and bench.clock == "lockstep"
+    assert bench.worker_mode() == "thread"  # a bus: the drive is served in the worker's own process anyway
+    assert bench.worker_mode(in_process_setpoints=least_setpoints(case)) == "process"
+    assert bench.worker_mode(in_process_setpoints=SETPOINTS_FOR_A_PROCESS - 1) == "thread"
+    assert bench.worker_mode(beside_a_ui=True) == "process"

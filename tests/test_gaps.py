@@ -225,13 +225,14 @@ def test_a_stalling_drive_on_the_virtual_bus_measures_the_exact_response(tmp_pat
         return tuple(str(v) for v in dataclasses.astuple(p))  # NaN equal to NaN, every float to the last bit
 
     assert [exactly(p) for p in again.response] == [exactly(p) for p in measured]
-    # integrated across, the stalls would have been measured a hundred times further off than the point allows
+    # integrated across, the stalls would have put the point well outside what it states (by how much depends on
+    # where the stalls fell in the periods averaged: 57 to over 100 times in runs seen)
     across = {p.frequency_hz: p for p in reanalyse(out, max_gap_cycles=1.0).response}
     for p in measured:
         z = exact(p.frequency_hz, p.amplitude)
         wrong = across[p.frequency_hz]
         assert wrong.periods_discarded == 0
-        assert abs(complex(wrong.p, wrong.q) - z) > 100 * (0.01 / 100 * abs(z) + p.uncertainty), (p, wrong)
+        assert abs(complex(wrong.p, wrong.q) - z) > 10 * (0.01 / 100 * abs(z) + p.uncertainty), (p, wrong)
 
 
 @pytest.mark.slow

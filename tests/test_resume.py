@@ -73,7 +73,9 @@ def test_kill_9_then_resume_keeps_every_converged_point(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_resume_refuses_results_of_another_configuration(tmp_path: Path) -> None:
-    cfg = small_config(tmp_path)
+    cfg = tmp_path / "fast.toml"  # results of three fast frequencies are results as much as any
+    cfg.write_text(small_config(tmp_path).read_text().replace("frequencies_hz = [3, 4, 5, 6, 8, 10, 12, 15]",
+                                                              "frequencies_hz = [10, 12, 15]"))
     out = tmp_path / "out"
     other = tmp_path / "other.toml"
     other.write_text(cfg.read_text().replace("friction = 0.008", "friction = 0.009"))

@@ -112,6 +112,18 @@ class CaseOutcome:
     resumed: bool = False
 
 
+LEAST_ANALYSED_PERIODS = 8
+"""Periods the default rule analyses at the least before it can stop."""
+
+
+def least_setpoints(case: CaseConfig) -> int:
+    """Setpoints a bench sweep of ``case`` takes at the least: at ``rate_hz``, each frequency's settle periods, the
+    periods the rule skips and the least it analyses."""
+    bench = case.on_bench.bench
+    skip = case.analysis.skip_periods + LEAST_ANALYSED_PERIODS
+    return int(bench.rate_hz * sum((case.excitation.settle_at(f) + skip) / f for f in case.excitation.frequencies_hz))
+
+
 class SweepProcedure:
     """Runs the cases of ``config`` into ``out`` (see the module docstring).
 
@@ -276,8 +288,11 @@ class SweepProcedure:
         plan = plan_link(outcome.case, direct=self.direct, log=bus_log)
         log.info("case %s: the drive is reached %s%s", outcome.case.name, plan.where or "directly",
                  f"; bus log {bus_log}" if bus_log else "")
+        mode = self.worker_mode
+        if mode is None and self.direct:
+            mode = outcome.case.on_bench.bench.worker_mode(in_process_setpoints=least_setpoints(outcome.case))
         session = BenchSession(outcome.case, plan, outcome.directory if write else None, self.listener,
-                               worker_mode=self.worker_mode, resume=previous, keep_samples=self.keep_samples)
+                               worker_mode=mode, resume=previous, keep_samples=self.keep_samples)
         with self._lock:
             outcome.session = session
             if self._paused:

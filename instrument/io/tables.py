@@ -392,8 +392,8 @@ class BenchConfig:
     ramp_out_periods: int = field(default=1, metadata={"min": 0, "doc": "amplitude ramp after a point, periods"})
     worker: str = field(default="auto", metadata={
         "choices": ("auto", "thread", "process"),
-        "doc": "where pacing and bus I/O run: auto = own process on the realtime clock or beside the terminal UI, "
-               "else a thread"})
+        "doc": "where pacing and bus I/O run: auto = own process on the realtime clock, beside the terminal UI or "
+               "for a long sweep of the in-process drive (bodebench simulate), else a thread"})
     batch_ms: float = field(default=10.0, metadata={"min": 0, "min_exclusive": True,
                                                     "doc": "samples are handed to the analysis this often, ms"})
     reply_timeout_s: float = field(default=0.05, metadata={
@@ -403,13 +403,23 @@ class BenchConfig:
         "min": 0, "doc": "realtime: the CPU the bus worker keeps to itself (e.g. one isolated with isolcpus); "
                          "default: the last CPU the process may use"})
 
-    def worker_mode(self, beside_a_ui: bool = False) -> str:
+    def worker_mode(self, beside_a_ui: bool = False, in_process_setpoints: int = 0) -> str:
         """Where the bus worker runs: ``worker`` as given; for "auto" its own process on the realtime clock (its
-        pacing keeps clear of this process's garbage collector) or beside a terminal UI (whose share of the
-        interpreter would delay the lockstep exchange with the drive), else a thread."""
+        pacing keeps clear of this process's garbage collector), beside a terminal UI (whose share of the
+        interpreter would delay the lockstep exchange with the drive), or where it steps the simulated drive in
+        its own process (``bodebench simulate``) for a sweep of at least :data:`SETPOINTS_FOR_A_PROCESS`
+        setpoints (``in_process_setpoints``: as many as the sweep takes at least): the drive and the analysis
+        then run on two cores, which repays the second process' start; else a thread."""
         if self.worker != "auto":
             return self.worker
-        return "process" if self.clock == "realtime" or beside_a_ui else "thread"
+        if self.clock == "realtime" or beside_a_ui or in_process_setpoints >= SETPOINTS_FOR_A_PROCESS:
+            return "process"
+        return "thread"
+
+
+SETPOINTS_FOR_A_PROCESS = 20_000
+"""Setpoints from which a sweep of the in-process drive runs its worker in a process of its own (about 5 s of
+steps: a process takes about a second to start)."""
 
 
 @dataclass(frozen=True)
