@@ -107,14 +107,14 @@ _WIDTH_IN = 8.0
 _LEFT_IN, _RIGHT_IN, _BOTTOM_IN, _TOP_IN, _TITLE_IN, _GAP_IN = 0.95, 0.2, 0.55, 0.2, 0.3, 0.25
 
 
-def _new_figure(rows: int, height_in: float) -> tuple[Figure, Any]:
+def _new_figure(rows: int, height_in: float, titled: bool) -> tuple[Figure, Any]:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(_WIDTH_IN, height_in))
     FigureCanvasAgg(fig)
     axes = fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0]
-    _place_axes(fig, rows, titled=False)
+    _place_axes(fig, rows, titled)
     return fig, axes
 
 
@@ -255,7 +255,7 @@ def bode_figure(
 
     curves = _as_mapping(responses)
     groups = _series_groups(curves)
-    fig, (ax_gain, ax_phase) = _new_figure(2, 6.5)
+    fig, (ax_gain, ax_phase) = _new_figure(2, 6.5, titled=bool(title))
     any_hollow = any_band = any_bound = False
     for case_label, response in curves.items():
         for harmonic in response.harmonics:
@@ -322,7 +322,6 @@ def bode_figure(
     ax_gain.legend(handles, labels, fontsize="small")
     if title:
         fig.suptitle(title)
-        _place_axes(fig, 2, titled=True)
     for ax in (ax_gain, ax_phase):
         _minor_log_grid(ax, "x")
     return fig
@@ -349,7 +348,7 @@ def periods_figure(responses: Mapping[str, FrequencyResponse] | FrequencyRespons
     from matplotlib.lines import Line2D
 
     curves = _as_mapping(responses)
-    fig, (ax,) = _new_figure(1, 4.5)
+    fig, (ax,) = _new_figure(1, 4.5, titled=bool(title))
     any_capped = False
     for index, (case_label, response) in enumerate(curves.items()):
         style, marker = _STYLES[index % len(_STYLES)], _MARKERS[index % len(_MARKERS)]
@@ -382,7 +381,6 @@ def periods_figure(responses: Mapping[str, FrequencyResponse] | FrequencyRespons
     ax.legend(handles, labels, fontsize="small")
     if title:
         ax.set_title(title)
-        _place_axes(fig, 1, titled=True)
     _minor_log_grid(ax, "x")
     _minor_log_grid(ax, "y")
     return fig
