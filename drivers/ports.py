@@ -19,7 +19,7 @@ from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from .codec import Codec
 from .errors import DriverError, DriverInitError, DriverOperationError, DriverTimeoutError, LayoutError
@@ -46,6 +46,8 @@ if TYPE_CHECKING:  # python-can is imported where a CAN port is made
     from can.typechecking import Channel
 
 __all__ = ["MAX_BATCH", "ByteLog", "CanPort", "Frame", "FramePort", "SerialLine", "SerialPort", "resolve_can_config"]
+
+ErrorTypes = tuple[type[BaseException], ...]
 
 MAX_BATCH = 256
 """Most frames one ``recv`` call returns; the rest wait for the next call."""
@@ -77,17 +79,15 @@ class FramePort(ABC):
     rejected input), remembers ``last_error`` (text), and is a context manager that closes the port.
 
     ``transport`` is the ``Layout.validate`` transport name of the port. Backends list their vendor exception types
-    in ``_vendor_errors`` / ``_timeout_errors`` and implement ``_send``, ``_recv`` and ``_close``.
+    in ``_library_errors`` and implement ``_send``, ``_recv`` and ``_close``.
     """
-
-    _vendor_errors: ClassVar[tuple[type[BaseException], ...]] = (OSError,)
-    _timeout_errors: ClassVar[tuple[type[BaseException], ...]] = ()
 
     def __init__(self, name: str, transport: str) -> None:
         """``name`` describes the interface in error messages (e.g. "CAN socketcan:can0", "serial /dev/ttyUSB0");
         ``transport`` is "can", "serial-binary" or "serial-ascii"."""
         self.name = name
         self.transport = transport
+        self._vendor_errors, self._timeout_errors = self._library_errors()
         self.frames_in = 0
         self.frames_out = 0
         self.errors = 0
@@ -96,6 +96,12 @@ class FramePort(ABC):
         """Why the traffic log stopped recording before the port closed ("" while it records, or without a log)."""
         self._closed = False
         self._queue: deque[Frame] = deque()
+
+    @staticmethod
+    def _library_errors() -> tuple[ErrorTypes, ErrorTypes]:
+        """The backend library's exception types: (operation errors, timeout errors), imported when a port is
+        made, so that importing this module loads neither python-can nor pyserial."""
+        return (OSError,), ()
 
     # ----------------------------------------------------------------------------------------------------------
     # public API
@@ -247,16 +253,14 @@ def resolve_can_config(interface: str = "", channel: str = "", bitrate: int | No
         raise ValueError(f"{exc} (python-can knows: {', '.join(sorted(can.VALID_INTERFACES))})") from None
 
 
-def _can_errors() -> tuple[tuple[type[BaseException], ...], tuple[type[BaseException], ...]]:
-    import can
-
-    return (can.CanError, OSError), (can.CanTimeoutError,)
-
-
 class CanPort(FramePort):
     """Frames on a python-can bus (any interface). Error frames are returned flagged ``is_error`` and counted."""
 
-    _vendor_errors, _timeout_errors = _can_errors()
+    @staticmethod
+    def _library_errors() -> tuple[ErrorTypes, ErrorTypes]:
+        import can
+
+        return (can.CanError, OSError), (can.CanTimeoutError,)
 
     def __init__(self, bus: can.BusABC, *, name: str | None = None, send_timeout: float | None = 1.0,
                  owns_bus: bool = True, fd: bool = False, log: str | os.PathLike[str] | None = None) -> None:
@@ -434,12 +438,6 @@ class CanPort(FramePort):
 
 # ----------------------------------------------------------------------------------------------------------------
 # serial
-def _serial_errors() -> tuple[tuple[type[BaseException], ...], tuple[type[BaseException], ...]]:
-    import serial
-
-    return (serial.SerialException, OSError), (serial.SerialTimeoutException,)
-
-
 _FRAMINGS = ("binary", "ascii")
 
 
@@ -476,7 +474,12 @@ class SerialPort(FramePort):
     lines count in ``errors``; ``resyncs`` and ``bytes_discarded`` come from the deframer.
     """
 
-    _vendor_errors, _timeout_errors = _serial_errors()
+    @staticmethod
+    def _library_errors() -> tuple[ErrorTypes, ErrorTypes]:
+        import serial
+
+        return (serial.SerialException, OSError), (serial.SerialTimeoutException,)
+
     _POLL_S = 0.0005  # s, sleep between polls while waiting for the first frame
     _CHUNK = 4096  # bytes read per call at most
     _MAX_READS = 16  # reads per poll at most
