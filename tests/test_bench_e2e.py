@@ -64,9 +64,10 @@ def sweep(data: dict[str, Any], out: Path | None = None, direct: bool = False, l
     return session
 
 
-def compare(a: FrequencyResponse, b: FrequencyResponse, gain_db: float, phase_deg: float) -> None:
+def compare(a: FrequencyResponse, b: FrequencyResponse, gain_db: float, phase_deg: float,
+            freqs: list[float] = FREQS) -> None:
     first_a, first_b = a.select(harmonic=1), b.select(harmonic=1)
-    assert list(first_a.frequency_hz) == list(first_b.frequency_hz) == FREQS
+    assert list(first_a.frequency_hz) == list(first_b.frequency_hz) == freqs
     assert np.max(np.abs(first_a.gain_db - first_b.gain_db)) <= gain_db
     assert np.max(np.abs(first_a.phase_deg - first_b.phase_deg)) <= phase_deg
     assert all(p.converged for p in a.points)
@@ -93,9 +94,13 @@ def test_virtual_can_agrees_with_the_offline_run(offline: FrequencyResponse, tmp
 
 
 @pytest.mark.slow
-def test_slcan_adapter_on_a_pty_agrees_with_the_offline_run(offline: FrequencyResponse) -> None:
-    session = sweep(config(can={"interface": "slcan", "channel": ""}))
-    compare(session.response, offline, 0.05, 0.2)
+def test_slcan_adapter_on_a_pty_agrees_with_the_offline_run() -> None:
+    """python-can's slcan interface reads its adapter a byte at a time (about 1 ms a setpoint here), so this sweep
+    keeps to the frequencies above and below resonance that take the fewest setpoints."""
+    freqs = [8.0, 20.0]
+    offline = sweep(config(excitation={"frequencies_hz": freqs}), direct=True).response
+    session = sweep(config(can={"interface": "slcan", "channel": ""}, excitation={"frequencies_hz": freqs}))
+    compare(session.response, offline, 0.05, 0.2, freqs)
     assert "slcan" in session.plan.where
 
 

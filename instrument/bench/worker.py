@@ -29,7 +29,7 @@ from bodebench.drivers.driver import BusHealth, Driver, FeedbackSample
 from bodebench.drivers.errors import DriveFaultError, DriverError
 from bodebench.drivers.layout import SETPOINT_ECHO
 from bodebench.drivers.scheduling import keep_to, lower_timer_slack, pacing_cpu, request_fifo
-from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
+from bodebench.drivers.stop_signals import StopSignal, signals_held, stop_on_signals
 
 # ------------------------------------------------------------------------------------------- messages to the worker
 
@@ -281,10 +281,37 @@ class SendErrorHistogram:
         return min(centre, self.max)
 
 
+class MessagePipe:
+    """One end of the pipe between the session and the worker. A stop signal never tears a message: it waits until
+    the message being sent or received is through (``signals_held``), so the messages after it, the worker's
+    report of how it left the drive among them, still read."""
+
+    def __init__(self, conn: Connection) -> None:
+        self._conn = conn
+
+    def send(self, message: object) -> None:
+        with signals_held():
+            self._conn.send(message)
+
+    def recv(self) -> object:
+        with signals_held():
+            return self._conn.recv()
+
+    def poll(self, timeout: float = 0.0) -> bool:
+        """Whether a message is waiting, after up to ``timeout`` s."""
+        return self._conn.poll(timeout)
+
+    def fileno(self) -> int:
+        return self._conn.fileno()
+
+    def close(self) -> None:
+        self._conn.close()
+
+
 class BusWorker:
     """The pacing loop. ``run`` never raises: every way out zeroes the drive and ends with ``Stopped``."""
 
-    def __init__(self, spec: WorkerSpec, conn: Connection) -> None:
+    def __init__(self, spec: WorkerSpec, conn: MessagePipe) -> None:
         self.spec = spec
         self.conn = conn
         self.h = 1.0 / spec.rate_hz
@@ -713,14 +740,14 @@ def worker_main(spec: WorkerSpec, conn: Connection) -> None:
     """Entry point of the worker process or thread (in a process of its own, SIGTERM and SIGHUP end it through
     the same safe shutdown as Ctrl-C)."""
     with stop_on_signals():
-        BusWorker(spec, conn).run()
+        BusWorker(spec, MessagePipe(conn)).run()
     try:
         conn.close()
     except OSError:
         pass
 
 
-def start_worker(spec: WorkerSpec, mode: str) -> tuple[Connection, Any]:
+def start_worker(spec: WorkerSpec, mode: str) -> tuple[MessagePipe, Any]:
     """Start the worker in its own process (``process``) or a thread; returns (session end of the pipe, handle)."""
     import multiprocessing as mp
 
@@ -730,7 +757,7 @@ def start_worker(spec: WorkerSpec, mode: str) -> tuple[Connection, Any]:
         proc = ctx.Process(target=worker_main, args=(spec, theirs), name="bodebench-bus", daemon=True)
         proc.start()
         theirs.close()
-        return ours, proc
+        return MessagePipe(ours), proc
     thread = threading.Thread(target=worker_main, args=(spec, theirs), name="bodebench-bus", daemon=True)
     thread.start()
-    return ours, thread
+    return MessagePipe(ours), thread

@@ -1,0 +1,114 @@
+"""A stop signal ends a sweep through its safe shutdown, and never tears a message between the session and the bus
+worker: a message cut half-way leaves every later one unreadable, the worker's report of how it left the drive
+among them."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import struct
+import threading
+import time
+from multiprocessing import Pipe
+
+import pytest
+
+from bodebench.bench.worker import MessagePipe
+from bodebench.drivers.stop_signals import StopSignal, signals_held, stop_on_signals
+
+PIECES = 40
+PIECE_BYTES = 1 << 16
+PIECE_PAUSE_S = 0.01
+
+
+def _slow_writer(fd: int, payload: bytes, after: bytes) -> None:
+    """Write one message the way Connection.send frames it (a 4-byte big-endian length, then the pickle), in pieces
+    with pauses, so that its reader is half-way through it for a while; then a whole second message."""
+    try:
+        os.write(fd, struct.pack("!i", len(payload)))
+        for i in range(0, len(payload), PIECE_BYTES):
+            os.write(fd, payload[i:i + PIECE_BYTES])
+            time.sleep(PIECE_PAUSE_S)
+        os.write(fd, struct.pack("!i", len(after)) + after)
+    except BrokenPipeError:  # a torn stream's reader gave up and closed its end
+        pass
+
+
+def _interrupt_mid_message(held: bool) -> tuple[object, object]:
+    """SIGINT to this process while a long message is being read, through a MessagePipe (``held``) or a bare
+    Connection; (what the read returned or raised, what the next read returned or raised)."""
+    ours, theirs = Pipe(duplex=True)
+    big = pickle.dumps(bytes(PIECES * PIECE_BYTES - 100))
+    second = pickle.dumps("stopped: drive left at setpoint 0, disabled")
+    writer = threading.Thread(target=_slow_writer, args=(theirs.fileno(), big, second), daemon=True)
+    conn = MessagePipe(ours) if held else ours
+    first: object
+    with stop_on_signals():
+        writer.start()
+        timer = threading.Timer(PIECES * PIECE_PAUSE_S / 4, os.kill, (os.getpid(), signal.SIGINT))
+        timer.start()
+        try:
+            got = conn.recv()
+            first = len(got) if isinstance(got, bytes) else got
+        except StopSignal as exc:
+            first = exc
+        # the signal is raised once: the safe shutdown's own reads go on
+        try:
+            following: object = conn.recv() if conn.poll(5.0) else None
+        except Exception as exc:  # noqa: BLE001 - what a torn stream gives
+            following = exc
+        timer.join()
+    ours.close()
+    writer.join(5.0)
+    theirs.close()
+    return first, following
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGINT") or os.name != "posix", reason="POSIX signals")
+def test_a_stop_signal_waits_for_the_message_under_way_and_the_next_one_reads() -> None:
+    first, following = _interrupt_mid_message(held=True)
+    assert isinstance(first, StopSignal) and first.signame == "SIGINT"  # raised, after the whole message was read
+    assert following == "stopped: drive left at setpoint 0, disabled"
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGINT") or os.name != "posix", reason="POSIX signals")
+def test_without_holding_the_signal_the_stream_is_torn() -> None:
+    """The failure the held signal prevents, shown on a bare Connection: the next read is not the next message."""
+    first, following = _interrupt_mid_message(held=False)
+    assert isinstance(first, StopSignal)
+    assert following != "stopped: drive left at setpoint 0, disabled"
+
+
+def test_signals_held_raises_once_at_the_end_of_the_block() -> None:
+    done = []
+    with stop_on_signals() as handler:
+        with pytest.raises(StopSignal, match="SIGTERM"):
+            with signals_held():
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.05)  # the handler runs here: the signal is held, not raised
+                done.append("inside")
+                with signals_held():  # nested: the outermost block raises
+                    os.kill(os.getpid(), signal.SIGHUP)
+                    time.sleep(0.05)
+                done.append("after nested")
+        assert done == ["inside", "after nested"]
+        os.kill(os.getpid(), signal.SIGINT)  # later signals are ignored while the shutdown runs
+        time.sleep(0.05)
+        assert handler.ignored == 1
+
+
+def test_signals_held_is_a_no_op_outside_a_stop_block_and_off_the_main_thread() -> None:
+    seen: list[object] = []
+
+    def off_main() -> None:
+        with signals_held():
+            seen.append("ran")
+
+    with stop_on_signals():
+        t = threading.Thread(target=off_main)
+        t.start()
+        t.join()
+    with signals_held():
+        seen.append("outside")
+    assert seen == ["ran", "outside"]
