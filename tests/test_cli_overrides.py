@@ -254,21 +254,21 @@ def test_sim_controller_writes_the_bench_config_that_run_sweeps(tmp_path: Path) 
     drive_cfg.write_text((ROOT / "configs" / "sim_serial.toml").read_text())
     bench_cfg = tmp_path / "bench.toml"
     drive = subprocess.Popen(command() + ["sim-controller", str(drive_cfg), "--write-config", str(bench_cfg),
-                                          "--set", "excitation.frequencies_hz=[4, 12]"],
+                                          "--set", "excitation.frequencies_hz=[8, 20]"],
                              stdout=subprocess.PIPE, text=True, start_new_session=True)
     try:
         line = drive.stdout.readline()
         port = re.search(r'port = "([^"]+)"', line).group(1)
         assert f"a bench config for it: {bench_cfg} (bodebench run {bench_cfg} --out DIR)" in line, line
         case = load_config(bench_cfg).cases[0]
-        assert case.serial.port == port and case.excitation.frequencies_hz == (4.0, 12.0)
+        assert case.serial.port == port and case.excitation.frequencies_hz == (8.0, 20.0)
         out = tmp_path / "out"
         run = subprocess.run(command() + ["run", str(bench_cfg), "--out", str(out), "--plots", "none"],
                              capture_output=True, text=True, timeout=300)
         assert run.returncode == 0, run.stderr
         assert f"serial {port}" in run.stderr  # swept over the pty the drive opened
         response = load_response(out)
-        assert sorted({p.frequency_hz for p in response.points}) == [4.0, 12.0]
+        assert sorted({p.frequency_hz for p in response.points}) == [8.0, 20.0]
         assert all(p.converged for p in response.points)
         assert json.loads((out / "response.json").read_text())["config"]["serial"]["port"] == port
     finally:

@@ -50,7 +50,7 @@ def test_an_exception_in_the_session_zeroes_and_disables_and_is_not_called_compl
     assert ended is not None and not ended.completed
     assert ended.reason == "error: RuntimeError: display crashed"
     assert ended.drive_state() == "drive left at setpoint 0, disabled"
-    assert [p.frequency_hz for p in load_response(tmp_path).points] == [3.0, 3.0]
+    assert [p.frequency_hz for p in load_response(tmp_path).points] == [5.0, 5.0]
 
 
 def test_an_exception_in_the_bus_worker_zeroes_and_disables() -> None:

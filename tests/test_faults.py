@@ -17,8 +17,6 @@ from bodebench.bench.events import BusStatus, SessionError
 from bodebench.bench.session import BenchSession
 from bodebench.io.config import parse_config
 
-FREQS = [3.0, 8.0, 20.0]
-
 
 def run(data: dict[str, Any]) -> tuple[BenchSession, BusStatus | None, SessionError | None]:
     case = parse_config(data, "faults.toml").cases[0]

@@ -28,6 +28,8 @@ def small_config(tmp_path: Path) -> Path:
     text = CONFIG.read_text().replace("frequencies_hz = [2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 15, 20, 30, 50]",
                                       "frequencies_hz = [3, 4, 5, 6, 8, 10, 12, 15]")
     text = text.replace("harmonics = [1, 3]", "harmonics = [1]")
+    # what is resumed does not hang on the rate: half the setpoints of the shipped config
+    text = text.replace("rate_hz = 2000", "rate_hz = 1000")
     path = tmp_path / "bench.toml"
     path.write_text(text)
     return path
