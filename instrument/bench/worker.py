@@ -284,22 +284,26 @@ class SendErrorHistogram:
 class MessagePipe:
     """One end of the pipe between the session and the worker. A stop signal never tears a message: it waits until
     the message being sent or received is through (``signals_held``), so the messages after it, the worker's
-    report of how it left the drive among them, still read."""
+    report of how it left the drive among them, still read. A message whose reception the signal then interrupts
+    is kept for the next ``recv``."""
 
     def __init__(self, conn: Connection) -> None:
         self._conn = conn
+        self._kept: list[object] = []
 
     def send(self, message: object) -> None:
         with signals_held():
             self._conn.send(message)
 
     def recv(self) -> object:
-        with signals_held():
-            return self._conn.recv()
+        if not self._kept:
+            with signals_held():
+                self._kept.append(self._conn.recv())
+        return self._kept.pop()
 
     def poll(self, timeout: float = 0.0) -> bool:
         """Whether a message is waiting, after up to ``timeout`` s."""
-        return self._conn.poll(timeout)
+        return bool(self._kept) or self._conn.poll(timeout)
 
     def fileno(self) -> int:
         return self._conn.fileno()

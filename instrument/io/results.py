@@ -22,6 +22,7 @@ from typing import Any
 
 from bodebench.core.response import FrequencyResponse, ResponsePoint, _is_int, _normalise_config
 from bodebench.core.summary import CONFIDENCE
+from bodebench.drivers.stop_signals import signals_held
 from bodebench.io.csvstyle import CsvStyle, preamble, style_of_config, style_of_header
 
 __all__ = [
@@ -460,23 +461,25 @@ class ResultsWriter:
 
     def append(self, points: list[ResponsePoint] | tuple[ResponsePoint, ...]) -> None:
         """Append ``points`` (one frequency's, typically) and sync them to disk. A write that fails (a full disk,
-        a file size limit) is undone before the error propagates: the file keeps its whole rows only."""
+        a file size limit) is undone before the error propagates: the file keeps its whole rows only. A stop signal
+        waits until the rows are on disk (an interrupt half-way would have undone measured points)."""
         if not points:
             return
-        data = "".join(_point_row(point, self.style) + "\n" for point in points).encode("utf-8")
-        fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
-        try:
-            start = os.lseek(fd, 0, os.SEEK_END)
+        with signals_held():
+            data = "".join(_point_row(point, self.style) + "\n" for point in points).encode("utf-8")
+            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
             try:
-                view = memoryview(data)
-                while view:
-                    view = view[os.write(fd, view):]
-                os.fsync(fd)
-            except BaseException:
-                os.ftruncate(fd, start)
-                raise
-        finally:
-            os.close(fd)
+                start = os.lseek(fd, 0, os.SEEK_END)
+                try:
+                    view = memoryview(data)
+                    while view:
+                        view = view[os.write(fd, view):]
+                    os.fsync(fd)
+                except BaseException:
+                    os.ftruncate(fd, start)
+                    raise
+            finally:
+                os.close(fd)
 
 
 def _end_last_row(path: Path) -> None:
