@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bodebench.core.student_t import t_quantile
 from bodebench.status import PointStatus
 
 CRITERIA: tuple[str, ...] = (
@@ -238,9 +239,7 @@ def _disc_factor(dof: int, confidence: float = CONFIDENCE) -> float:
 @functools.lru_cache(maxsize=256)
 def _line_factor(dof: int, confidence: float = CONFIDENCE) -> float:
     """Two-sided Student t quantile: the 95 % half-width of one component, in standard deviations."""
-    from scipy.special import stdtrit  # imported where used (scipy.stats, whose t.ppf this is, is slower still)
-
-    return float(stdtrit(dof, 0.5 + confidence / 2.0))
+    return t_quantile(0.5 + confidence / 2.0, dof)
 
 
 _BLOCKS = 4          # quarter-blocks of the analysed record
