@@ -12,7 +12,7 @@ from matplotlib.collections import LineCollection
 from matplotlib.colors import to_hex
 
 from bodebench.apps.cli import main
-from bodebench.apps.plots import bode_figure, harmonic_colour, periods_figure
+from bodebench.apps.plots import bode_figure, harmonic_colour, periods_figure, write_plots
 from bodebench.bench.procedure import SweepProcedure
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.summary import summarize_response
@@ -159,6 +159,18 @@ def test_sweep_plots_carry_the_configuration_title(tmp_path: Path) -> None:
 
     SweepProcedure(config, tmp_path, plots=record).run()
     assert titles == ["Lag on the bench: slow", "Lag on the bench: fast"]
+
+
+def test_write_plots_draws_the_figures_asked_for(tmp_path: Path) -> None:
+    """A pool draws a case's figures as separate tasks; each writes its own files, and together they are all."""
+    r = response()
+    assert write_plots(r, tmp_path / "one", "t", figures=("periods",)) == [tmp_path / "one" / "periods.png"]
+    assert not (tmp_path / "one" / "bode.png").exists()
+    both = write_plots(r, tmp_path / "all", "t", formats=("png", "svg"))
+    assert sorted(p.name for p in both) == ["bode.png", "bode.svg", "periods.png", "periods.svg"]
+    assert all(p.stat().st_size > 0 for p in both)
+    with pytest.raises(ValueError, match="unknown figure 'nyquist'"):
+        write_plots(r, tmp_path / "none", "t", figures=("nyquist",))
 
 
 def test_plot_command_compares_results_directories(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -25,6 +25,7 @@ import numpy as np
 
 from bodebench.core.response import PHASE_UNDEFINED_STATUSES, FrequencyResponse
 from bodebench.core.summary import CONFIDENCE, ResponseSummary, summarize_response
+from bodebench.io.results import PLOT_FIGURES
 from bodebench.status import PointStatus
 
 if TYPE_CHECKING:
@@ -388,15 +389,23 @@ def periods_figure(responses: Mapping[str, FrequencyResponse] | FrequencyRespons
 
 def write_plots(response: FrequencyResponse, directory: Path, title: str,
                 formats: Sequence[str] = DEFAULT_FORMATS,
-                summary: Sequence[ResponseSummary] | None = None) -> list[Path]:
-    """The plots of a finished case in ``directory``: the Bode plot with the summary's figures marked
-    (``summary``; None: read off ``response`` as its configuration's ``analysis.response`` says) and the periods
-    each point took, each in ``formats``."""
-    if summary is None:
-        kind = response.config.get("analysis", {}).get("response") or "system"
-        summary = summarize_response(response, kind)
-    return (plot_bode(response, directory / "bode", title, formats, summary)
-            + plot_periods(response, directory / "periods", title, formats))
+                summary: Sequence[ResponseSummary] | None = None,
+                figures: Sequence[str] = PLOT_FIGURES) -> list[Path]:
+    """The plots of a finished case in ``directory``, each in ``formats``: of ``figures``, "bode" (the Bode plot
+    with the summary's figures marked; ``summary`` None: read off ``response`` as its configuration's
+    ``analysis.response`` says) and "periods" (the periods each point took)."""
+    unknown = [f for f in figures if f not in PLOT_FIGURES]
+    if unknown:
+        raise ValueError(f"unknown figure {unknown[0]!r}; one of {', '.join(PLOT_FIGURES)}")
+    files: list[Path] = []
+    if "bode" in figures:
+        if summary is None:
+            kind = response.config.get("analysis", {}).get("response") or "system"
+            summary = summarize_response(response, kind)
+        files += plot_bode(response, directory / "bode", title, formats, summary)
+    if "periods" in figures:
+        files += plot_periods(response, directory / "periods", title, formats)
+    return files
 
 
 def plot_comparison(responses: Mapping[str, FrequencyResponse], path: str | Path, title: str = "") -> Path:

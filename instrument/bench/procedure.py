@@ -28,6 +28,7 @@ from bodebench.core.summary import ResponseSummary, summarize_response
 from bodebench.io.config import CaseConfig, ExperimentConfig
 from bodebench.io.results import (
     CSV_NAME,
+    PLOT_FIGURES,
     SIDECAR_NAME,
     ResultsError,
     ResultsWriter,
@@ -40,7 +41,8 @@ from bodebench.io.results import (
 log = logging.getLogger("bodebench.sweep")
 
 PlotWriter = Callable[..., list[Path]]
-"""Draws a finished case: (response, directory, title, summary=...) -> the files written."""
+"""Draws a finished case: (response, directory, title, summary=..., figures=...) -> the files written; figures: those
+of PLOT_FIGURES to draw (all by default)."""
 
 
 def case_directory(config: ExperimentConfig, out: Path, case: CaseConfig) -> Path:
@@ -328,7 +330,7 @@ class SweepProcedure:
         remaining = [sum(f not in skip for f in case.excitation.frequencies_hz)
                      for case, skip in zip(cases, skips, strict=True)]
         waiting: list[list[list[ResponsePoint]]] = [[] for _ in cases]
-        drawing: list[tuple[CaseOutcome, Future[list[Path]] | None]] = []
+        drawing: list[tuple[CaseOutcome, list[Future[list[Path]]]]] = []
         turn = -1
 
         def advance() -> None:
@@ -362,9 +364,9 @@ class SweepProcedure:
             advance()
             if self._abort:
                 break
-        for outcome, future in drawing:
-            if future is not None:
-                outcome.files = tuple(future.result())
+        for outcome, futures in drawing:
+            if futures:
+                outcome.files = tuple(path for future in futures for path in future.result())
             self.listener(CaseSaved(outcome.index, outcome.response, outcome.directory, outcome.files))
 
     def _announce(self, case: CaseConfig, points: list[ResponsePoint]) -> None:
@@ -373,13 +375,15 @@ class SweepProcedure:
                                    case.analysis.criterion))
         self.listener(PointFinished(index, tuple(points)))
 
-    def _submit_plots(self, outcome: CaseOutcome) -> Future[list[Path]] | None:
-        """Draw ``outcome``'s plots on the executor (None: drawn here, now, or no plots wanted)."""
+    def _submit_plots(self, outcome: CaseOutcome) -> list[Future[list[Path]]]:
+        """Draw ``outcome``'s plots on the executor, each figure a task of its own, so that the last case's figures
+        are drawn side by side ([]: drawn here, now, or no plots wanted)."""
         if self.plots is None or self.executor is None:
             self._draw(outcome)
-            return None
-        return self.executor.submit(self.plots, outcome.response, outcome.directory, self._title(outcome),
-                                    summary=outcome.summary)
+            return []
+        executor, plots, title = self.executor, self.plots, self._title(outcome)
+        return [executor.submit(plots, outcome.response, outcome.directory, title, summary=outcome.summary,
+                                figures=(figure,)) for figure in PLOT_FIGURES]
 
     def _draw(self, outcome: CaseOutcome) -> None:
         if self.plots is not None:

@@ -43,6 +43,8 @@ __all__ = [
 
 CSV_NAME = "response.csv"
 SIDECAR_NAME = "response.json"
+PLOT_FIGURES = ("bode", "periods")
+"""The figures a results directory holds: the stems of their files (the suffix is the format)."""
 FORMAT_NAME = "bodebench-response"
 FORMAT_VERSION = 4
 
