@@ -252,3 +252,48 @@ def test_the_pool_compiles_the_kernels_once_into_an_empty_cache(tmp_path: Path, 
         assert compiled_misses > 0
         assert loaded_misses == 0 and loaded_hits == compiled_misses
     assert list(cache.rglob("*.nbi"))
+
+
+SLOW_AND_FAST = """
+title = "one fast point, one that never settles"
+[plant]
+model = "coulomb"
+mass = 2.533e-4
+stiffness = 1.0
+friction = 0.006
+[excitation]
+amplitude = 0.01
+frequencies_hz = [2.0, 10.0]
+[analysis]
+harmonics = [1]
+tolerance_percent = 0.01
+max_periods = 200000
+"""
+
+
+@pytest.mark.slow
+def test_ctrl_c_of_simulate_is_one_line_and_keeps_the_points_measured(tmp_path: Path) -> None:
+    """Ctrl-C (SIGINT to the foreground group) while one worker measures a point that never settles (Fbar 0.6 at its
+    natural frequency) and the other, its point done, waits: the workers and the drawing process end without a
+    word, the command says what it kept, and the point measured is on disk."""
+    import signal
+
+    cfg = tmp_path / "slow.toml"
+    cfg.write_text(SLOW_AND_FAST)
+    out = tmp_path / "out"
+    run = subprocess.Popen([sys.executable, "-m", "bodebench", "simulate", str(cfg), "--out", str(out), "--jobs", "2"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                           cwd=tmp_path)
+    try:
+        assert run.stderr is not None
+        first = run.stderr.readline()  # the fast point's progress line
+        assert "2 Hz" in first, first
+        os.killpg(run.pid, signal.SIGINT)
+        _, err = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            os.killpg(run.pid, signal.SIGKILL)
+    assert run.returncode == 128 + signal.SIGINT, err
+    assert "Traceback" not in err, err
+    assert err.strip().splitlines()[-1] == "bodebench: interrupted (SIGINT); points already measured are on disk"
+    assert [p.frequency_hz for p in load_response(out).points] == [2.0]

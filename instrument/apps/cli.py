@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import logging
 import os
@@ -366,14 +367,18 @@ def _simulate(args: argparse.Namespace) -> int:
                   file=sys.stderr)
 
     models = {case.plant.model for case in config.cases if case.plant is not None}
-    imports: tuple[str, ...] = ()
-    if args.plots:
-        from bodebench.apps.plots import DRAWING_MODULES as imports
     try:
-        with offline_executor(args.jobs, args.executor, models, imports) as executor:
+        with contextlib.ExitStack() as stack:
+            drawer = None
+            if args.plots:  # a process of its own, started first: it imports matplotlib while the pool starts
+                from bodebench.apps.plots import DRAWING_MODULES
+                from bodebench.bench.offline import drawing_executor
+
+                drawer = stack.enter_context(drawing_executor(DRAWING_MODULES))
+            executor = stack.enter_context(offline_executor(args.jobs, args.executor, models))
             procedure = SweepProcedure(config, out, listener=listener, executor=executor, plots=_plot_writer(args),
                                        existing="resume" if args.resume else "refuse",
-                                       keep_samples=args.samples)
+                                       keep_samples=args.samples, drawer=drawer)
             outcomes = procedure.run()
     except ExecutorError as exc:
         print(f"bodebench: {exc}", file=sys.stderr)

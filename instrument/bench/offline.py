@@ -10,6 +10,7 @@ from __future__ import annotations
 import itertools
 import multiprocessing
 import os
+import signal
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager, nullcontext
 from dataclasses import asdict
@@ -87,36 +88,66 @@ def measure_point(case: CaseConfig, frequency_hz: float, samples_dir: str = "") 
     return points
 
 
-def default_executor(max_workers: int | None = None, models: Collection[str] = (),
-                     imports: Collection[str] = ()) -> ProcessPoolExecutor:
+def default_executor(max_workers: int | None = None, models: Collection[str] = ()) -> ProcessPoolExecutor:
     """A process pool over the machine's cores (frequencies are CPU-bound and independent).
 
-    models: plant models whose compiled step loops the workers run; imports: modules they use (the plots' own,
-    say). Where workers are forks of this process (POSIX's default), both are loaded here, once, before the pool
-    starts, and every worker has them from its first task; otherwise each worker loads them before its first
-    task, the compiled loops one worker at a time, so that on a machine with no compiled copy yet they are
-    compiled once (by the first worker, into numba's on-disk cache) rather than once per worker."""
+    models: plant models whose compiled step loops the workers run. Where workers are forks of this process
+    (POSIX's default), the loops are loaded here, once, before the pool starts, and every worker has them from its
+    first task; otherwise each worker loads them before its first task, one worker at a time, so that on a machine
+    with no compiled copy yet they are compiled once (by the first worker, into numba's on-disk cache) rather than
+    once per worker. A stop signal to the command's process group ends the workers at once, silently: the command
+    itself says what was kept."""
     workers = max_workers or os.cpu_count() or 1
-    if not models and not imports:
-        return ProcessPoolExecutor(max_workers=workers)
     context = multiprocessing.get_context()
-    loaded = (tuple(sorted(models)), tuple(sorted(imports)))
+    loaded = tuple(sorted(models))
     if context.get_start_method() == "fork":
-        _load_kernels(None, *loaded)
-        return ProcessPoolExecutor(max_workers=workers, mp_context=context)
-    return ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_load_kernels,
-                               initargs=(context.Lock(), *loaded))
+        _load_kernels(None, loaded)
+        return ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_set_stop_signals,
+                                   initargs=(signal.SIG_DFL,))
+    return ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_start_worker,
+                               initargs=(context.Lock(), loaded))
 
 
-def _load_kernels(lock: Any, models: tuple[str, ...], imports: tuple[str, ...] = ()) -> None:
-    import importlib
+def _set_stop_signals(handling: signal.Handlers) -> None:
+    """In a pool's process: SIG_DFL (a stop signal ends it) or SIG_IGN (the command ends it) for the stop signals."""
+    from bodebench.drivers.stop_signals import STOP_SIGNALS
 
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, handling)
+
+
+def _start_worker(lock: Any, models: tuple[str, ...]) -> None:
+    _set_stop_signals(signal.SIG_DFL)
+    _load_kernels(lock, models)
+
+
+def _load_kernels(lock: Any, models: tuple[str, ...]) -> None:
     from bodebench.sim.models import load_kernels
 
-    for name in imports:
-        importlib.import_module(name)
     with lock if lock is not None else nullcontext():
         load_kernels(models)
+
+
+def _start_drawing(imports: tuple[str, ...]) -> None:
+    """The drawing process leaves stop signals to the command, which ends it once the plots queued are drawn."""
+    import importlib
+
+    _set_stop_signals(signal.SIG_IGN)
+    for name in imports:
+        importlib.import_module(name)
+
+
+@contextmanager
+def drawing_executor(imports: Collection[str]) -> Iterator[ProcessPoolExecutor]:
+    """One process that draws an offline sweep's plots, started now: it imports ``imports`` (the plotting modules)
+    while this process loads the compiled kernels and the pool starts, rather than before, and the pool's
+    workers never load them. Shut down (its queued plots drawn) when the block ends."""
+    pool = ProcessPoolExecutor(max_workers=1, initializer=_start_drawing, initargs=(tuple(imports),))
+    pool.submit(int)  # start the process now
+    try:
+        yield pool
+    finally:
+        pool.shutdown(wait=True)
 
 
 class ExecutorError(Exception):
@@ -125,20 +156,20 @@ class ExecutorError(Exception):
 
 @contextmanager
 def offline_executor(jobs: int | None = None, scheduler: str | None = None,
-                     models: Collection[str] = (), imports: Collection[str] = ()) -> Iterator[Executor | None]:
+                     models: Collection[str] = ()) -> Iterator[Executor | None]:
     """The executor an offline sweep runs on, shut down (queued work cancelled) when the block ends.
 
     scheduler: a Dask scheduler's address (``tcp://host:8786``), or "local" for a Dask cluster started here with
     ``jobs`` single-threaded worker processes; None: a process pool of ``jobs`` workers (None: one per core), or no
-    executor at all for ``jobs == 1`` (this process, in order). models, imports: plant models whose compiled step
-    loops and modules the workers load first (see :func:`default_executor`)."""
+    executor at all for ``jobs == 1`` (this process, in order). models: plant models whose compiled step loops the
+    workers load first (see :func:`default_executor`)."""
     if jobs is not None and jobs < 1:
         raise ExecutorError(f"--jobs must be >= 1, got {jobs}")
     if scheduler is None:
         if jobs == 1:
             yield None
             return
-        pool = default_executor(jobs, models, imports)
+        pool = default_executor(jobs, models)
         try:
             yield pool
         finally:
@@ -163,7 +194,7 @@ def offline_executor(jobs: int | None = None, scheduler: str | None = None,
     try:
         if models:  # compiled by one worker (into the shared on-disk cache) before the others load them
             client.submit(_load_kernels, None, tuple(sorted(models)), pure=False).result()
-            client.run(_load_kernels, None, tuple(sorted(models)), tuple(sorted(imports)))
+            client.run(_load_kernels, None, tuple(sorted(models)))
         executor = client.get_executor(pure=False)
         try:
             yield executor

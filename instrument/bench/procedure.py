@@ -134,7 +134,7 @@ class SweepProcedure:
     bus worker runs (None: as the config says); executor: where offline frequencies run (None: in this thread,
     in order); plots: draws each finished case (None: no plots); log_bus: a log of each bench case's traffic on the
     bus (:func:`bus_log_path`; None: none); keep_samples: save each frequency's raw samples in ``samples/``
-    (:mod:`bodebench.io.samples`).
+    (:mod:`bodebench.io.samples`); drawer: where an offline sweep's plots are drawn (None: on ``executor``).
 
     Requests from other threads (:meth:`request_abort`, :meth:`set_paused`, :meth:`request_skip`,
     :meth:`set_tolerance`) reach the running session and every case after it.
@@ -143,7 +143,7 @@ class SweepProcedure:
     def __init__(self, config: ExperimentConfig, out: Path, *, listener: Listener | None = None,
                  direct: bool = False, existing: str = "refuse", worker_mode: str | None = None,
                  executor: Executor | None = None, plots: PlotWriter | None = None, log_bus: Path | None = None,
-                 keep_samples: bool = True) -> None:
+                 keep_samples: bool = True, drawer: Executor | None = None) -> None:
         self.config = config
         self.out = Path(out)
         self.listener: Listener = listener or (lambda event: None)
@@ -151,6 +151,7 @@ class SweepProcedure:
         self.existing = existing
         self.worker_mode = worker_mode
         self.executor = executor
+        self.drawer = drawer
         self.plots = plots
         self.log_bus = log_bus
         self.keep_samples = keep_samples
@@ -376,12 +377,13 @@ class SweepProcedure:
         self.listener(PointFinished(index, tuple(points)))
 
     def _submit_plots(self, outcome: CaseOutcome) -> list[Future[list[Path]]]:
-        """Draw ``outcome``'s plots on the executor, each figure a task of its own, so that the last case's figures
-        are drawn side by side ([]: drawn here, now, or no plots wanted)."""
-        if self.plots is None or self.executor is None:
+        """Draw ``outcome``'s plots on the drawer, else on the executor, each figure a task of its own, so that on a
+        pool the last case's figures are drawn side by side ([]: drawn here, now, or no plots wanted)."""
+        executor = self.drawer or self.executor
+        if self.plots is None or executor is None:
             self._draw(outcome)
             return []
-        executor, plots, title = self.executor, self.plots, self._title(outcome)
+        plots, title = self.plots, self._title(outcome)
         return [executor.submit(plots, outcome.response, outcome.directory, title, summary=outcome.summary,
                                 figures=(figure,)) for figure in PLOT_FIGURES]
 
