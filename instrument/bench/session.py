@@ -313,7 +313,7 @@ class BenchSession:
         # it touches are discarded as for a gap in the feedback (a shorter one, like a shorter gap, is integrated)
         stale: list[tuple[float, float]] = []
         longest_gap_s = sampler.max_gap_periods / f
-        scope: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        scope = ScopeWindow(f)
         self.controls.skip.clear()
         while not sampler.done:
             self._check_abort()
@@ -327,10 +327,7 @@ class BenchSession:
             if not isinstance(message, Samples):
                 continue
             t, values = message.t, message.values[:, columns]
-            scope.append((t, message.setpoint, values[:, 0]))
-            if t.size:  # keep what covers the last two periods, however the batches were cut
-                while len(scope) > 1 and scope[1][0].size and scope[1][0][0] <= t[-1] - 2.0 / f:
-                    del scope[0]
+            scope.add(t, message.setpoint, values[:, 0])
             stale.extend((a, b) for a, b in message.held if b - a > longest_gap_s)
             if stale and t.size:
                 stale = [(a, b) for a, b in stale if b >= t[0]]
@@ -363,7 +360,7 @@ class BenchSession:
                 sampler.feed(t, values)
             if bench.clock == "lockstep" and not sampler.done:
                 self._conn.send(Credit(message.last_tick + ticks_per_period))
-            self.listener(PointProgress(index, f, sampler.periods, tuple(sampler.states()), _scope(scope, f),
+            self.listener(PointProgress(index, f, sampler.periods, tuple(sampler.states()), scope.view(),
                                         discarded=sampler.discarded))
         self.periods_discarded += sampler.discarded
         if sampler.failure:  # too many periods with gaps in the feedback: no measurement
@@ -416,14 +413,31 @@ def _absurd_point(p: ResponsePoint, window: tuple[float, float] | None) -> str:
     return ""
 
 
-def _scope(chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]], f: float
-           ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The last two periods of setpoint and first output channel."""
-    if not chunks:
-        return None
-    t = np.concatenate([c[0] for c in chunks])
-    keep = t >= t[-1] - 2.0 / f
-    return (t[keep], np.concatenate([c[1] for c in chunks])[keep], np.concatenate([c[2] for c in chunks])[keep])
+class ScopeWindow:
+    """The live scope's trace: setpoint and first output channel over the last two periods (s, setpoint units,
+    output units). Keeps only the batches that reach into those two periods, so its cost per batch does not grow
+    with the point's length, however the batches are cut (an empty one included)."""
+
+    def __init__(self, frequency_hz: float) -> None:
+        self.span = 2.0 / frequency_hz  # s
+        self.chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def add(self, t: np.ndarray, setpoint: np.ndarray, output: np.ndarray) -> None:
+        """One batch: times (s, increasing), setpoints and output, each (n,)."""
+        if t.size == 0:
+            return
+        self.chunks.append((t, setpoint, output))
+        while len(self.chunks) > 1 and self.chunks[1][0][0] <= t[-1] - self.span:
+            del self.chunks[0]
+
+    def view(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(t, setpoint, output) of the last two periods; None before the first sample."""
+        if not self.chunks:
+            return None
+        t = np.concatenate([c[0] for c in self.chunks])
+        keep = t >= t[-1] - self.span
+        return (t[keep], np.concatenate([c[1] for c in self.chunks])[keep],
+                np.concatenate([c[2] for c in self.chunks])[keep])
 
 
 def completed_frequencies(response: FrequencyResponse, channels: tuple[str, ...],
