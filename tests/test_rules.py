@@ -454,6 +454,32 @@ def test_modal_forecast_is_the_recurrence_as_scipy_filters_it() -> None:
         assert np.array_equal(_forecast(last, alpha, limit, steps), expected)
 
 
+def test_forecast_error_is_the_largest_distance_of_the_forecast_from_what_followed() -> None:
+    """ModalFit.forecast_error against the forecast array the fit makes with ``predict``: the same recurrence,
+    the same largest |forecast - value| (to the last bit of numpy's complex abs), NaN where the forecast is not
+    a number; and for a window settled to round-off, the distance from its mean."""
+    rng = np.random.default_rng(5)
+    checked = 0
+    for _ in range(400):
+        n = int(rng.integers(8, 60))
+        i = np.arange(1, 2 * n + 1)
+        lam = rng.uniform(0.3, 0.98) * np.exp(1j * rng.uniform(0.0, 3.0))
+        z = complex(rng.normal(), rng.normal()) + complex(rng.normal(), rng.normal()) * lam ** i
+        z = z + 10 ** rng.uniform(-12, -3) * (rng.normal(size=i.size) + 1j * rng.normal(size=i.size))
+        fit = extrapolate_modes(z[:n], 2, predict=n)
+        if fit is None:
+            continue
+        expected = float(np.max(np.abs(fit.prediction - z[n:])))
+        assert fit.forecast_error(z[n:]) == pytest.approx(expected, rel=4 * np.finfo(float).eps)
+        checked += 1
+    assert checked > 300
+    flat = np.full(12, 1.0 + 2.0j)
+    settled = extrapolate_modes(flat, 2)
+    assert settled is not None and settled.alpha == ()
+    assert settled.forecast_error(np.array([1.0 + 2.0j, 1.5 + 2.0j])) == 0.5
+    assert math.isnan(settled.forecast_error(np.array([1.0 + 2.0j, complex(math.nan, 0.0)])))
+
+
 def test_student_t_factor_is_scipy_stats_quantile() -> None:
     from scipy import stats
 

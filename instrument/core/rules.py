@@ -15,7 +15,7 @@ from __future__ import annotations
 import functools
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -630,11 +630,26 @@ _MIN_TURN = 0.5  # |1 - lambda| of a slowly decaying mode that the fit may extra
 
 @dataclass(frozen=True)
 class ModalFit:
-    """A modal fit of a window: its limit, rms residual (both output units) and its forecast of what follows."""
+    """A modal fit of a window: its limit, rms residual (both output units) and its forecast of the ``predict``
+    values that follow; ``alpha`` the recurrence's coefficients (none for a window settled to round-off) and
+    ``tail`` the window's last values, from which :meth:`forecast_error` forecasts."""
 
     limit: complex
     residual: float
     prediction: np.ndarray
+    alpha: tuple[float, ...] = ()
+    tail: tuple[complex, ...] = ()
+
+    def forecast_error(self, following: np.ndarray) -> float:
+        """The largest |forecast - value| over the values that followed the window (output units; NaN where a
+        forecast is not a number): ``max(abs(forecast - following))`` without making the forecast an array."""
+        values = following.tolist()
+        if self.alpha:
+            forecast = _recurrence(self.tail, self.alpha, self.limit, len(values))
+            errors = [abs(f - v) for f, v in zip(forecast, values, strict=True)]
+        else:
+            errors = [abs(self.limit - v) for v in values]
+        return math.nan if any(e != e for e in errors) else max(errors)
 
 
 def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = 0.5, predict: int = 0) -> ModalFit | None:
@@ -673,7 +688,9 @@ def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = 0.5, predict
     resid = y - x @ sol
     limit = complex(sol[modes], sol[modes + 1]) / den
     residual = math.sqrt(float((resid * resid).sum()) / resid.size) / abs(den)
-    return ModalFit(limit, residual, _forecast(z[n - modes:], alpha, limit, predict))
+    tail = z[n - modes:]
+    return ModalFit(limit, residual, _forecast(tail, alpha, limit, predict), tuple(alpha.tolist()),
+                    tuple(tail.tolist()))
 
 
 _DESIGNS: dict[tuple[int, int], tuple[np.ndarray, list[np.ndarray]]] = {}
@@ -741,26 +758,31 @@ def _mode_roots(alpha: np.ndarray) -> list[complex]:
 
 
 def _forecast(last: np.ndarray, alpha: np.ndarray, limit: complex, steps: int) -> np.ndarray:
-    """The next ``steps`` values of the recurrence Z(i) - Z_inf = sum_r alpha_r (Z(i-r) - Z_inf) from its last ones.
+    """The next ``steps`` values of the recurrence Z(i) - Z_inf = sum_r alpha_r (Z(i-r) - Z_inf) from its last ones
+    (``last``, oldest first), as an array."""
+    if steps == 0 or alpha.size == 0:
+        return np.full(steps, limit, dtype=complex)
+    return np.array(list(_recurrence(tuple(last.tolist()), tuple(alpha.tolist()), limit, steps)), dtype=complex)
+
+
+def _recurrence(last: tuple[complex, ...], alpha: tuple[float, ...], limit: complex, steps: int
+                ) -> Iterator[complex]:
+    """The next ``steps`` values of the recurrence from its last ones (oldest first), one at a time.
 
     Run as a direct-form-II-transposed filter on Python scalars: state[m] = sum over r > m of alpha_r times the
     deviation r - m periods back, the next deviation is state[0] (the same arithmetic as scipy.signal.lfilter,
     without the import of scipy.signal in every process that fits a mode).
     """
-    if steps == 0 or alpha.size == 0:
-        return np.full(steps, limit, dtype=complex)
     coef = [float(v) for v in alpha]
     order = len(coef)
-    past = [complex(v) - limit for v in last[::-1].tolist()]  # the most recent deviation first
+    past = [complex(v) - limit for v in last[::-1]]  # the most recent deviation first
     state = [sum(coef[m + k] * past[k] for k in range(order - m)) for m in range(order)]
-    out = []
     for _ in range(steps):
         y = state[0]
         for m in range(order - 1):
             state[m] = state[m + 1] + y * coef[m]
         state[order - 1] = y * coef[order - 1]
-        out.append(limit + y)
-    return np.array(out, dtype=complex)
+        yield limit + y
 
 
 def _two_mode_fit_may_pass(hist: SeriesHistory, s: int, w: int, e: float, floor: float) -> bool:
@@ -813,6 +835,8 @@ def _two_mode_fit_may_pass(hist: SeriesHistory, s: int, w: int, e: float, floor:
 
 _TABLE_SPAN = 1024  # periods whose settled screen is worked out at once
 _TABLE_AHEAD = 16   # periods the history must hold beyond the one checked for a table to pay
+_TABLE_AFTER = 96   # analysed periods before a table pays: building one costs as much as screening ~60 periods
+                    # one by one, which a series that stops early never checks
 _TABLE_FITS = 16    # scheduled fits in a table's stretch for their screens to be worked out at once
 
 
@@ -996,17 +1020,21 @@ class AdaptiveRule(StoppingRule):
             elif not _two_mode_fit_may_pass(hist, n - 2 * w, w, e, RESOLUTION * reference):
                 return None
         z = hist.values
-        first = extrapolate_modes(z[n - 2 * w:n - w], self.modes, predict=w)
+        first = extrapolate_modes(z[n - 2 * w:n - w], self.modes)
         if first is None:
             return None
-        prediction_error = float(np.max(np.abs(first.prediction - z[n - w:n])))
         if screened:
             # the bound holds the prediction error, twice the first residual and the gap between the limits, so
             # a tolerance it meets, e max(|limit|, floor) at the second limit, is at most e max(|first limit| /
-            # (1 - e), floor)
+            # (1 - e), floor); the residual is known already, the forecast is made only where it passes
             ceiling = e * max(abs(first.limit) / (1.0 - e), RESOLUTION * reference) * _SLACK
-            if prediction_error > ceiling or 2.0 * first.residual > ceiling:
+            if 2.0 * first.residual > ceiling:
                 return None
+            prediction_error = first.forecast_error(z[n - w:n])
+            if prediction_error > ceiling:
+                return None
+        else:
+            prediction_error = first.forecast_error(z[n - w:n])
         second = extrapolate_modes(z[n - w:n], self.modes)
         if second is None:
             return None
@@ -1040,7 +1068,7 @@ class AdaptiveRule(StoppingRule):
         table = self._table
         if table is None or table.hist is not hist or not table.first <= n <= table.last:
             table = None
-            if hist.n - n >= _TABLE_AHEAD:
+            if hist.n - n >= _TABLE_AHEAD and n - self.skip >= _TABLE_AFTER:
                 e = self.eps / 100.0
                 last = min(hist.n, n + _TABLE_SPAN - 1)
                 fits = []
