@@ -1023,18 +1023,15 @@ class AdaptiveRule(StoppingRule):
         first = extrapolate_modes(z[n - 2 * w:n - w], self.modes)
         if first is None:
             return None
-        if screened:
-            # the bound holds the prediction error, twice the first residual and the gap between the limits, so
-            # a tolerance it meets, e max(|limit|, floor) at the second limit, is at most e max(|first limit| /
-            # (1 - e), floor); the residual is known already, the forecast is made only where it passes
-            ceiling = e * max(abs(first.limit) / (1.0 - e), RESOLUTION * reference) * _SLACK
-            if 2.0 * first.residual > ceiling:
-                return None
-            prediction_error = first.forecast_error(z[n - w:n])
-            if prediction_error > ceiling:
-                return None
-        else:
-            prediction_error = first.forecast_error(z[n - w:n])
+        # screened: the bound holds the prediction error, twice the first residual and the gap between the limits,
+        # so a tolerance it meets, e max(|limit|, floor) at the second limit, is at most e max(|first limit| /
+        # (1 - e), floor); the residual is known already, the forecast is made only where it passes
+        ceiling = e * max(abs(first.limit) / (1.0 - e), RESOLUTION * reference) * _SLACK if screened else math.inf
+        if 2.0 * first.residual > ceiling:
+            return None
+        prediction_error = first.forecast_error(z[n - w:n])
+        if prediction_error > ceiling:
+            return None
         second = extrapolate_modes(z[n - w:n], self.modes)
         if second is None:
             return None
