@@ -142,12 +142,12 @@ def test_extrapolation_is_exact_for_geometric_transients(lam: complex) -> None:
     i = np.arange(1, 60)
     zinf = 0.3 - 0.7j
     z = zinf + 0.5 * lam ** i + (0.2 - 0.1j) * np.conj(lam) ** i
-    fit = extrapolate_modes(z[20:50], 2, predict=9)
+    fit = extrapolate_modes(z[20:50], 2)
     assert fit is not None
     assert abs(fit.limit - zinf) < 1e-9
     assert fit.residual < 1e-9
     # the recurrence forecasts the periods it has not seen
-    assert np.max(np.abs(fit.prediction - z[50:59])) < 1e-9
+    assert np.max(np.abs(fit.forecast(9) - z[50:59])) < 1e-9
 
 
 def test_extrapolation_refuses_a_beat_that_never_decays() -> None:
@@ -455,7 +455,7 @@ def test_modal_forecast_is_the_recurrence_as_scipy_filters_it() -> None:
 
 
 def test_forecast_error_is_the_largest_distance_of_the_forecast_from_what_followed() -> None:
-    """ModalFit.forecast_error against the forecast array the fit makes with ``predict``: the same recurrence,
+    """ModalFit.forecast_error against the forecast array the fit makes (ModalFit.forecast): the same recurrence,
     the same largest |forecast - value| (to the last bit of numpy's complex abs), NaN where the forecast is not
     a number; and for a window settled to round-off, the distance from its mean."""
     rng = np.random.default_rng(5)
@@ -466,10 +466,10 @@ def test_forecast_error_is_the_largest_distance_of_the_forecast_from_what_follow
         lam = rng.uniform(0.3, 0.98) * np.exp(1j * rng.uniform(0.0, 3.0))
         z = complex(rng.normal(), rng.normal()) + complex(rng.normal(), rng.normal()) * lam ** i
         z = z + 10 ** rng.uniform(-12, -3) * (rng.normal(size=i.size) + 1j * rng.normal(size=i.size))
-        fit = extrapolate_modes(z[:n], 2, predict=n)
+        fit = extrapolate_modes(z[:n], 2)
         if fit is None:
             continue
-        expected = float(np.max(np.abs(fit.prediction - z[n:])))
+        expected = float(np.max(np.abs(fit.forecast(n) - z[n:])))
         assert fit.forecast_error(z[n:]) == pytest.approx(expected, rel=4 * np.finfo(float).eps)
         checked += 1
     assert checked > 300

@@ -630,15 +630,18 @@ _MIN_TURN = 0.5  # |1 - lambda| of a slowly decaying mode that the fit may extra
 
 @dataclass(frozen=True)
 class ModalFit:
-    """A modal fit of a window: its limit, rms residual (both output units) and its forecast of the ``predict``
-    values that follow; ``alpha`` the recurrence's coefficients (none for a window settled to round-off) and
-    ``tail`` the window's last values, from which :meth:`forecast_error` forecasts."""
+    """A modal fit of a window: its limit and rms residual (both output units); ``alpha`` the recurrence's
+    coefficients (none for a window settled to round-off) and ``tail`` the window's last values (oldest first),
+    from which it forecasts what follows."""
 
     limit: complex
     residual: float
-    prediction: np.ndarray
     alpha: tuple[float, ...] = ()
     tail: tuple[complex, ...] = ()
+
+    def forecast(self, steps: int) -> np.ndarray:
+        """The ``steps`` values the recurrence forecasts after the window (output units)."""
+        return _forecast(self.tail, self.alpha, self.limit, steps)
 
     def forecast_error(self, following: np.ndarray) -> float:
         """The largest |forecast - value| over the values that followed the window (output units; NaN where a
@@ -652,7 +655,7 @@ class ModalFit:
         return math.nan if any(e != e for e in errors) else max(errors)
 
 
-def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = 0.5, predict: int = 0) -> ModalFit | None:
+def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = 0.5) -> ModalFit | None:
     """Limit of a sequence ``Z(i) = Z_inf + sum_r a_r lambda_r**i`` from a least-squares linear-prediction fit.
 
     The real recurrence ``Z(i) = c + sum_r alpha_r Z(i-r)`` is fitted to P and Q
@@ -660,8 +663,7 @@ def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = 0.5, predict
     data show the transient dying: every mode must shrink to at most
     ``max_decay`` of itself over the fitted stretch (a mode on or outside the
     unit circle, a beat of a conservative link or a growing response, has no
-    limit). ``predict``: how many values after the window the recurrence
-    forecasts. None when the sequence is too short or no limit is shown.
+    limit). None when the sequence is too short or no limit is shown.
     """
     n = z.size
     rows = n - modes
@@ -669,7 +671,7 @@ def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = 0.5, predict
         return None
     mean = complex(z.sum() / n)
     if float(np.abs(z - mean).max()) <= _ROUND_OFF * abs(mean):  # settled to round-off: no mode to fit
-        return ModalFit(mean, 0.0, np.full(predict, mean))
+        return ModalFit(mean, 0.0)
     template, lagged = _design(n, modes)
     parts = np.concatenate((z.real, z.imag))  # P(1..n), then Q(1..n)
     x = template.copy()  # rows: P then Q of Z(modes+1..n); columns: Z lagged by 1..modes, the two intercepts
@@ -688,9 +690,7 @@ def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = 0.5, predict
     resid = y - x @ sol
     limit = complex(sol[modes], sol[modes + 1]) / den
     residual = math.sqrt(float((resid * resid).sum()) / resid.size) / abs(den)
-    tail = z[n - modes:]
-    return ModalFit(limit, residual, _forecast(tail, alpha, limit, predict), tuple(alpha.tolist()),
-                    tuple(tail.tolist()))
+    return ModalFit(limit, residual, tuple(alpha.tolist()), tuple(z[n - modes:].tolist()))
 
 
 _DESIGNS: dict[tuple[int, int], tuple[np.ndarray, list[np.ndarray]]] = {}
@@ -757,15 +757,15 @@ def _mode_roots(alpha: np.ndarray) -> list[complex]:
 
 
 
-def _forecast(last: np.ndarray, alpha: np.ndarray, limit: complex, steps: int) -> np.ndarray:
+def _forecast(last: Sequence[complex], alpha: Sequence[float], limit: complex, steps: int) -> np.ndarray:
     """The next ``steps`` values of the recurrence Z(i) - Z_inf = sum_r alpha_r (Z(i-r) - Z_inf) from its last ones
     (``last``, oldest first), as an array."""
-    if steps == 0 or alpha.size == 0:
+    if steps == 0 or len(alpha) == 0:
         return np.full(steps, limit, dtype=complex)
-    return np.array(list(_recurrence(tuple(last.tolist()), tuple(alpha.tolist()), limit, steps)), dtype=complex)
+    return np.array(list(_recurrence(last, alpha, limit, steps)), dtype=complex)
 
 
-def _recurrence(last: tuple[complex, ...], alpha: tuple[float, ...], limit: complex, steps: int
+def _recurrence(last: Sequence[complex], alpha: Sequence[float], limit: complex, steps: int
                 ) -> Iterator[complex]:
     """The next ``steps`` values of the recurrence from its last ones (oldest first), one at a time.
 
