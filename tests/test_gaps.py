@@ -349,3 +349,40 @@ def test_periods_whose_reference_shows_no_sine_are_discarded() -> None:
     # output over input, times the commanded amplitude: A / 0.5 at phase PHI
     assert complex(point.p, point.q) == pytest.approx(2 * A * cmath.exp(1j * PHI), abs=1e-12)
     assert point.periods_discarded == 3
+
+
+@pytest.mark.parametrize("reference", [None, "echo"])
+@pytest.mark.parametrize("chunk", [1, 3, K - 1, K, 2 * K + 5, 7 * K])
+def test_the_verdicts_do_not_depend_on_how_the_samples_are_split(reference: str | None, chunk: int) -> None:
+    """The sampler fed a noisy stream (with a gap, and in two-channel mode an echo that shows no sine for three
+    periods) in chunks of any size, from a fraction of a period to several (the few-period path works on Python
+    scalars, the other on arrays): the same periods discarded, the same verdicts at the same periods, the same
+    values to round-off."""
+    settings = AnalysisConfig(harmonics=(1, 2), tolerance_percent=0.5, skip_periods=1, max_periods=300)
+    rng = np.random.default_rng(4)
+    u = np.arange(300 * K + 1) / K
+    keep = ~((u > 20.3) & (u < 21.6))  # a gap in periods 21 and 22
+    u = u[keep]
+    y = A * np.sin(2 * np.pi * u + PHI) + 0.2 * np.cos(4 * np.pi * u) + 0.02 * rng.normal(size=u.size)
+    columns = [y]
+    if reference is not None:
+        echo = 0.5 * np.sin(2 * np.pi * u) + 0.002 * rng.normal(size=u.size)
+        echo[(u >= 40) & (u <= 43)] = 0.0
+        columns.append(echo)
+    t, samples = T0 + u / F, np.column_stack(columns)
+
+    def run(size: int) -> Autointegrator:
+        sampler = Autointegrator(F, 1.0, ["y"], settings, t0=T0, reference=reference, check_gaps=True)
+        for i in range(0, t.size, size):
+            sampler.feed(t[i:i + size], samples[i:i + size])
+            if sampler.done:
+                break
+        assert sampler.done and not sampler.failure
+        return sampler
+
+    whole, split = run(t.size), run(chunk)
+    assert split.discarded == whole.discarded == 2 + 3 * (reference is not None)
+    for a, b in zip(whole.points(), split.points(), strict=True):
+        assert (a.periods, a.status) == (b.periods, b.status)
+        assert complex(b.p, b.q) == pytest.approx(complex(a.p, a.q), abs=1e-12)
+        assert b.uncertainty == pytest.approx(a.uncertainty, rel=1e-9, abs=1e-12)

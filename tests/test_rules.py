@@ -489,3 +489,24 @@ def test_student_t_factor_is_scipy_stats_quantile() -> None:
         for confidence in (0.9, 0.95, 0.99):
             assert _line_factor(dof, confidence) == pytest.approx(float(stats.t.ppf(0.5 + confidence / 2, dof)),
                                                                   rel=1e-12)
+
+
+def test_least_squares_is_numpys_solution_and_residual() -> None:
+    """The direct LAPACK call against np.linalg.lstsq: the same solution, and a residual sum of squares equal to
+    |y - x solution|^2 (to round-off of |y|^2), for full-rank designs of many shapes and for rank-deficient ones
+    (a column repeated, a sequence of one mode fitted with two), where LAPACK gives no residual of its own."""
+    from bodebench.core.rules import _least_squares
+
+    rng = np.random.default_rng(9)
+    for trial in range(300):
+        m = int(rng.integers(5, 200))
+        k = int(rng.integers(1, 5))
+        x = rng.normal(size=(m, k)) * 10 ** rng.uniform(-3, 3, k)
+        if trial % 3 == 0 and k > 1:
+            x[:, -1] = x[:, 0]  # rank deficient
+        y = x @ rng.normal(size=k) + 10 ** rng.uniform(-14, 0) * rng.normal(size=m)
+        sol, squares = _least_squares(x, y)
+        expected = np.linalg.lstsq(x, y, rcond=None)[0]
+        assert np.allclose(sol, expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
+        resid = y - x @ sol
+        assert squares == pytest.approx(float(resid @ resid), rel=1e-6, abs=1e-24 + 64 * np.finfo(float).eps * (y @ y))

@@ -155,6 +155,17 @@ class Autointegrator:
     def feed(self, t: np.ndarray, y: np.ndarray) -> int:
         """Take samples (t in s, increasing; y shaped (n, channels)); returns the whole periods completed."""
         p, q, whole = self._integrator.feed_marked(t, y)
+        m = p.shape[0]
+        if m == 0:
+            return 0
+        if m <= _FEW_PERIODS:
+            values = self._few_values(p.tolist(), q.tolist(), whole.tolist())
+            if values is not None:
+                if self.done:
+                    self.periods += m
+                else:
+                    self._take(values)
+                return m
         whole &= self._usable(p, q)
         if not whole.all():
             if self.done:
@@ -175,6 +186,33 @@ class Autointegrator:
         if self.reference is not None:
             ok &= np.hypot(p[:, -1, self._ref_index], q[:, -1, self._ref_index]) >= RESOLUTION * self.amplitude
         return ok
+
+    def _few_values(self, p: list[list[list[float]]], q: list[list[list[float]]], whole: list[bool]
+                    ) -> list[list[list[complex]]] | None:
+        """The coefficients Z = P + jQ of a few whole periods (as :meth:`_integrate` makes them, on Python scalars:
+        numpy's cost per call exceeds the arithmetic), per period, channel and harmonic; None where a period is not
+        whole or not usable (:meth:`_usable`), for the general path."""
+        if not all(whole):
+            return None
+        out = []
+        ref, harmonics, amplitude = self._ref_index, self.harmonics, self.amplitude
+        for p_period, q_period in zip(p, q, strict=True):
+            rows = [[complex(pv, qv) for pv, qv in zip(p_row, q_row, strict=True)]
+                    for p_row, q_row in zip(p_period, q_period, strict=True)]
+            for row in rows:
+                for v in row:
+                    if not (math.isfinite(v.real) and math.isfinite(v.imag)):
+                        return None
+            if self.reference is not None:
+                z_ref = rows[-1][ref]
+                size = abs(z_ref)
+                if not size >= RESOLUTION * amplitude:
+                    return None
+                rotation = z_ref.conjugate() / size
+                scale = amplitude / size
+                rows = [[row[k] * scale * rotation ** h for k, h in enumerate(harmonics)] for row in rows[:-1]]
+            out.append(rows)
+        return out
 
     def _feed_with_gaps(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> int:
         """Periods some of which a gap touched: each run of whole periods integrated, each discarded one counted
@@ -207,19 +245,26 @@ class Autointegrator:
             powers = np.array(self.harmonics)
             z = z[:, :-1, : len(self.harmonics)] * (self.amplitude / np.abs(z_ref))[:, None, None] \
                 * rotation[:, None, None] ** powers[None, None, :]
-        # each channel's scale: its largest coefficient of the period (output units)
         if m <= _FEW_PERIODS:
-            values = z.tolist()
-            for period in values:
-                for c, row in enumerate(self._histories):
-                    for k, hist in enumerate(row):
-                        hist.append(period[c][k])
-            references = [[max(abs(v) for v in row) for row in period] for period in values]
-        else:
-            for c, row in enumerate(self._histories):
-                for k, hist in enumerate(row):
-                    hist.extend(z[:, c, k])
-            references = np.max(np.abs(z), axis=2).tolist()
+            self._take(z.tolist())
+            return
+        for c, row in enumerate(self._histories):
+            for k, hist in enumerate(row):
+                hist.extend(z[:, c, k])
+        # each channel's scale: its largest coefficient of the period (output units)
+        self._judge(m, np.max(np.abs(z), axis=2).tolist())
+
+    def _take(self, values: list[list[list[complex]]]) -> None:
+        """A few whole periods' coefficients, per period, channel and harmonic, into the histories and the rules."""
+        for period in values:
+            for row, histories in zip(period, self._histories, strict=True):
+                for v, hist in zip(row, histories, strict=True):
+                    hist.append(v)
+        self._judge(len(values), [[max(abs(v) for v in row) for row in period] for period in values])
+
+    def _judge(self, m: int, references: list[list[float]]) -> None:
+        """The rules' verdicts on the m periods just appended to the histories; references: each period's scale
+        of each channel, its largest coefficient (output units)."""
         self._last_references = references[-1]
         primary, order, max_periods = self._primary, self._order, self.max_periods
         for i in range(m):

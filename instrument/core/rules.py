@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import functools
 import math
+import types
 from abc import ABC, abstractmethod
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -626,6 +627,7 @@ class FixedScheme(StoppingRule):
 
 
 _MIN_TURN = 0.5  # |1 - lambda| of a slowly decaying mode that the fit may extrapolate through
+_MAX_DECAY = 0.5  # the most a fitted mode may keep of itself over its window
 
 
 @dataclass(frozen=True)
@@ -652,10 +654,11 @@ class ModalFit:
             errors = [abs(f - v) for f, v in zip(forecast, values, strict=True)]
         else:
             errors = [abs(self.limit - v) for v in values]
-        return math.nan if any(e != e for e in errors) else max(errors)
+        top = max(errors)
+        return top if sum(errors) == sum(errors) else math.nan  # a NaN anywhere makes the sum NaN
 
 
-def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = 0.5) -> ModalFit | None:
+def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = _MAX_DECAY) -> ModalFit | None:
     """Limit of a sequence ``Z(i) = Z_inf + sum_r a_r lambda_r**i`` from a least-squares linear-prediction fit.
 
     The real recurrence ``Z(i) = c + sum_r alpha_r Z(i-r)`` is fitted to P and Q
@@ -669,82 +672,111 @@ def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = 0.5) -> Moda
     rows = n - modes
     if rows < modes + 3:
         return None
-    mean = complex(z.sum() / n)
-    if float(np.abs(z - mean).max()) <= _ROUND_OFF * abs(mean):  # settled to round-off: no mode to fit
-        return ModalFit(mean, 0.0)
-    template, lagged = _design(n, modes)
-    parts = np.concatenate((z.real, z.imag))  # P(1..n), then Q(1..n)
-    x = template.copy()  # rows: P then Q of Z(modes+1..n); columns: Z lagged by 1..modes, the two intercepts
-    for r in range(1, modes + 1):
-        x[:, r - 1] = parts[lagged[r]]
-    y = parts[lagged[0]]
-    sol = _least_squares(x, y)
-    alpha = sol[:modes]
+    if _may_be_settled(z):
+        mean = complex(z.sum() / n)
+        if float(np.abs(z - mean).max()) <= _ROUND_OFF * abs(mean):  # settled to round-off: no mode to fit
+            return ModalFit(mean, 0.0)
+    gather, columns = _design(n, modes)
+    # rows: P then Q of Z(modes+1..n); columns: Z lagged by 1..modes, the two intercepts, then Z itself (gathered
+    # column by column, so that the design matrix is in LAPACK's column order)
+    xy = np.concatenate((np.ascontiguousarray(z, dtype=complex).view(np.float64), _ONE_ZERO))[gather]
+    sol, squares = _least_squares(xy[:columns].T, xy[columns])
+    alpha = sol[:modes].tolist()
     # a mode must have decayed over the window, unless it is damped and turns far enough from 1 that the
     # limit does not hang on its decay rate (a rotating mode's mean is its limit)
     for lam in _mode_roots(alpha):
         size = abs(lam)
         if size ** n > max_decay and (size >= 1.0 or abs(1.0 - lam) < _MIN_TURN):
             return None
-    den = 1.0 - float(alpha.sum())
-    resid = y - x @ sol
-    limit = complex(sol[modes], sol[modes + 1]) / den
-    residual = math.sqrt(float((resid * resid).sum()) / resid.size) / abs(den)
-    return ModalFit(limit, residual, tuple(alpha.tolist()), tuple(z[n - modes:].tolist()))
+    den = 1.0 - sum(alpha)
+    limit = complex(float(sol[modes]), float(sol[modes + 1])) / den
+    residual = math.sqrt(squares / (2 * rows)) / abs(den)
+    return ModalFit(limit, residual, tuple(alpha), tuple(z[n - modes:].tolist()))
 
 
-_DESIGNS: dict[tuple[int, int], tuple[np.ndarray, list[np.ndarray]]] = {}
+def _may_be_settled(z: np.ndarray) -> bool:
+    """False where the window's first and last values differ by more than a window settled to round-off
+    (every value within _ROUND_OFF |mean| of its mean) allows: 2 _ROUND_OFF |mean| <= 2 _ROUND_OFF |Z(1)| (1 + 2
+    _ROUND_OFF), with a margin for the round-off of the comparison. True also where a value is not a number."""
+    first, last = complex(z[0]), complex(z[-1])
+    return not abs(first - last) > 2.0 * _ROUND_OFF * (1.0 + 1e-6) * abs(first)
 
 
-def _design(n: int, modes: int) -> tuple[np.ndarray, list[np.ndarray]]:
-    """For a window of n values: the design matrix with its intercept columns set, and the indices into
-    (P(1..n), Q(1..n)) of the values lagged by 0..modes periods that the fit's rows take (cached per shape)."""
+_ONE_ZERO = np.array([1.0, 0.0])  # appended to the interleaved (P, Q) values: the intercepts' entries
+_DESIGNS: dict[tuple[int, int], tuple[np.ndarray, int]] = {}
+
+
+def _design(n: int, modes: int) -> tuple[np.ndarray, int]:
+    """For a window of n values: indices into (P(1), Q(1), ..., P(n), Q(n), 1, 0) that make, one row each, the
+    columns of the design matrix (Z lagged by 1..modes, the P and Q intercepts) and then the fitted values Z(t),
+    over the fit's rows (P then Q of Z(modes+1..n)); and the number of design columns (cached per shape)."""
     key = (n, modes)
     found = _DESIGNS.get(key)
     if found is None:
-        rows = n - modes
-        template = np.zeros((2 * rows, modes + 2))
-        template[:rows, modes] = 1.0
-        template[rows:, modes + 1] = 1.0
-        lagged = [np.concatenate((np.arange(modes - r, n - r), n + np.arange(modes - r, n - r)))
-                  for r in range(modes + 1)]
+        t = np.arange(modes, n)  # 0-based index of Z(t) for the rows
+        one, zero = 2 * n, 2 * n + 1
+        p_rows = [2 * (t - r) for r in range(1, modes + 1)] + [np.full(t.size, one), np.full(t.size, zero), 2 * t]
+        q_rows = [2 * (t - r) + 1 for r in range(1, modes + 1)] + [np.full(t.size, zero), np.full(t.size, one),
+                                                                   2 * t + 1]
+        gather = np.concatenate((np.stack(p_rows), np.stack(q_rows)), axis=1)
         if len(_DESIGNS) > 1024:
             _DESIGNS.clear()
-        found = _DESIGNS[key] = (template, lagged)
+        found = _DESIGNS[key] = (gather, modes + 2)
     return found
 
 
 _GELSD: dict[tuple[int, int], tuple[int, int]] = {}  # LAPACK workspace sizes per shape
 
 
-def _least_squares(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``np.linalg.lstsq(x, y, rcond=None)[0]``: the same LAPACK driver (dgelsd) and cut-off, called directly.
+def _least_squares(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
+    """``np.linalg.lstsq(x, y, rcond=None)``'s solution and residual sum of squares: the same LAPACK driver (dgelsd)
+    and cut-off, called directly. The sum of squares is LAPACK's (the squares of the transformed right-hand side
+    past the solution, as numpy takes it) where x has full column rank, else |y - x solution|^2.
 
     numpy's wrapper costs several times the solve of a small system; where LAPACK reports a failure numpy's own
     call is made instead, so that it fails the way numpy does.
     """
-    from scipy.linalg import lapack  # imported where used: it is slow to import
-
+    lapack = _lapack()
     m, k = x.shape
     sizes = _GELSD.get((m, k))
     if sizes is None:
         work, iwork, info = lapack.dgelsd_lwork(m, k, 1, -1)
         if info != 0:
-            return np.asarray(np.linalg.lstsq(x, y, rcond=None)[0])
+            return _numpy_least_squares(x, y)
         if len(_GELSD) > 4096:
             _GELSD.clear()
         sizes = _GELSD[(m, k)] = (int(work), int(iwork))
-    sol, _, _, info = lapack.dgelsd(x, y, sizes[0], sizes[1], _EPS * max(m, k))
+    out, _, rank, info = lapack.dgelsd(x, y, sizes[0], sizes[1], _EPS * max(m, k))
     if info != 0:
-        return np.asarray(np.linalg.lstsq(x, y, rcond=None)[0])
-    return np.asarray(sol[:k])
+        return _numpy_least_squares(x, y)
+    sol = out[:k]
+    if rank == k and m > k:
+        rest = out[k:m]
+        return sol, float(rest @ rest)
+    resid = y - x @ sol
+    return sol, float(resid @ resid)
 
 
-def _mode_roots(alpha: np.ndarray) -> list[complex]:
+def _numpy_least_squares(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
+    """:func:`_least_squares` by numpy's own call (which raises where LAPACK fails)."""
+    sol = np.asarray(np.linalg.lstsq(x, y, rcond=None)[0])
+    resid = y - x @ sol
+    return sol, float(resid @ resid)
+
+
+@functools.cache
+def _lapack() -> types.ModuleType:
+    """scipy's LAPACK wrappers, imported on first use (the import is slow)."""
+    from scipy.linalg import lapack
+
+    return lapack
+
+
+def _mode_roots(alpha: Sequence[float]) -> list[complex]:
     """The modes lambda_r of the recurrence: roots of z^m - alpha_1 z^(m-1) - ... - alpha_m (closed form to m = 2)."""
-    if alpha.size == 1:
+    if len(alpha) == 1:
         return [complex(alpha[0])]
-    if alpha.size == 2:
+    if len(alpha) == 2:
         a1, a2 = float(alpha[0]), float(alpha[1])
         disc = a1 * a1 + 4.0 * a2
         if disc < 0.0:
@@ -752,9 +784,7 @@ def _mode_roots(alpha: np.ndarray) -> list[complex]:
             return [complex(0.5 * a1, half), complex(0.5 * a1, -half)]
         q = 0.5 * (a1 + math.copysign(math.sqrt(disc), a1))  # the larger root; the other from the product -a2
         return [complex(q), complex(-a2 / q)] if q != 0.0 else [0j, 0j]
-    return [complex(v) for v in np.roots(np.concatenate([[1.0], -alpha]))]
-
-
+    return [complex(v) for v in np.roots(np.concatenate([[1.0], -np.asarray(alpha, dtype=float)]))]
 
 
 def _forecast(last: Sequence[complex], alpha: Sequence[float], limit: complex, steps: int) -> np.ndarray:
@@ -762,12 +792,11 @@ def _forecast(last: Sequence[complex], alpha: Sequence[float], limit: complex, s
     (``last``, oldest first), as an array."""
     if steps == 0 or len(alpha) == 0:
         return np.full(steps, limit, dtype=complex)
-    return np.array(list(_recurrence(last, alpha, limit, steps)), dtype=complex)
+    return np.array(_recurrence(last, alpha, limit, steps), dtype=complex)
 
 
-def _recurrence(last: Sequence[complex], alpha: Sequence[float], limit: complex, steps: int
-                ) -> Iterator[complex]:
-    """The next ``steps`` values of the recurrence from its last ones (oldest first), one at a time.
+def _recurrence(last: Sequence[complex], alpha: Sequence[float], limit: complex, steps: int) -> list[complex]:
+    """The next ``steps`` values of the recurrence from its last ones (oldest first), as a list.
 
     Run as a direct-form-II-transposed filter on Python scalars: state[m] = sum over r > m of alpha_r times the
     deviation r - m periods back, the next deviation is state[0] (the same arithmetic as scipy.signal.lfilter,
@@ -777,12 +806,14 @@ def _recurrence(last: Sequence[complex], alpha: Sequence[float], limit: complex,
     order = len(coef)
     past = [complex(v) - limit for v in last[::-1]]  # the most recent deviation first
     state = [sum(coef[m + k] * past[k] for k in range(order - m)) for m in range(order)]
+    out = []
     for _ in range(steps):
         y = state[0]
         for m in range(order - 1):
             state[m] = state[m + 1] + y * coef[m]
         state[order - 1] = y * coef[order - 1]
-        yield limit + y
+        out.append(limit + y)
+    return out
 
 
 def _two_mode_fit_may_pass(hist: SeriesHistory, s: int, w: int, e: float, floor: float) -> bool:
@@ -833,10 +864,13 @@ def _two_mode_fit_may_pass(hist: SeriesHistory, s: int, w: int, e: float, floor:
     return lowest <= 2 * rows * limit * limit * _SLACK
 
 
-_TABLE_SPAN = 1024  # periods whose settled screen is worked out at once
+_SCREENS_IN_VAIN = 8  # screens passed in a row after which fits are made unscreened until one fails its residual
+
+_TABLE_SPAN = 1024  # most periods whose settled screen is worked out at once (at most as many as analysed: a
+                    # series that stops soon after does not pay for a long table)
 _TABLE_AHEAD = 16   # periods the history must hold beyond the one checked for a table to pay
-_TABLE_AFTER = 96   # analysed periods before a table pays: building one costs as much as screening ~60 periods
-                    # one by one, which a series that stops early never checks
+_TABLE_AFTER = 256   # analysed periods before a table pays: building one costs about as much as screening 100 to
+                    # 200 periods one by one, which a series that stops early never checks
 _TABLE_FITS = 16    # scheduled fits in a table's stretch for their screens to be worked out at once
 
 
@@ -982,8 +1016,10 @@ class AdaptiveRule(StoppingRule):
     necessary conditions from the running sums (:meth:`_settled_may_stop`, or :class:`_ScreenTable` for many
     periods at once) leave a verdict possible; the fit is tried every period up to 64 analysed periods, then
     every (n - n_k) // 32, and skipped where the running sums bound its residual above what the check accepts.
-    A screen only skips analyses that cannot give a verdict, so the stop is the one the full analysis at every
-    period gives (``screened=False`` runs that, for comparison).
+    That screen runs once a fit has failed on its residual and until eight screens in a row have spared no fit
+    (clean series, where every fit explains its window, are not screened in vain). A screen only skips analyses
+    that cannot give a verdict, so the stop is the one the full analysis at every period gives
+    (``screened=False`` runs that, for comparison).
     """
 
     name = "adaptive"
@@ -998,13 +1034,15 @@ class AdaptiveRule(StoppingRule):
         self.screened = screened
         self._next_extrapolation = 0
         self._table: _ScreenTable | None = None
+        self._screening = False  # whether the next fit is screened first (while screens spare fits)
+        self._screens_passed = 0  # screens passed in a row since the last that spared a fit
 
     def _extrapolated(self, hist: SeriesHistory, n: int, reference: float) -> tuple[complex, float] | None:
         """(limit, error bound) of the modal fit confirmed on two windows, or None where it is not confirmed.
 
         Screened, None also where the bound cannot come within the tolerance: where the running sums show that
-        no two-mode fit explains the first window well enough (no fit is made), or where the first window's fit
-        already shows it (the second is not made).
+        no two-mode fit explains the first window well enough (no fit is made; screened while screens spare
+        fits), or where the first window's fit already shows it (the second is not made).
         """
         w = max(self.min_window, (n - self.skip) // 4)
         if n - 2 * w < self.skip:
@@ -1017,8 +1055,12 @@ class AdaptiveRule(StoppingRule):
             if floor is not None:
                 if reference < floor:
                     return None
-            elif not _two_mode_fit_may_pass(hist, n - 2 * w, w, e, RESOLUTION * reference):
-                return None
+            elif self._screening:
+                if not _two_mode_fit_may_pass(hist, n - 2 * w, w, e, RESOLUTION * reference):
+                    self._screens_passed = 0
+                    return None
+                self._screens_passed += 1
+                self._screening = self._screens_passed < _SCREENS_IN_VAIN
         z = hist.values
         first = extrapolate_modes(z[n - 2 * w:n - w], self.modes)
         if first is None:
@@ -1028,6 +1070,7 @@ class AdaptiveRule(StoppingRule):
         # (1 - e), floor); the residual is known already, the forecast is made only where it passes
         ceiling = e * max(abs(first.limit) / (1.0 - e), RESOLUTION * reference) * _SLACK if screened else math.inf
         if 2.0 * first.residual > ceiling:
+            self._screening, self._screens_passed = True, 0  # a screen might have spared this fit
             return None
         prediction_error = first.forecast_error(z[n - w:n])
         if prediction_error > ceiling:
@@ -1067,7 +1110,7 @@ class AdaptiveRule(StoppingRule):
             table = None
             if hist.n - n >= _TABLE_AHEAD and n - self.skip >= _TABLE_AFTER:
                 e = self.eps / 100.0
-                last = min(hist.n, n + _TABLE_SPAN - 1)
+                last = min(hist.n, n + min(_TABLE_SPAN, n - self.skip) - 1)
                 fits = []
                 if self.modes == 2 and e < 1.0:  # the periods the fit's schedule reaches in the stretch
                     period = max(self._next_extrapolation, n)
