@@ -864,13 +864,12 @@ def _two_mode_fit_may_pass(hist: SeriesHistory, s: int, w: int, e: float, floor:
     return lowest <= 2 * rows * limit * limit * _SLACK
 
 
-_SCREENS_IN_VAIN = 8  # screens passed in a row after which fits are made unscreened until one fails its residual
+_SCREENS_IN_VAIN = 8  # screens passed in a row after which fits are made unscreened until one fails on its residual
 
-_TABLE_SPAN = 1024  # most periods whose settled screen is worked out at once (at most as many as analysed: a
-                    # series that stops soon after does not pay for a long table)
+_TABLE_SPAN = 1024  # periods whose settled screen is worked out at once
 _TABLE_AHEAD = 16   # periods the history must hold beyond the one checked for a table to pay
-_TABLE_AFTER = 256   # analysed periods before a table pays: building one costs about as much as screening 100 to
-                    # 200 periods one by one, which a series that stops early never checks
+_TABLE_AFTER = 96   # analysed periods before a table pays: building one costs as much as screening ~60 periods
+                    # one by one, which a series that stops early never checks
 _TABLE_FITS = 16    # scheduled fits in a table's stretch for their screens to be worked out at once
 
 
@@ -1016,10 +1015,10 @@ class AdaptiveRule(StoppingRule):
     necessary conditions from the running sums (:meth:`_settled_may_stop`, or :class:`_ScreenTable` for many
     periods at once) leave a verdict possible; the fit is tried every period up to 64 analysed periods, then
     every (n - n_k) // 32, and skipped where the running sums bound its residual above what the check accepts.
-    That screen runs once a fit has failed on its residual and until eight screens in a row have spared no fit
-    (clean series, where every fit explains its window, are not screened in vain). A screen only skips analyses
-    that cannot give a verdict, so the stop is the one the full analysis at every period gives
-    (``screened=False`` runs that, for comparison).
+    After eight screens in a row that spared no fit, fits are made unscreened until one fails on its residual
+    (a clean series, whose fits all explain their windows, is not screened in vain at every period). A screen
+    only skips analyses that cannot give a verdict, so the stop is the one the full analysis at every period
+    gives (``screened=False`` runs that, for comparison).
     """
 
     name = "adaptive"
@@ -1034,7 +1033,7 @@ class AdaptiveRule(StoppingRule):
         self.screened = screened
         self._next_extrapolation = 0
         self._table: _ScreenTable | None = None
-        self._screening = False  # whether the next fit is screened first (while screens spare fits)
+        self._screening = True  # whether the next fit is screened first
         self._screens_passed = 0  # screens passed in a row since the last that spared a fit
 
     def _extrapolated(self, hist: SeriesHistory, n: int, reference: float) -> tuple[complex, float] | None:
@@ -1110,7 +1109,7 @@ class AdaptiveRule(StoppingRule):
             table = None
             if hist.n - n >= _TABLE_AHEAD and n - self.skip >= _TABLE_AFTER:
                 e = self.eps / 100.0
-                last = min(hist.n, n + min(_TABLE_SPAN, n - self.skip) - 1)
+                last = min(hist.n, n + _TABLE_SPAN - 1)
                 fits = []
                 if self.modes == 2 and e < 1.0:  # the periods the fit's schedule reaches in the stretch
                     period = max(self._next_extrapolation, n)
