@@ -355,9 +355,9 @@ def test_periods_whose_reference_shows_no_sine_are_discarded() -> None:
 @pytest.mark.parametrize("chunk", [1, 3, K - 1, K, 2 * K + 5, 7 * K])
 def test_the_verdicts_do_not_depend_on_how_the_samples_are_split(reference: str | None, chunk: int) -> None:
     """The sampler fed a noisy stream (with a gap, and in two-channel mode an echo that shows no sine for three
-    periods) in chunks of any size, from a fraction of a period to several (the few-period path works on Python
-    scalars, the other on arrays): the same periods discarded, the same verdicts at the same periods, the same
-    values to round-off."""
+    periods) in chunks of any size, from a fraction of a period to several (in one-channel mode a few periods are
+    taken on Python scalars, more on arrays): the same periods discarded, the same verdicts at the same periods,
+    the same values to round-off."""
     settings = AnalysisConfig(harmonics=(1, 2), tolerance_percent=0.5, skip_periods=1, max_periods=300)
     rng = np.random.default_rng(4)
     u = np.arange(300 * K + 1) / K

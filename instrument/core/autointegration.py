@@ -158,7 +158,7 @@ class Autointegrator:
         m = p.shape[0]
         if m == 0:
             return 0
-        if m <= _FEW_PERIODS:
+        if m <= _FEW_PERIODS and self.reference is None:
             values = self._few_values(p.tolist(), q.tolist(), whole.tolist())
             if values is not None:
                 if self.done:
@@ -189,13 +189,12 @@ class Autointegrator:
 
     def _few_values(self, p: list[list[list[float]]], q: list[list[list[float]]], whole: list[bool]
                     ) -> list[list[list[complex]]] | None:
-        """The coefficients Z = P + jQ of a few whole periods (as :meth:`_integrate` makes them, on Python scalars:
-        numpy's cost per call exceeds the arithmetic), per period, channel and harmonic; None where a period is not
-        whole or not usable (:meth:`_usable`), for the general path."""
+        """One-channel mode: the coefficients Z = P + jQ of a few whole periods, per period, channel and harmonic,
+        on Python scalars (numpy's cost per call exceeds the arithmetic); None where a period is not whole or a
+        coefficient not finite (:meth:`_usable`), for the general path."""
         if not all(whole):
             return None
         out = []
-        ref, harmonics, amplitude = self._ref_index, self.harmonics, self.amplitude
         for p_period, q_period in zip(p, q, strict=True):
             rows = [[complex(pv, qv) for pv, qv in zip(p_row, q_row, strict=True)]
                     for p_row, q_row in zip(p_period, q_period, strict=True)]
@@ -203,14 +202,6 @@ class Autointegrator:
                 for v in row:
                     if not (math.isfinite(v.real) and math.isfinite(v.imag)):
                         return None
-            if self.reference is not None:
-                z_ref = rows[-1][ref]
-                size = abs(z_ref)
-                if not size >= RESOLUTION * amplitude:
-                    return None
-                rotation = z_ref.conjugate() / size
-                scale = amplitude / size
-                rows = [[row[k] * scale * rotation ** h for k, h in enumerate(harmonics)] for row in rows[:-1]]
             out.append(rows)
         return out
 

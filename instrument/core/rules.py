@@ -680,26 +680,36 @@ def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = _MAX_DECAY) 
     # rows: P then Q of Z(modes+1..n); columns: Z lagged by 1..modes, the two intercepts, then Z itself (gathered
     # column by column, so that the design matrix is in LAPACK's column order)
     xy = np.concatenate((np.ascontiguousarray(z, dtype=complex).view(np.float64), _ONE_ZERO))[gather]
-    sol, squares = _least_squares(xy[:columns].T, xy[columns])
+    x, y = xy[:columns].T, xy[columns]
+    sol = _least_squares(x, y)
     alpha = sol[:modes].tolist()
     # a mode must have decayed over the window, unless it is damped and turns far enough from 1 that the
-    # limit does not hang on its decay rate (a rotating mode's mean is its limit)
+    # limit does not hang on its decay rate (a rotating mode's mean is its limit); size ** n is taken only
+    # below 1, where it cannot overflow
     for lam in _mode_roots(alpha):
         size = abs(lam)
-        if size ** n > max_decay and (size >= 1.0 or abs(1.0 - lam) < _MIN_TURN):
+        if size >= 1.0:
+            if max_decay < 1.0 or n * math.log(size) > math.log(max_decay):
+                return None
+        elif size ** n > max_decay and abs(1.0 - lam) < _MIN_TURN:
             return None
-    den = 1.0 - sum(alpha)
+    den = 1.0 - float(sol[:modes].sum())
+    # the residual of the solution returned (LAPACK's own sum of squares is that of the exact least-squares
+    # solution, which a badly scaled design can put orders of magnitude lower)
+    resid = y - np.ascontiguousarray(x) @ sol
     limit = complex(float(sol[modes]), float(sol[modes + 1])) / den
-    residual = math.sqrt(squares / (2 * rows)) / abs(den)
+    residual = math.sqrt(float((resid * resid).sum()) / resid.size) / abs(den)
     return ModalFit(limit, residual, tuple(alpha), tuple(z[n - modes:].tolist()))
 
 
 def _may_be_settled(z: np.ndarray) -> bool:
     """False where the window's first and last values differ by more than a window settled to round-off
     (every value within _ROUND_OFF |mean| of its mean) allows: 2 _ROUND_OFF |mean| <= 2 _ROUND_OFF |Z(1)| (1 + 2
-    _ROUND_OFF), with a margin for the round-off of the comparison. True also where a value is not a number."""
+    _ROUND_OFF), with a margin for the round-off of the comparison. True also where the first or last value is
+    not a number, and where |Z(1)| is so small that the bound itself rounds (below 1e-280)."""
     first, last = complex(z[0]), complex(z[-1])
-    return not abs(first - last) > 2.0 * _ROUND_OFF * (1.0 + 1e-6) * abs(first)
+    size = abs(first)
+    return not (abs(first - last) > 2.0 * _ROUND_OFF * (1.0 + 1e-6) * size and size > 1e-280)
 
 
 _ONE_ZERO = np.array([1.0, 0.0])  # appended to the interleaved (P, Q) values: the intercepts' entries
@@ -728,10 +738,8 @@ def _design(n: int, modes: int) -> tuple[np.ndarray, int]:
 _GELSD: dict[tuple[int, int], tuple[int, int]] = {}  # LAPACK workspace sizes per shape
 
 
-def _least_squares(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
-    """``np.linalg.lstsq(x, y, rcond=None)``'s solution and residual sum of squares: the same LAPACK driver (dgelsd)
-    and cut-off, called directly. The sum of squares is LAPACK's (the squares of the transformed right-hand side
-    past the solution, as numpy takes it) where x has full column rank, else |y - x solution|^2.
+def _least_squares(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``np.linalg.lstsq(x, y, rcond=None)[0]``: the same LAPACK driver (dgelsd) and cut-off, called directly.
 
     numpy's wrapper costs several times the solve of a small system; where LAPACK reports a failure numpy's own
     call is made instead, so that it fails the way numpy does.
@@ -742,26 +750,14 @@ def _least_squares(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
     if sizes is None:
         work, iwork, info = lapack.dgelsd_lwork(m, k, 1, -1)
         if info != 0:
-            return _numpy_least_squares(x, y)
+            return np.asarray(np.linalg.lstsq(x, y, rcond=None)[0])
         if len(_GELSD) > 4096:
             _GELSD.clear()
         sizes = _GELSD[(m, k)] = (int(work), int(iwork))
-    out, _, rank, info = lapack.dgelsd(x, y, sizes[0], sizes[1], _EPS * max(m, k))
+    sol, _, _, info = lapack.dgelsd(x, y, sizes[0], sizes[1], _EPS * max(m, k))
     if info != 0:
-        return _numpy_least_squares(x, y)
-    sol = out[:k]
-    if rank == k and m > k:
-        rest = out[k:m]
-        return sol, float(rest @ rest)
-    resid = y - x @ sol
-    return sol, float(resid @ resid)
-
-
-def _numpy_least_squares(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
-    """:func:`_least_squares` by numpy's own call (which raises where LAPACK fails)."""
-    sol = np.asarray(np.linalg.lstsq(x, y, rcond=None)[0])
-    resid = y - x @ sol
-    return sol, float(resid @ resid)
+        return np.asarray(np.linalg.lstsq(x, y, rcond=None)[0])
+    return np.asarray(sol[:k])
 
 
 @functools.cache
