@@ -677,10 +677,10 @@ def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = _MAX_DECAY) 
         if float(np.abs(z - mean).max()) <= _ROUND_OFF * abs(mean):  # settled to round-off: no mode to fit
             return ModalFit(mean, 0.0)
     gather, columns = _design(n, modes)
-    # rows: P then Q of Z(modes+1..n); columns: Z lagged by 1..modes, the two intercepts, then Z itself (gathered
-    # column by column, so that the design matrix is in LAPACK's column order)
+    # the design matrix's columns (Z lagged by 1..modes, the two intercepts) and Z itself over the rows (P then Q
+    # of Z(modes+1..n)), gathered at once; the matrix is then laid out by rows, as the LAPACK wrapper takes it fastest
     xy = np.concatenate((np.ascontiguousarray(z, dtype=complex).view(np.float64), _ONE_ZERO))[gather]
-    x, y = xy[:columns].T, xy[columns]
+    x, y = np.ascontiguousarray(xy[:columns].T), xy[columns]
     sol = _least_squares(x, y)
     alpha = sol[:modes].tolist()
     # a mode must have decayed over the window, unless it is damped and turns far enough from 1 that the
@@ -693,10 +693,10 @@ def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = _MAX_DECAY) 
                 return None
         elif size ** n > max_decay and abs(1.0 - lam) < _MIN_TURN:
             return None
-    den = 1.0 - float(sol[:modes].sum())
+    den = 1.0 - (sum(alpha) if modes < 8 else float(sol[:modes].sum()))  # numpy's sum is Python's below 8 terms
     # the residual of the solution returned (LAPACK's own sum of squares is that of the exact least-squares
     # solution, which a badly scaled design can put orders of magnitude lower)
-    resid = y - np.ascontiguousarray(x) @ sol
+    resid = y - x @ sol
     limit = complex(float(sol[modes]), float(sol[modes + 1])) / den
     residual = math.sqrt(float((resid * resid).sum()) / resid.size) / abs(den)
     return ModalFit(limit, residual, tuple(alpha), tuple(z[n - modes:].tolist()))
