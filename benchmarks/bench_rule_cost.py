@@ -25,17 +25,26 @@ Then one long series that no rule can close, the friction link at Fbar 0.6 at it
 never dies: capped at max_periods): the default rule's cost per period over periods 1..1000, 1000..5000 and
 5000..20000, to show that it does not grow with the record.
 
+``--against REV``: instead, the default rule of this tree against the one of git revision REV (its
+bodebench/core/rules.py, loaded beside this one), replayed in one process series by series in turn (least of
+``--repeat`` each), on the same four grids: both figures, their ratio and whether every series stopped at the same
+period with the same verdict to the bit. Turn by turn, a machine whose speed wanders slows both alike.
+
 Target: at most 5 us per period per series. Prints figures only.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
+import subprocess
 import sys
 import time
+import types
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
@@ -61,6 +70,64 @@ CHUNK_PERIODS = 256
 LONG_FBAR = 0.6
 BANDS = ((0, 1000), (1000, 5000), (5000, 20000))
 TARGET_US = 5.0
+
+
+def rules_at(revision: str) -> types.ModuleType:
+    """bodebench.core.rules as git revision ``revision`` had it, loaded as a module of its own."""
+    source = subprocess.run(["git", "show", f"{revision}:instrument/core/rules.py"], cwd=ROOT, check=True,
+                            capture_output=True, text=True).stdout
+    module = types.ModuleType(f"rules_at_{revision}")
+    sys.modules[module.__name__] = module  # dataclasses look their module up
+    exec(compile(source, f"{revision}:instrument/core/rules.py", "exec"), module.__dict__)
+    return module
+
+
+def against(revision: str, plants: dict[str, Plant], freqs: tuple[float, ...], amplitude: float,
+            analysis: AnalysisConfig, steady: np.ndarray, repeat: int) -> None:
+    """The default rule of this tree against revision's, series by series in turn (see the module docstring)."""
+    modules = {revision: rules_at(revision), "this tree": sys.modules[AdaptiveRule.__module__]}
+
+    def replay_with(module: types.ModuleType, sim: Simulation) -> tuple[float, tuple[Any, ...]]:
+        rule = module.AdaptiveRule(analysis.tolerance_percent, analysis.skip_periods,
+                                   max_periods=analysis.max_periods)
+        hist = module.SeriesHistory()
+        seconds, checked, verdict = 0.0, 0, None
+        while verdict is None:
+            target = min(checked + CHUNK_PERIODS, analysis.max_periods)
+            sim.extend_to(target)
+            hist.extend(sim.z[hist.n:target])
+            started = time.process_time()
+            for n in range(checked + 1, hist.n + 1):
+                verdict = rule.check(hist, n, float(sim.scale[n - 1]))
+                if verdict is None and n >= analysis.max_periods:
+                    verdict = rule.capped(hist, n, float(sim.scale[n - 1]))
+                if verdict is not None:
+                    break
+            seconds += time.process_time() - started
+            checked = hist.n
+        return seconds, (verdict.period, verdict.status, verdict.method, verdict.p, verdict.q, verdict.uncertainty)
+
+    print(f"adaptive, {revision} against this tree, series by series in turn; CPU us per period per series")
+    for name, plant in plants.items():
+        for label, noise in (("clean", None), ("1% noise", NOISE_RELATIVE * steady)):
+            seconds = dict.fromkeys(modules, 0.0)
+            periods, same = 0, True
+            for i, f in enumerate(freqs):
+                sim = Simulation(plant, f, amplitude, analysis.steps_per_period,
+                                 0.0 if noise is None else float(noise[i]), 1000 + i)
+                best = dict.fromkeys(modules, math.inf)
+                verdicts = {}
+                for _ in range(repeat):
+                    for key, module in modules.items():
+                        spent, verdicts[key] = replay_with(module, sim)
+                        best[key] = min(best[key], spent)
+                for key in modules:
+                    seconds[key] += best[key]
+                periods += int(verdicts["this tree"][0])
+                same &= verdicts[revision] == verdicts["this tree"]
+            old_us, new_us = (seconds[key] / periods * 1e6 for key in modules)
+            print(f"  {name} {label}: {revision} {old_us:.2f}, this tree {new_us:.2f} ({periods} periods); ratio "
+                  f"{new_us / old_us:.2f}; {'the same' if same else 'NOT the same'} stops and verdicts")
 
 
 def fresh_rule(criterion: str, analysis: AnalysisConfig) -> StoppingRule:
@@ -209,6 +276,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3, help="replays of every series (median printed)")
     parser.add_argument("--every", type=int, default=1, help="every k-th frequency of the grid")
+    parser.add_argument("--against", metavar="REV", help="the default rule against git revision REV's, in turn")
     args = parser.parse_args()
     config = load_config(CONFIG)
     case = next(c for c in config.cases if c.name == FRICTION_CASE)
@@ -225,6 +293,10 @@ def main() -> None:
     warm_up(plants["friction"], freqs[0], amplitude, analysis)
     columns: dict[str, dict[str, tuple[float, int]]] = {}
     steady = np.abs(linear.frequency_response(np.array(freqs))[:, 0]) * amplitude
+    if args.against:
+        against(args.against, plants, freqs, amplitude, analysis, steady, args.repeat)
+        print(f"{time.perf_counter() - started:.0f} s")
+        return
     for name, plant in plants.items():
         for label, noise in (("clean", None), ("1% noise", NOISE_RELATIVE * steady)):
             columns[f"{name} {label}"] = grid_costs(plant, freqs, amplitude, analysis, noise, args.repeat)
