@@ -1,6 +1,6 @@
 """What the stopping rules cost per period: CPU microseconds per period per series, every criterion.
 
-Run: python benchmarks/bench_rule_cost.py [--repeat 3] [--every 1]
+Run: python benchmarks/bench_rule_cost.py [--repeat 3] [--every 1] [--against REV]
 
 Series: the first harmonic of the position output of the paper's two plants (configs/paper2013.toml, input
 amplitude A_F, eps 0.01 %, n_k = 1, l = 5, max_periods 20000) on its 42-frequency grid (``--every k``: every k-th
