@@ -274,7 +274,7 @@ def warm_up(plant: Plant, frequency_hz: float, amplitude: float, analysis: Analy
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=3, help="replays of every series (median printed)")
+    parser.add_argument("--repeat", type=int, default=3, help="replays of every series (the least CPU time taken)")
     parser.add_argument("--every", type=int, default=1, help="every k-th frequency of the grid")
     parser.add_argument("--against", metavar="REV", help="the default rule against git revision REV's, in turn")
     args = parser.parse_args()
