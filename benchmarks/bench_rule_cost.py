@@ -44,7 +44,6 @@ import time
 import types
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
@@ -57,7 +56,14 @@ sys.path.insert(0, str(ROOT))
 from bodebench.bench.offline import OUTPUT_CHANNEL  # noqa: E402
 from bodebench.core.autointegration import Autointegrator  # noqa: E402
 from bodebench.core.fourier import PeriodIntegrator  # noqa: E402
-from bodebench.core.rules import CRITERIA, AdaptiveRule, SeriesHistory, StoppingRule, make_rule  # noqa: E402
+from bodebench.core.rules import (  # noqa: E402
+    CRITERIA,
+    AdaptiveRule,
+    SeriesHistory,
+    StoppingRule,
+    Verdict,
+    make_rule,
+)
 from bodebench.io.config import AnalysisConfig, load_config  # noqa: E402
 from bodebench.sim.plants import CoulombOscillator, LinearOscillator, Plant  # noqa: E402
 
@@ -87,26 +93,6 @@ def against(revision: str, plants: dict[str, Plant], freqs: tuple[float, ...], a
     """The default rule of this tree against revision's, series by series in turn (see the module docstring)."""
     modules = {revision: rules_at(revision), "this tree": sys.modules[AdaptiveRule.__module__]}
 
-    def replay_with(module: types.ModuleType, sim: Simulation) -> tuple[float, tuple[Any, ...]]:
-        rule = module.AdaptiveRule(analysis.tolerance_percent, analysis.skip_periods,
-                                   max_periods=analysis.max_periods)
-        hist = module.SeriesHistory()
-        seconds, checked, verdict = 0.0, 0, None
-        while verdict is None:
-            target = min(checked + CHUNK_PERIODS, analysis.max_periods)
-            sim.extend_to(target)
-            hist.extend(sim.z[hist.n:target])
-            started = time.process_time()
-            for n in range(checked + 1, hist.n + 1):
-                verdict = rule.check(hist, n, float(sim.scale[n - 1]))
-                if verdict is None and n >= analysis.max_periods:
-                    verdict = rule.capped(hist, n, float(sim.scale[n - 1]))
-                if verdict is not None:
-                    break
-            seconds += time.process_time() - started
-            checked = hist.n
-        return seconds, (verdict.period, verdict.status, verdict.method, verdict.p, verdict.q, verdict.uncertainty)
-
     print(f"adaptive, {revision} against this tree, series by series in turn; CPU us per period per series")
     for name, plant in plants.items():
         for label, noise in (("clean", None), ("1% noise", NOISE_RELATIVE * steady)):
@@ -119,12 +105,14 @@ def against(revision: str, plants: dict[str, Plant], freqs: tuple[float, ...], a
                 verdicts = {}
                 for _ in range(repeat):
                     for key, module in modules.items():
-                        spent, verdicts[key] = replay_with(module, sim)
+                        rule = module.AdaptiveRule(analysis.tolerance_percent, analysis.skip_periods,
+                                                   max_periods=analysis.max_periods)
+                        spent, _, verdicts[key] = cost(sim, rule, module.SeriesHistory(), analysis)
                         best[key] = min(best[key], spent)
                 for key in modules:
                     seconds[key] += best[key]
-                periods += int(verdicts["this tree"][0])
-                same &= verdicts[revision] == verdicts["this tree"]
+                periods += verdicts["this tree"].period
+                same &= len({(v.period, v.status, v.method, v.p, v.q, v.uncertainty) for v in verdicts.values()}) == 1
             old_us, new_us = (seconds[key] / periods * 1e6 for key in modules)
             print(f"  {name} {label}: {revision} {old_us:.2f}, this tree {new_us:.2f} ({periods} periods); ratio "
                   f"{new_us / old_us:.2f}; {'the same' if same else 'NOT the same'} stops and verdicts")
@@ -137,15 +125,15 @@ def fresh_rule(criterion: str, analysis: AnalysisConfig) -> StoppingRule:
 
 
 def replay(rule: StoppingRule, hist: SeriesHistory, reference: np.ndarray, start: int, stop: int,
-           max_periods: int) -> tuple[bool, int]:
-    """Check periods start+1..stop as the Autointegrator does; (decided, last period checked)."""
+           max_periods: int) -> tuple[Verdict | None, int]:
+    """Check periods start+1..stop as the Autointegrator does; (the verdict, None: none yet; last period checked)."""
     for n in range(start + 1, stop + 1):
         verdict = rule.check(hist, n, float(reference[n - 1]))
         if verdict is None and n >= max_periods:
             verdict = rule.capped(hist, n, float(reference[n - 1]))
         if verdict is not None:
-            return True, n
-    return False, stop
+            return verdict, n
+    return None, stop
 
 
 class Simulation:
@@ -180,19 +168,19 @@ class Simulation:
             self.scale = np.concatenate([self.scale, np.max(np.abs(z), axis=1)])
 
 
-def cost(sim: Simulation, criterion: str, analysis: AnalysisConfig) -> tuple[float, int]:
-    """(CPU seconds of the rule's calls, periods checked) for one criterion on one series."""
-    rule = fresh_rule(criterion, analysis)
-    hist = SeriesHistory()
-    seconds, done, checked = 0.0, False, 0
-    while not done:
+def cost(sim: Simulation, rule: StoppingRule, hist: SeriesHistory, analysis: AnalysisConfig
+         ) -> tuple[float, int, Verdict]:
+    """(CPU seconds of the rule's calls, periods checked, the verdict) for a fresh rule on one series, its history
+    (empty) filled as an offline sweep fills it."""
+    seconds, verdict, checked = 0.0, None, 0
+    while verdict is None:
         target = min(checked + CHUNK_PERIODS, analysis.max_periods)
         sim.extend_to(target)
         hist.extend(sim.z[hist.n:target])
         started = time.process_time()
-        done, checked = replay(rule, hist, sim.scale, checked, hist.n, analysis.max_periods)
+        verdict, checked = replay(rule, hist, sim.scale, checked, hist.n, analysis.max_periods)
         seconds += time.process_time() - started
-    return seconds, checked
+    return seconds, checked, verdict
 
 
 def grid_costs(plant: Plant, freqs: tuple[float, ...], amplitude: float, analysis: AnalysisConfig,
@@ -204,8 +192,8 @@ def grid_costs(plant: Plant, freqs: tuple[float, ...], amplitude: float, analysi
     for c in CRITERIA:
         total, periods = 0.0, 0
         for sim in sims:
-            runs = [cost(sim, c, analysis) for _ in range(repeat)]
-            total += min(seconds for seconds, _ in runs)
+            runs = [cost(sim, fresh_rule(c, analysis), SeriesHistory(), analysis) for _ in range(repeat)]
+            total += min(run[0] for run in runs)
             periods += runs[0][1]
         out[c] = (total, periods)
     return out
@@ -224,9 +212,9 @@ def long_run(analysis: AnalysisConfig, pc_mass: float, pc_stiffness: float, ampl
         rule = AdaptiveRule(analysis.tolerance_percent, analysis.skip_periods, max_periods=analysis.max_periods)
         for i, (a, b) in enumerate(BANDS):
             started = time.process_time()
-            done, _ = replay(rule, hist, sim.scale, a, b, analysis.max_periods)
+            verdict, _ = replay(rule, hist, sim.scale, a, b, analysis.max_periods)
             per_band[i].append((time.process_time() - started) / (b - a) * 1e6)
-            if done and b < analysis.max_periods:
+            if verdict is not None and b < analysis.max_periods:
                 raise RuntimeError("the long series was closed before max_periods")
     return [min(v) for v in per_band]
 
@@ -269,7 +257,8 @@ def warm_up(plant: Plant, frequency_hz: float, amplitude: float, analysis: Analy
     """Every criterion once on a short noisy series, untimed: the imports rules make on first use happen here."""
     sim = Simulation(plant, frequency_hz, amplitude, analysis.steps_per_period, 1e-3 * amplitude, 0)
     for c in CRITERIA:
-        cost(sim, c, replace(analysis, max_periods=300))
+        short = replace(analysis, max_periods=300)
+        cost(sim, fresh_rule(c, short), SeriesHistory(), short)
 
 
 def main() -> None:
