@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 from pathlib import Path
 
 import pytest
@@ -58,6 +59,26 @@ def test_an_exception_in_the_bus_worker_zeroes_and_disables() -> None:
     recorder = BusRecorder("exit-worker")
     session = _session(config(can={"channel": "exit-worker"}), None,
                        lambda s: s._conn.send(Credit(None)))  # type: ignore[arg-type]
+    with pytest.raises(SessionError, match="TypeError"):
+        session.run()
+    value, disabled = recorder.close()
+    assert value == 0.0 and disabled
+    assert session.ended is not None and session.ended.drive_state() == "drive left at setpoint 0, disabled"
+
+
+def test_a_command_to_a_worker_that_has_ended_raises_its_fault() -> None:
+    """The worker trips and ends between sending a batch and the session's next command: the command finds the
+    pipe closed, and the session reports the worker's fault, not the broken pipe."""
+    recorder = BusRecorder("exit-ended")
+
+    def trip_then_command(session: BenchSession) -> None:
+        session._conn.send(Credit(None))  # type: ignore[arg-type]  # the worker fails on it, zeroes, ends
+        for thread in threading.enumerate():
+            if thread.name == "bodebench-bus":
+                thread.join(timeout=30)
+        session._tell(Credit(10**9))
+
+    session = _session(config(can={"channel": "exit-ended"}), None, trip_then_command)
     with pytest.raises(SessionError, match="TypeError"):
         session.run()
     value, disabled = recorder.close()

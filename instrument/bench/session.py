@@ -234,6 +234,17 @@ class BenchSession:
                 self.last_health = message
         return None
 
+    def _tell(self, message: object) -> None:
+        """Send a command to the worker. A worker that has already ended (a trip between its last batch and this
+        command) left its Fault and Stopped in the pipe: the SessionError raised is that fault's."""
+        try:
+            self._conn.send(message)
+        except OSError:
+            deadline = time.monotonic() + 1.0
+            while time.monotonic() < deadline:
+                self._receive(0.1)  # raises on the worker's Fault, its Stopped, or the pipe's end
+            raise SessionError(FaultKind.BUS, "the bus worker ended unexpectedly") from None
+
     def _receive(self, timeout: float) -> object | None:
         try:
             if not self._conn.poll(timeout):
@@ -300,7 +311,7 @@ class BenchSession:
         outputs = bench.output_channels
         reference = bench.reference_channel
         columns = [self.channels.index(n) for n in outputs + ((reference,) if reference else ())]
-        self._conn.send(StartSine(f, amplitude, bench.ramp_in_periods, bench.ramp_out_periods))
+        self._tell(StartSine(f, amplitude, bench.ramp_in_periods, bench.ramp_out_periods))
         self.listener(PointStarted(index, f, analysis.tolerance_percent, analysis.criterion))
         started = self._expect(SineStarted, timeout=60.0)
         t0 = started.tick * self.period + (bench.ramp_in_periods + settle) / f
@@ -349,7 +360,7 @@ class BenchSession:
             t, values = t[keep], values[keep]
             if t.size == 0:  # still before period 1 (the ramp, the settle periods): the drive goes on
                 if bench.clock == "lockstep":
-                    self._conn.send(Credit(message.last_tick + ticks_per_period))
+                    self._tell(Credit(message.last_tick + ticks_per_period))
                 continue
             if held is not None and held[0] <= t0:
                 t = np.concatenate([[held[0]], t])
@@ -359,7 +370,7 @@ class BenchSession:
             with np.errstate(all="ignore"):  # garbage that got this far is refused below, not warned about
                 sampler.feed(t, values)
             if bench.clock == "lockstep" and not sampler.done:
-                self._conn.send(Credit(message.last_tick + ticks_per_period))
+                self._tell(Credit(message.last_tick + ticks_per_period))
             self.listener(PointProgress(index, f, sampler.periods, tuple(sampler.states()), scope.view(),
                                         discarded=sampler.discarded))
         self.periods_discarded += sampler.discarded
