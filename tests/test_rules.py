@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from bodebench.core import rules
 from bodebench.core.fourier import PeriodIntegrator
 from bodebench.core.rules import (
     BELOW_RESOLUTION,
@@ -16,6 +17,7 @@ from bodebench.core.rules import (
     NOISE_LIMITED,
     AdaptiveRule,
     SeriesHistory,
+    _modal_fit,
     extrapolate_modes,
     make_rule,
     relative_change_percent,
@@ -154,6 +156,58 @@ def test_extrapolation_refuses_a_beat_that_never_decays() -> None:
     i = np.arange(1, 200)
     z = 1.0 + 0.5 * np.exp(0.05j * i)  # conservative link: a mode on the unit circle
     assert extrapolate_modes(z[100:200], 2) is None
+
+
+@pytest.mark.parametrize("lam,w", [(0.95, 10), (0.92, 7), (0.98, 30)])
+def test_a_fit_refused_for_a_slow_mode_says_how_long_a_window_that_mode_needs(lam: float, w: int) -> None:
+    """A window of an exact two-mode transient whose slow mode keeps more than half of itself over it: refused,
+    with the window over which lambda**w' = 1/2 (w' = ln 0.5 / ln lambda); a growing mode needs an infinite one,
+    and an accepted fit none."""
+    i = np.arange(1, 200)
+    z = (0.3 - 0.7j) + (0.5 + 0.1j) * lam ** i + (0.2 - 0.3j) * 0.4 ** i
+    fit, needed = _modal_fit(z[10:10 + w], 2, 0.5)
+    assert fit is None
+    assert needed == pytest.approx(math.log(0.5) / math.log(lam), rel=1e-6)
+    fit, needed = _modal_fit(z[10:10 + math.ceil(needed) + 2], 2, 0.5)
+    assert fit is not None and needed == 0.0
+    growing = (0.3 - 0.7j) + (0.5 + 0.1j) * 1.02 ** i + (0.2 - 0.3j) * 0.4 ** i
+    assert _modal_fit(growing[10:30], 2, 0.5) == (None, math.inf)
+
+
+def count_fits(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """A one-element list that counts the modal fits made from now on."""
+    made = [0]
+    fit = rules._modal_fit
+
+    def counted(z: np.ndarray, modes: int, max_decay: float):  # type: ignore[no-untyped-def]
+        made[0] += 1
+        return fit(z, modes, max_decay)
+
+    monkeypatch.setattr(rules, "_modal_fit", counted)
+    return made
+
+
+def test_fits_refused_for_a_slow_mode_are_put_off_without_moving_the_stop(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Exact transients with a slow mode (refused until the windows are long enough) and the friction link far
+    above resonance: with fits put off, the verdict is the one the rule making every scheduled fit gives, to the
+    bit, from at most half its fits."""
+    i = np.arange(1, 3001)
+    series = [(0.3 - 0.7j) + (0.5 + 0.1j) * lam ** i + (0.2 - 0.3j) * 0.4 ** i for lam in (0.93, 0.95, 0.97)]
+    plant = CoulombOscillator(2.533e-4, 1.0, 0.008)
+    series += [simulated(plant, ratio * plant.natural_frequency_hz, 0.01)[:, 0] for ratio in (8.0, 10.0)]
+    made = count_fits(monkeypatch)
+    for z in series:
+        reference = np.maximum.accumulate(np.abs(z))
+        counts = []
+        verdicts = []
+        for fit_delay in (0, 2):
+            made[0] = 0
+            verdicts.append(replay(z, reference, 0.01, screened=True, chunk=256, fit_delay=fit_delay))
+            counts.append(made[0])
+        every, put_off = verdicts
+        assert every.method == "extrapolated"
+        assert put_off == every
+        assert counts[1] <= 0.5 * counts[0]
 
 
 def test_adaptive_stops_early_on_a_slow_modal_transient() -> None:
@@ -312,9 +366,9 @@ def simulated(plant: Plant, frequency_hz: float, amplitude: float, noise: float 
     return (p + 1j * q)[:, 0, :]
 
 
-def replay(z: np.ndarray, reference: np.ndarray, eps: float, screened: bool, chunk: int):
+def replay(z: np.ndarray, reference: np.ndarray, eps: float, screened: bool, chunk: int, fit_delay: int = 2):
     """The adaptive rule on one series, the history growing by ``chunk`` periods at a time, checked every period."""
-    rule = AdaptiveRule(eps, 1, max_periods=SIDE_PERIODS, screened=screened)
+    rule = AdaptiveRule(eps, 1, max_periods=SIDE_PERIODS, screened=screened, fit_delay=fit_delay)
     hist = SeriesHistory()
     for n in range(1, z.size + 1):
         if n > hist.n:
@@ -330,14 +384,15 @@ def replay(z: np.ndarray, reference: np.ndarray, eps: float, screened: bool, chu
 def side_by_side(z: np.ndarray, eps: float, exact: np.ndarray | None) -> tuple[list[tuple[str, str]], list[bool]]:
     """Every-period and screened verdicts on each harmonic of one simulated series.
 
-    The screened rule runs on a history filled 256 periods at a time (screens worked out for many periods at
+    The every-period rule makes every analysis at every period of its schedule (no screen, no fit put off); the
+    screened rule runs on a history filled 256 periods at a time (screens worked out for many periods at
     once) and on one filled period by period (one at a time). Returns the (status, method) of each verdict and,
     where the response is known, whether each stated disc holds it (to the round-off of the simulation)."""
     reference = np.max(np.abs(z), axis=1)  # the channel's largest coefficient, as the Autointegrator passes it
     scale = float(np.max(reference))
     seen, covered = [], []
     for k in range(z.shape[1]):
-        every = replay(z[:, k], reference, eps, screened=False, chunk=256)
+        every = replay(z[:, k], reference, eps, screened=False, chunk=256, fit_delay=0)
         for chunk in (256, 1):
             screened = replay(z[:, k], reference, eps, screened=True, chunk=chunk)
             assert every.period <= screened.period <= every.period + 2
@@ -399,12 +454,13 @@ def battery(family: str) -> list[tuple[Plant, float, float, np.ndarray | None]]:
 @pytest.mark.parametrize("setting", list(NOISE_SETTINGS))
 @pytest.mark.parametrize("family", ["linear", "lag", "friction"])
 def test_the_screened_rule_stops_where_the_every_period_rule_stops(family: str, setting: str) -> None:
-    """The screens skip only analyses that cannot give a verdict: over linear oscillators (damping 0.001..0.7 at
-    0.1..10 f_n), first-order lags and the Coulomb friction link (Fbar 0.2..0.95 at 0.5..10 f_n), simulated from
-    rest, clean and with white noise on every sample (several seeds), the screened rule stops within two periods
-    of the rule that runs everything at every period, with the same status and, to round-off, the same value
-    and uncertainty; where the response is known exactly, the stated uncertainty covers it (with noise, at
-    about its 95 % level)."""
+    """The screens skip only analyses that cannot give a verdict, and a fit is put off for a slow mode by two
+    periods at most: over linear oscillators (damping 0.001..0.7 at 0.1..10 f_n), first-order lags and the
+    Coulomb friction link (Fbar 0.2..0.95 at 0.5..10 f_n), simulated from rest, clean and with white noise on
+    every sample (several seeds), the screened rule stops within two periods of the rule that runs everything
+    at every period of its schedule, with the same status and, to round-off, the same value and uncertainty;
+    where the response is known exactly, the stated uncertainty covers it (with noise, at about its 95 %
+    level)."""
     noise_relative, eps, seeds = NOISE_SETTINGS[setting]
     seen: set[tuple[str, str]] = set()
     covered: list[bool] = []

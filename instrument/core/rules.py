@@ -668,14 +668,21 @@ def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = _MAX_DECAY) 
     unit circle, a beat of a conservative link or a growing response, has no
     limit). None when the sequence is too short or no limit is shown.
     """
+    return _modal_fit(z, modes, max_decay)[0]
+
+
+def _modal_fit(z: np.ndarray, modes: int, max_decay: float) -> tuple[ModalFit | None, float]:
+    """:func:`extrapolate_modes`, and the window (periods) over which the slowest mode it refused for not having
+    decayed would decay to ``max_decay`` at its fitted rate (inf for a mode on or outside the unit circle; 0 where
+    no mode was refused)."""
     n = z.size
     rows = n - modes
     if rows < modes + 3:
-        return None
+        return None, 0.0
     if _may_be_settled(z):
         mean = complex(z.sum() / n)
         if float(np.abs(z - mean).max()) <= _ROUND_OFF * abs(mean):  # settled to round-off: no mode to fit
-            return ModalFit(mean, 0.0)
+            return ModalFit(mean, 0.0), 0.0
     gather, columns = _design(n, modes)
     # the design matrix's columns (Z lagged by 1..modes, the two intercepts) and Z itself over the rows (P then Q
     # of Z(modes+1..n)), gathered at once; the matrix is then laid out by rows, as the LAPACK wrapper takes it fastest
@@ -686,20 +693,23 @@ def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = _MAX_DECAY) 
     # a mode must have decayed over the window, unless it is damped and turns far enough from 1 that the
     # limit does not hang on its decay rate (a rotating mode's mean is its limit); size ** n is taken only
     # below 1, where it cannot overflow
+    needed = 0.0
     for lam in _mode_roots(alpha):
         size = abs(lam)
         if size >= 1.0:
             if max_decay < 1.0 or n * math.log(size) > math.log(max_decay):
-                return None
+                return None, math.inf
         elif size ** n > max_decay and abs(1.0 - lam) < _MIN_TURN:
-            return None
+            needed = max(needed, math.log(max_decay) / math.log(size))
+    if needed:
+        return None, needed
     den = 1.0 - (sum(alpha) if modes < 8 else float(sol[:modes].sum()))  # numpy's sum is Python's below 8 terms
     # the residual of the solution returned (LAPACK's own sum of squares is that of the exact least-squares
     # solution, which a badly scaled design can put orders of magnitude lower)
     resid = y - x @ sol
     limit = complex(float(sol[modes]), float(sol[modes + 1])) / den
     residual = math.sqrt(float((resid * resid).sum()) / resid.size) / abs(den)
-    return ModalFit(limit, residual, tuple(alpha), tuple(z[n - modes:].tolist()))
+    return ModalFit(limit, residual, tuple(alpha), tuple(z[n - modes:].tolist())), 0.0
 
 
 def _may_be_settled(z: np.ndarray) -> bool:
@@ -860,6 +870,8 @@ def _two_mode_fit_may_pass(hist: SeriesHistory, s: int, w: int, e: float, floor:
     return lowest <= 2 * rows * limit * limit * _SLACK
 
 
+_SHORTFALL_SHARE = 0.5  # of the periods a bound's slowest mode needs to bring it within what it must meet, the
+                        # share a fit is put off by (a bound can shrink faster than its slowest mode: the others die)
 _SCREENS_IN_VAIN = 8  # screens passed in a row after which fits are made unscreened until one fails on its residual
 
 _TABLE_SPAN = 1024  # periods whose settled screen is worked out at once
@@ -1011,6 +1023,11 @@ class AdaptiveRule(StoppingRule):
     necessary conditions from the running sums (:meth:`_settled_may_stop`, or :class:`_ScreenTable` for many
     periods at once) leave a verdict possible; the fit is tried every period up to 64 analysed periods, then
     every (n - n_k) // 32, and skipped where the running sums bound its residual above what the check accepts.
+    A fit refused for a mode that has not decayed over its window puts the next off until the windows are long
+    enough for that mode to decay at its fitted rate; a fit whose bound misses the tolerance, for half the
+    periods its slowest mode needs to bring the bound within it. Either by ``fit_delay`` periods at most: far
+    above resonance a slow mode is refused for dozens of periods in a row, and near it the bound closes in on
+    the tolerance for dozens more; the delay bounds what a transient dying faster than its fit said can cost.
     After eight screens in a row that spared no fit, fits are made unscreened until one fails on its residual
     (a clean series, whose fits all explain their windows, is not screened in vain at every period). A screen
     only skips analyses that cannot give a verdict, so the stop is the one the full analysis at every period
@@ -1020,26 +1037,29 @@ class AdaptiveRule(StoppingRule):
     name = "adaptive"
 
     def __init__(self, tolerance_percent: float, skip_periods: int, *, max_periods: int = 20000, modes: int = 2,
-                 min_window: int = 8, min_periods: int = 8, screened: bool = True) -> None:
+                 min_window: int = 8, min_periods: int = 8, screened: bool = True, fit_delay: int = 2) -> None:
         super().__init__(tolerance_percent, skip_periods)
+        self.fit_delay = fit_delay
         self.max_periods = max_periods
         self.modes = modes
         self.min_window = min_window
         self.min_periods = min_periods
         self.screened = screened
-        self._next_extrapolation = 0
+        self._next_fit = 0  # the fit's schedule: its next period
+        self._fit_put_off: float = 0  # no fit before this period (a mode refused for its slow decay)
         self._table: _ScreenTable | None = None
         self._screening = True  # whether the next fit is screened first
         self._screens_passed = 0  # screens passed in a row since the last that spared a fit
 
-    def _extrapolated(self, hist: SeriesHistory, n: int, reference: float) -> tuple[complex, float] | None:
-        """(limit, error bound) of the modal fit confirmed on two windows, or None where it is not confirmed.
+    def _extrapolated(self, hist: SeriesHistory, n: int, reference: float) -> tuple[complex, float, ModalFit] | None:
+        """(limit, error bound, the first window's fit) of the modal fit confirmed on two windows, or None where it
+        is not confirmed; puts the next fit off where this one shows that it cannot be confirmed soon.
 
-        Screened, None also where the bound cannot come within the tolerance: where the running sums show that
-        no two-mode fit explains the first window well enough (no fit is made; screened while screens spare
-        fits), or where the first window's fit already shows it (the second is not made).
+        None also where the first window's fit already shows that the bound cannot come within the tolerance (the
+        second is not made), and, screened, where the running sums show that no two-mode fit explains the first
+        window well enough (no fit is made; screened while screens spare fits).
         """
-        w = max(self.min_window, (n - self.skip) // 4)
+        w = max(self.min_window, (n - self.skip) // 4)  # _put_off_until_decayed inverts this
         if n - 2 * w < self.skip:
             return None
         e = self.eps / 100.0
@@ -1057,24 +1077,48 @@ class AdaptiveRule(StoppingRule):
                 self._screens_passed += 1
                 self._screening = self._screens_passed < _SCREENS_IN_VAIN
         z = hist.values
-        first = extrapolate_modes(z[n - 2 * w:n - w], self.modes)
+        first, needed = _modal_fit(z[n - 2 * w:n - w], self.modes, _MAX_DECAY)
         if first is None:
+            self._put_off_until_decayed(n, w, needed)
             return None
-        # screened: the bound holds the prediction error, twice the first residual and the gap between the limits,
-        # so a tolerance it meets, e max(|limit|, floor) at the second limit, is at most e max(|first limit| /
-        # (1 - e), floor); the residual is known already, the forecast is made only where it passes
-        ceiling = e * max(abs(first.limit) / (1.0 - e), RESOLUTION * reference) * _SLACK if screened else math.inf
+        # the bound holds the prediction error, twice the first residual and the gap between the limits, so a
+        # tolerance it meets, e max(|limit|, floor) at the second limit, is at most e max(|first limit| / (1 - e),
+        # floor): where either is above that, there is no verdict, and the second fit is not made
+        ceiling = e * max(abs(first.limit) / (1.0 - e), RESOLUTION * reference) * _SLACK if e < 1.0 else math.inf
         if 2.0 * first.residual > ceiling:
-            self._screening, self._screens_passed = True, 0  # a screen might have spared this fit
+            if screened:
+                self._screening, self._screens_passed = True, 0  # a screen might have spared this fit
+            self._put_off_by_shortfall(n, 2.0 * first.residual / ceiling, first)
             return None
         prediction_error = first.forecast_error(z[n - w:n])
         if prediction_error > ceiling:
+            self._put_off_by_shortfall(n, prediction_error / ceiling, first)
             return None
-        second = extrapolate_modes(z[n - w:n], self.modes)
+        second, needed = _modal_fit(z[n - w:n], self.modes, _MAX_DECAY)
         if second is None:
+            self._put_off_until_decayed(n, w, needed)
             return None
         bound = abs(first.limit - second.limit) + 2.0 * max(first.residual, second.residual)
-        return second.limit, max(bound, prediction_error)
+        return second.limit, max(bound, prediction_error), first
+
+    def _put_off_until_decayed(self, n: int, w: int, needed: float) -> None:
+        """After a fit at n on windows of w periods refused a mode that had not decayed, which it would over
+        ``needed`` periods at its fitted rate: no fit until the windows are that long, nor later than ``fit_delay``
+        periods after the next one due."""
+        if needed > w:
+            self._put_off(n, self.skip + 4 * math.ceil(needed) if math.isfinite(needed) else math.inf)
+
+    def _put_off_by_shortfall(self, n: int, miss: float, fit: ModalFit) -> None:
+        """After a fit at n whose bound (or a part of it) was ``miss`` times what it had to meet: no fit until its
+        slowest mode, decaying at its fitted rate per period, has brought the bound within it, nor later than
+        ``fit_delay`` periods after the next one due."""
+        rate = max((abs(lam) for lam in _mode_roots(fit.alpha)), default=0.0) if fit.alpha else 0.0
+        if 0.0 < rate < 1.0 and miss > 1.0:
+            periods = math.log(miss) / -math.log(rate)
+            self._put_off(n, n + max(1, math.ceil(periods * _SHORTFALL_SHARE)) if periods < 1e9 else math.inf)
+
+    def _put_off(self, n: int, until: float) -> None:
+        self._fit_put_off = min(n + 1 + self.fit_delay, until)
 
     def check(self, hist: SeriesHistory, n: int, reference: float) -> Verdict | None:
         analysed = n - self.skip
@@ -1086,14 +1130,18 @@ class AdaptiveRule(StoppingRule):
             if verdict is not None:
                 return verdict
         # the fit costs more than the mean: once windows are long, try it on a sparser schedule
-        if self.modes > 0 and n >= self._next_extrapolation:
-            self._next_extrapolation = n + max(1, analysed // 32)
+        if self.modes > 0 and n >= self._next_fit:
+            self._next_fit = n + max(1, analysed // 32)
+            if n < self._fit_put_off:  # skipped, the schedule kept: a put-off never moves the fits after it
+                return None
             fit = self._extrapolated(hist, n, reference)
             if fit is not None:
-                limit, bound = fit
-                if bound <= self.tolerance(limit, reference):
+                limit, bound, first = fit
+                tol = self.tolerance(limit, reference)
+                if bound <= tol:
                     return self._finish(n, Estimate(limit, bound, bound, 0.0, True), self.tolerance(0.0, reference),
                                         "extrapolated")
+                self._put_off_by_shortfall(n, bound / tol if tol > 0.0 else math.inf, first)
         return None
 
     def _settled_check(self, hist: SeriesHistory, n: int, reference: float) -> Verdict | None:
@@ -1108,7 +1156,7 @@ class AdaptiveRule(StoppingRule):
                 last = min(hist.n, n + _TABLE_SPAN - 1)
                 fits = []
                 if self.modes == 2 and e < 1.0:  # the periods the fit's schedule reaches in the stretch
-                    period = max(self._next_extrapolation, n)
+                    period = max(self._next_fit, n)
                     while period <= last:
                         fits.append(period)
                         period += max(1, (period - self.skip) // 32)
