@@ -151,15 +151,19 @@ def test_simulate_on_a_local_dask_cluster_gives_the_pool_results(tmp_path: Path)
 
 
 @pytest.mark.slow
-def test_a_missing_dask_scheduler_is_one_line(tmp_path: Path) -> None:
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:9", "127.0.0.1", "tcp://127.0.0.1:port"])
+def test_a_missing_dask_scheduler_is_one_line(tmp_path: Path, address: str) -> None:
+    """Nothing listening (a refused connection, said at once rather than after the client's timeout), or not an
+    address at all: one line naming it, nothing written."""
     cfg = tmp_path / "cases.toml"
     cfg.write_text(CASES)
     proc = subprocess.run([sys.executable, "-m", "bodebench", "simulate", str(cfg), "--out", str(tmp_path / "d"),
-                           "--executor", "tcp://127.0.0.1:9", "--quiet"], capture_output=True, text=True,
+                           "--executor", address, "--quiet"], capture_output=True, text=True,
                           timeout=300, cwd=tmp_path)
     assert proc.returncode == 2
-    assert proc.stderr.startswith("bodebench: no Dask scheduler at tcp://127.0.0.1:9: ")
+    assert proc.stderr.startswith(f"bodebench: no Dask scheduler at {address}: ")
     assert len(proc.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "d").exists()
 
 
 class CountingPool(ThreadPoolExecutor):

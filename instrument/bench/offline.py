@@ -11,6 +11,7 @@ import itertools
 import multiprocessing
 import os
 import signal
+import socket
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager, nullcontext
 from dataclasses import asdict
@@ -186,8 +187,9 @@ def offline_executor(jobs: int | None = None, scheduler: str | None = None,
                                    dashboard_address=None)
             client = Client(cluster)
         else:
+            _listening(scheduler)
             client = Client(scheduler, timeout=10)
-    except (OSError, TimeoutError) as exc:
+    except (OSError, TimeoutError, ValueError) as exc:  # ValueError: not an address
         if cluster is not None:
             cluster.close()
         raise ExecutorError(f"no Dask scheduler at {scheduler}: {exc}") from None
@@ -204,6 +206,17 @@ def offline_executor(jobs: int | None = None, scheduler: str | None = None,
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _listening(address: str) -> None:
+    """OSError at once where nothing listens at a tcp:// or tls:// scheduler ``address`` (a refused connection;
+    Dask's client retries it until its timeout)."""
+    from distributed.comm import parse_address, parse_host_port
+
+    scheme, location = parse_address(address)
+    if scheme in ("tcp", "tls"):
+        with socket.create_connection(parse_host_port(location), timeout=10):
+            pass
 
 
 def sweep(case: CaseConfig, executor: Executor | None = None,
