@@ -1030,8 +1030,9 @@ class AdaptiveRule(StoppingRule):
     the tolerance for dozens more; the delay bounds what a transient dying faster than its fit said can cost.
     After eight screens in a row that spared no fit, fits are made unscreened until one fails on its residual
     (a clean series, whose fits all explain their windows, is not screened in vain at every period). A screen
-    only skips analyses that cannot give a verdict, so the stop is the one the full analysis at every period
-    gives (``screened=False`` runs that, for comparison).
+    only skips analyses that cannot give a verdict, and a fit put off is made at most ``fit_delay`` periods late,
+    so the stop is the one the full analysis at every period of the schedule gives (``screened=False,
+    fit_delay=0`` runs that, for comparison), or a fit put off a little after it.
     """
 
     name = "adaptive"
