@@ -188,13 +188,13 @@ def count_fits(monkeypatch: pytest.MonkeyPatch) -> list[int]:
 
 
 def test_fits_refused_for_a_slow_mode_are_put_off_without_moving_the_stop(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Exact transients with a slow mode (refused until the windows are long enough) and the friction link far
-    above resonance: with fits put off, the verdict is the one the rule making every scheduled fit gives, to the
-    bit, from at most half its fits."""
+    """Exact transients with a slow mode (refused until the windows are long enough), the friction link far above
+    resonance (the same) and just below it (bounds that close in on the tolerance period by period): with fits put off,
+    the verdict is the one the rule making every scheduled fit gives, to the bit, from at most half its fits."""
     i = np.arange(1, 3001)
     series = [(0.3 - 0.7j) + (0.5 + 0.1j) * lam ** i + (0.2 - 0.3j) * 0.4 ** i for lam in (0.93, 0.95, 0.97)]
     plant = CoulombOscillator(2.533e-4, 1.0, 0.008)
-    series += [simulated(plant, ratio * plant.natural_frequency_hz, 0.01)[:, 0] for ratio in (8.0, 10.0)]
+    series += [simulated(plant, ratio * plant.natural_frequency_hz, 0.01)[:, 0] for ratio in (0.92, 0.94, 8.0, 10.0)]
     made = count_fits(monkeypatch)
     for z in series:
         reference = np.maximum.accumulate(np.abs(z))
@@ -207,7 +207,7 @@ def test_fits_refused_for_a_slow_mode_are_put_off_without_moving_the_stop(monkey
         every, put_off = verdicts
         assert every.method == "extrapolated"
         assert put_off == every
-        assert counts[1] <= 0.5 * counts[0]
+        assert counts[1] <= 0.5 * counts[0], counts
 
 
 def test_adaptive_stops_early_on_a_slow_modal_transient() -> None:
