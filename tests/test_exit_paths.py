@@ -3,6 +3,7 @@ was actually sent: read off a real python-can virtual bus and a real pty whose f
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import signal
 import threading
@@ -15,7 +16,7 @@ from test_bench_e2e import SERIAL_FRAMES, config
 from bodebench.bench.connection import plan_link
 from bodebench.bench.events import PointProgress, SessionError
 from bodebench.bench.session import BenchSession
-from bodebench.bench.worker import Credit
+from bodebench.bench.worker import Credit, MessagePipe, Stopped
 from bodebench.io.config import parse_config
 from bodebench.io.results import load_response
 
@@ -84,6 +85,20 @@ def test_a_command_to_a_worker_that_has_ended_raises_its_fault() -> None:
     value, disabled = recorder.close()
     assert value == 0.0 and disabled
     assert session.ended is not None and session.ended.drive_state() == "drive left at setpoint 0, disabled"
+
+
+def test_a_worker_that_ended_with_only_its_report_still_says_how_it_left_the_drive() -> None:
+    """The worker's report (Stopped) reaches the pipe without a fault before it, and the worker ends: the command
+    that finds the pipe closed reads the report, and the shutdown still returns it (the drive's state is known)."""
+    session = _session(config(can={"channel": "exit-report"}), None, lambda s: None)
+    ours, theirs = multiprocessing.get_context("spawn").Pipe(duplex=True)
+    report = Stopped("drive: quick stop", 0.0, True, zero_sent=True, frames_out=42)
+    theirs.send(report)
+    theirs.close()
+    session._conn = MessagePipe(ours)
+    with pytest.raises(SessionError, match="the bus worker stopped: drive: quick stop"):
+        session._tell(Credit(10))
+    assert session._shutdown("test", abort=True) == report
 
 
 @pytest.mark.slow

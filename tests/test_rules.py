@@ -188,26 +188,43 @@ def count_fits(monkeypatch: pytest.MonkeyPatch) -> list[int]:
 
 
 def test_fits_refused_for_a_slow_mode_are_put_off_without_moving_the_stop(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Exact transients with a slow mode (refused until the windows are long enough), the friction link far above
-    resonance (the same) and just below it (bounds that close in on the tolerance period by period): with fits put off,
-    the verdict is the one the rule making every scheduled fit gives, to the bit, from at most half its fits."""
+    """Exact transients with a slow mode (refused until the windows are long enough) and the friction link far above
+    resonance (the same): with fits put off, the verdict is the one the rule making every scheduled fit gives, to
+    the bit, from at most half its fits. Where fits pass at isolated periods (faint noise on a fast oscillator
+    far above resonance; a mode near -1, or three modes fitted with two, whose fitted rates wander), nothing is
+    put off that would move the stop."""
     i = np.arange(1, 3001)
-    series = [(0.3 - 0.7j) + (0.5 + 0.1j) * lam ** i + (0.2 - 0.3j) * 0.4 ** i for lam in (0.93, 0.95, 0.97)]
-    plant = CoulombOscillator(2.533e-4, 1.0, 0.008)
-    series += [simulated(plant, ratio * plant.natural_frequency_hz, 0.01)[:, 0] for ratio in (0.92, 0.94, 8.0, 10.0)]
+    saved = [((0.3 - 0.7j) + (0.5 + 0.1j) * lam ** i + (0.2 - 0.3j) * 0.4 ** i, 0.01) for lam in (0.93, 0.95, 0.97)]
+    friction = CoulombOscillator(2.533e-4, 1.0, 0.008)
+    saved += [(simulated(friction, ratio * friction.natural_frequency_hz, 0.01)[:, 0], 0.01) for ratio in (8.0, 10.0)]
+    kept = []
+    for zeta in (0.01, 0.05):
+        plant = LinearOscillator(2.533e-4, 1.0, zeta)
+        f = 10.0 * plant.natural_frequency_hz
+        steady = abs(simulated(plant, f, 0.01)[-1, 0])
+        kept.append((simulated(plant, f, 0.01, noise=1e-5 * steady * math.sqrt(STEPS), seed=1)[:, 0], 0.01))
+    alternating = (0.9066 - 0.2636j) + (0.0445 - 0.0354j) * (-0.99619 + 1e-4j) ** i
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        kept.append((alternating + 1e-6 * (rng.normal(size=i.size) + 1j * rng.normal(size=i.size)), 0.001))
+    three = (1.084 + 1.043j) + (0.380 + 0.123j) * (0.653 - 0.460j) ** i + (-0.016 - 0.004j) * 0.966 ** i \
+        + (-0.022 - 0.031j) * 0.924 ** i
+    rng = np.random.default_rng(0)
+    kept.append((three + 1e-9 * (rng.normal(size=i.size) + 1j * rng.normal(size=i.size)), 0.1))
     made = count_fits(monkeypatch)
-    for z in series:
+    for k, (z, eps) in enumerate(saved + kept):
         reference = np.maximum.accumulate(np.abs(z))
         counts = []
         verdicts = []
         for fit_delay in (0, 2):
             made[0] = 0
-            verdicts.append(replay(z, reference, 0.01, screened=True, chunk=256, fit_delay=fit_delay))
+            verdicts.append(replay(z, reference, eps, screened=True, chunk=256, fit_delay=fit_delay))
             counts.append(made[0])
         every, put_off = verdicts
         assert every.method == "extrapolated"
         assert put_off == every
-        assert counts[1] <= 0.5 * counts[0], counts
+        if k < len(saved):
+            assert counts[1] <= 0.5 * counts[0], counts
 
 
 def test_adaptive_stops_early_on_a_slow_modal_transient() -> None:
@@ -248,6 +265,8 @@ def test_every_criterion_is_constructible_and_unknown_ones_are_refused() -> None
         assert make_rule(name, tolerance_percent=0.01, skip_periods=1, window=5).name == name
     with pytest.raises(ValueError, match="unknown criterion"):
         make_rule("median", tolerance_percent=0.01, skip_periods=1, window=5)
+    with pytest.raises(ValueError, match="fit_delay must be >= 0, got -1"):
+        AdaptiveRule(0.01, 1, fit_delay=-1)
 
 
 def error_in_eps(verdict, zinf: complex, eps: float) -> float:

@@ -112,6 +112,7 @@ class BenchSession:
         self.last_samples: PointSamples | None = None
         """The samples of the frequency measured last (saved in ``samples/`` when there is a results directory)."""
         self._writer: ResultsWriter | None = None
+        self._stopped: Stopped | None = None  # the worker's last message, where it came before the shutdown
 
     # --- user requests (any thread)
     def request_abort(self) -> None:
@@ -157,6 +158,7 @@ class BenchSession:
     def _run(self) -> SessionResult:
         conn, handle = start_worker(self._spec(), self.worker_mode)
         self._conn = conn
+        self._stopped = None
         stopped: Stopped | None = None
         completed = False
         reason = "sweep complete"  # replaced by the cause of any other way out
@@ -220,6 +222,8 @@ class BenchSession:
             self._conn.send(Stop(reason, abort=abort))
         except (OSError, BrokenPipeError):
             pass
+        if self._stopped is not None:  # the worker had ended already, and said how
+            return self._stopped
         deadline = time.monotonic() + 10.0
         while time.monotonic() < deadline:
             try:
@@ -257,6 +261,7 @@ class BenchSession:
             self.listener(SessionFault(kind, message.message, len(self.response.points)))
             raise SessionError(kind, message.message)
         if isinstance(message, Stopped):
+            self._stopped = message  # how the worker left the drive, for _shutdown to report
             raise SessionError(FaultKind.BUS, f"the bus worker stopped: {message.reason}")
         if isinstance(message, Health):
             self.last_health = message

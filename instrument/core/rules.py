@@ -870,8 +870,7 @@ def _two_mode_fit_may_pass(hist: SeriesHistory, s: int, w: int, e: float, floor:
     return lowest <= 2 * rows * limit * limit * _SLACK
 
 
-_SHORTFALL_SHARE = 0.5  # of the periods a bound's slowest mode needs to bring it within what it must meet, the
-                        # share a fit is put off by (a bound can shrink faster than its slowest mode: the others die)
+_RATES_AGREE = 0.1  # how far (relative) the windows two fits in a row find a refused mode needs may differ
 _SCREENS_IN_VAIN = 8  # screens passed in a row after which fits are made unscreened until one fails on its residual
 
 _TABLE_SPAN = 1024  # periods whose settled screen is worked out at once
@@ -1023,16 +1022,16 @@ class AdaptiveRule(StoppingRule):
     necessary conditions from the running sums (:meth:`_settled_may_stop`, or :class:`_ScreenTable` for many
     periods at once) leave a verdict possible; the fit is tried every period up to 64 analysed periods, then
     every (n - n_k) // 32, and skipped where the running sums bound its residual above what the check accepts.
-    A fit refused for a mode that has not decayed over its window puts the next off until the windows are long
-    enough for that mode to decay at its fitted rate; a fit whose bound misses the tolerance, for half the
-    periods its slowest mode needs to bring the bound within it. Either by ``fit_delay`` periods at most: far
-    above resonance a slow mode is refused for dozens of periods in a row, and near it the bound closes in on
-    the tolerance for dozens more; the delay bounds what a transient dying faster than its fit said can cost.
+    A fit refused, twice running, for a mode that has not decayed over its window, at rates that agree within
+    10 %, puts the next off until the windows are long enough for that mode to decay at that rate, by
+    ``fit_delay`` periods at most (far above resonance a slow mode is refused for dozens of periods in a row;
+    a fitted rate that wanders, or a mode on the unit circle, puts nothing off: a fit may pass at isolated
+    periods there).
     After eight screens in a row that spared no fit, fits are made unscreened until one fails on its residual
     (a clean series, whose fits all explain their windows, is not screened in vain at every period). A screen
-    only skips analyses that cannot give a verdict, and a fit put off is made at most ``fit_delay`` periods late,
-    so the stop is the one the full analysis at every period of the schedule gives (``screened=False,
-    fit_delay=0`` runs that, for comparison), or a fit put off a little after it.
+    only skips analyses that cannot give a verdict, so with ``fit_delay=0`` (no fit put off) the stop is the one
+    the full analysis at every period of the schedule gives (``screened=False, fit_delay=0`` runs that, for
+    comparison).
     """
 
     name = "adaptive"
@@ -1040,6 +1039,8 @@ class AdaptiveRule(StoppingRule):
     def __init__(self, tolerance_percent: float, skip_periods: int, *, max_periods: int = 20000, modes: int = 2,
                  min_window: int = 8, min_periods: int = 8, screened: bool = True, fit_delay: int = 2) -> None:
         super().__init__(tolerance_percent, skip_periods)
+        if fit_delay < 0:
+            raise ValueError(f"fit_delay must be >= 0, got {fit_delay}")
         self.fit_delay = fit_delay
         self.max_periods = max_periods
         self.modes = modes
@@ -1047,20 +1048,20 @@ class AdaptiveRule(StoppingRule):
         self.min_periods = min_periods
         self.screened = screened
         self._next_fit = 0  # the fit's schedule: its next period
-        self._fit_put_off: float = 0  # no fit before this period (a mode refused for its slow decay)
+        self._fit_put_off = 0  # no fit before this period (a mode refused for its slow decay)
+        self._refused_needs = 0.0  # the window a mode refused at the last fit made would decay over (0: none)
         self._table: _ScreenTable | None = None
         self._screening = True  # whether the next fit is screened first
         self._screens_passed = 0  # screens passed in a row since the last that spared a fit
 
-    def _extrapolated(self, hist: SeriesHistory, n: int, reference: float) -> tuple[complex, float, ModalFit] | None:
-        """(limit, error bound, the first window's fit) of the modal fit confirmed on two windows, or None where it
-        is not confirmed; puts the next fit off where this one shows that it cannot be confirmed soon.
+    def _extrapolated(self, hist: SeriesHistory, n: int, reference: float) -> tuple[complex, float] | None:
+        """(limit, error bound) of the modal fit confirmed on two windows, or None where it is not confirmed.
 
-        None also where the first window's fit already shows that the bound cannot come within the tolerance (the
-        second is not made), and, screened, where the running sums show that no two-mode fit explains the first
-        window well enough (no fit is made; screened while screens spare fits).
+        Screened, None also where the bound cannot come within the tolerance: where the running sums show that
+        no two-mode fit explains the first window well enough (no fit is made; screened while screens spare
+        fits), or where the first window's fit already shows it (the second is not made).
         """
-        w = max(self.min_window, (n - self.skip) // 4)  # _put_off_until_decayed inverts this
+        w = max(self.min_window, (n - self.skip) // 4)
         if n - 2 * w < self.skip:
             return None
         e = self.eps / 100.0
@@ -1077,49 +1078,36 @@ class AdaptiveRule(StoppingRule):
                     return None
                 self._screens_passed += 1
                 self._screening = self._screens_passed < _SCREENS_IN_VAIN
-        z = hist.values
+        confirmed, needed = self._fit_windows(hist.values, n, w, e, reference, screened)
+        # a mode refused for its slow decay twice running at rates that agree: no fit before the windows (w = (n -
+        # n_k) // 4) are long enough for it to decay, nor later than fit_delay periods after the next one due
+        last, self._refused_needs = self._refused_needs, needed
+        if w < needed < math.inf and abs(needed - last) <= _RATES_AGREE * needed:
+            self._fit_put_off = min(n + 1 + self.fit_delay, self.skip + 4 * math.ceil(needed))
+        return confirmed
+
+    def _fit_windows(self, z: np.ndarray, n: int, w: int, e: float, reference: float, screened: bool
+                     ) -> tuple[tuple[complex, float] | None, float]:
+        """:meth:`_extrapolated`'s fits of the windows of w periods before n: (limit, bound) or None, and the
+        window over which a mode refused for its slow decay would decay (0: none refused)."""
         first, needed = _modal_fit(z[n - 2 * w:n - w], self.modes, _MAX_DECAY)
         if first is None:
-            self._put_off_until_decayed(n, w, needed)
-            return None
-        # the bound holds the prediction error, twice the first residual and the gap between the limits, so a
-        # tolerance it meets, e max(|limit|, floor) at the second limit, is at most e max(|first limit| / (1 - e),
-        # floor): where either is above that, there is no verdict, and the second fit is not made
-        ceiling = e * max(abs(first.limit) / (1.0 - e), RESOLUTION * reference) * _SLACK if e < 1.0 else math.inf
+            return None, needed
+        # screened: the bound holds the prediction error, twice the first residual and the gap between the limits,
+        # so a tolerance it meets, e max(|limit|, floor) at the second limit, is at most e max(|first limit| /
+        # (1 - e), floor); the residual is known already, the forecast is made only where it passes
+        ceiling = e * max(abs(first.limit) / (1.0 - e), RESOLUTION * reference) * _SLACK if screened else math.inf
         if 2.0 * first.residual > ceiling:
-            if screened:
-                self._screening, self._screens_passed = True, 0  # a screen might have spared this fit
-            self._put_off_by_shortfall(n, 2.0 * first.residual / ceiling, first)
-            return None
+            self._screening, self._screens_passed = True, 0  # a screen might have spared this fit
+            return None, 0.0
         prediction_error = first.forecast_error(z[n - w:n])
         if prediction_error > ceiling:
-            self._put_off_by_shortfall(n, prediction_error / ceiling, first)
-            return None
+            return None, 0.0
         second, needed = _modal_fit(z[n - w:n], self.modes, _MAX_DECAY)
         if second is None:
-            self._put_off_until_decayed(n, w, needed)
-            return None
+            return None, needed
         bound = abs(first.limit - second.limit) + 2.0 * max(first.residual, second.residual)
-        return second.limit, max(bound, prediction_error), first
-
-    def _put_off_until_decayed(self, n: int, w: int, needed: float) -> None:
-        """After a fit at n on windows of w periods refused a mode that had not decayed, which it would over
-        ``needed`` periods at its fitted rate: no fit until the windows are that long, nor later than ``fit_delay``
-        periods after the next one due."""
-        if needed > w:
-            self._put_off(n, self.skip + 4 * math.ceil(needed) if math.isfinite(needed) else math.inf)
-
-    def _put_off_by_shortfall(self, n: int, miss: float, fit: ModalFit) -> None:
-        """After a fit at n whose bound (or a part of it) was ``miss`` times what it had to meet: no fit until its
-        slowest mode, decaying at its fitted rate per period, has brought the bound within it, nor later than
-        ``fit_delay`` periods after the next one due."""
-        rate = max((abs(lam) for lam in _mode_roots(fit.alpha)), default=0.0) if fit.alpha else 0.0
-        if 0.0 < rate < 1.0 and miss > 1.0:
-            periods = math.log(miss) / -math.log(rate)
-            self._put_off(n, n + max(1, math.ceil(periods * _SHORTFALL_SHARE)) if periods < 1e9 else math.inf)
-
-    def _put_off(self, n: int, until: float) -> None:
-        self._fit_put_off = min(n + 1 + self.fit_delay, until)
+        return (second.limit, max(bound, prediction_error)), 0.0
 
     def check(self, hist: SeriesHistory, n: int, reference: float) -> Verdict | None:
         analysed = n - self.skip
@@ -1137,12 +1125,10 @@ class AdaptiveRule(StoppingRule):
                 return None
             fit = self._extrapolated(hist, n, reference)
             if fit is not None:
-                limit, bound, first = fit
-                tol = self.tolerance(limit, reference)
-                if bound <= tol:
+                limit, bound = fit
+                if bound <= self.tolerance(limit, reference):
                     return self._finish(n, Estimate(limit, bound, bound, 0.0, True), self.tolerance(0.0, reference),
                                         "extrapolated")
-                self._put_off_by_shortfall(n, bound / tol if tol > 0.0 else math.inf, first)
         return None
 
     def _settled_check(self, hist: SeriesHistory, n: int, reference: float) -> Verdict | None:
