@@ -55,31 +55,26 @@ def test_an_exception_in_the_session_zeroes_and_disables_and_is_not_called_compl
     assert [p.frequency_hz for p in load_response(tmp_path).points] == [5.0, 5.0]
 
 
-def test_an_exception_in_the_bus_worker_zeroes_and_disables() -> None:
-    """A malformed command reaches the worker (a TypeError inside its loop): it zeroes and disables, then ends."""
-    recorder = BusRecorder("exit-worker")
-    session = _session(config(can={"channel": "exit-worker"}), None,
-                       lambda s: s._conn.send(Credit(None)))  # type: ignore[arg-type]
-    with pytest.raises(SessionError, match="TypeError"):
-        session.run()
-    value, disabled = recorder.close()
-    assert value == 0.0 and disabled
-    assert session.ended is not None and session.ended.drive_state() == "drive left at setpoint 0, disabled"
+def _malformed_command(session: BenchSession) -> None:
+    session._conn.send(Credit(None))  # type: ignore[arg-type]  # the worker fails on it, zeroes, ends
 
 
-def test_a_command_to_a_worker_that_has_ended_raises_its_fault() -> None:
-    """The worker trips and ends between sending a batch and the session's next command: the command finds the
-    pipe closed, and the session reports the worker's fault, not the broken pipe."""
-    recorder = BusRecorder("exit-ended")
+def _command_after_the_worker_ended(session: BenchSession) -> None:
+    _malformed_command(session)
+    for thread in threading.enumerate():
+        if thread.name == "bodebench-bus":
+            thread.join(timeout=30)
+    session._tell(Credit(10**9))  # finds the pipe closed
 
-    def trip_then_command(session: BenchSession) -> None:
-        session._conn.send(Credit(None))  # type: ignore[arg-type]  # the worker fails on it, zeroes, ends
-        for thread in threading.enumerate():
-            if thread.name == "bodebench-bus":
-                thread.join(timeout=30)
-        session._tell(Credit(10**9))
 
-    session = _session(config(can={"channel": "exit-ended"}), None, trip_then_command)
+@pytest.mark.parametrize("trigger", [_malformed_command, _command_after_the_worker_ended])
+def test_an_exception_in_the_bus_worker_zeroes_and_disables(trigger) -> None:  # type: ignore[no-untyped-def]
+    """A malformed command reaches the worker (a TypeError inside its loop): it zeroes and disables, then ends.
+    Whether the session hears of it at its next batch, or first sends another command into the closed pipe (the
+    worker ended between a batch and the session's next credit), it reports the worker's fault, not the pipe."""
+    channel = f"exit-{trigger.__name__.strip('_')}"
+    recorder = BusRecorder(channel)
+    session = _session(config(can={"channel": channel}), None, trigger)
     with pytest.raises(SessionError, match="TypeError"):
         session.run()
     value, disabled = recorder.close()
