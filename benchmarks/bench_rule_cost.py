@@ -256,8 +256,8 @@ def sampler_overhead(plant: Plant, frequency_hz: float, amplitude: float, analys
 def warm_up(plant: Plant, frequency_hz: float, amplitude: float, analysis: AnalysisConfig) -> None:
     """Every criterion once on a short noisy series, untimed: the imports rules make on first use happen here."""
     sim = Simulation(plant, frequency_hz, amplitude, analysis.steps_per_period, 1e-3 * amplitude, 0)
+    short = replace(analysis, max_periods=300)
     for c in CRITERIA:
-        short = replace(analysis, max_periods=300)
         cost(sim, fresh_rule(c, short), SeriesHistory(), short)
 
 

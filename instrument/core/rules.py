@@ -628,6 +628,7 @@ class FixedScheme(StoppingRule):
 
 _MIN_TURN = 0.5  # |1 - lambda| of a slowly decaying mode that the fit may extrapolate through
 _MAX_DECAY = 0.5  # the most a fitted mode may keep of itself over its window
+_FIT_WINDOW_SHARE = 4  # each of the modal fit's two windows holds 1/this of the analysed periods (min_window at least)
 
 
 @dataclass(frozen=True)
@@ -960,7 +961,7 @@ class _ScreenTable:
 def _two_mode_fit_floors(hist: SeriesHistory, skip: int, n: np.ndarray, min_window: int, e: float) -> np.ndarray:
     """For each period n, the least reference at which :func:`_two_mode_fit_may_pass` holds for the first window
     of the fit made at n (-inf: at any), worked out for all n at once."""
-    w = np.maximum(min_window, (n - skip) // 4)
+    w = np.maximum(min_window, (n - skip) // _FIT_WINDOW_SHARE)
     s = np.maximum(n - 2 * w, 0)
     rows = w - 2
     end = s + w
@@ -1061,7 +1062,7 @@ class AdaptiveRule(StoppingRule):
         no two-mode fit explains the first window well enough (no fit is made; screened while screens spare
         fits), or where the first window's fit already shows it (the second is not made).
         """
-        w = max(self.min_window, (n - self.skip) // 4)
+        w = max(self.min_window, (n - self.skip) // _FIT_WINDOW_SHARE)
         if n - 2 * w < self.skip:
             return None
         e = self.eps / 100.0
@@ -1079,11 +1080,12 @@ class AdaptiveRule(StoppingRule):
                 self._screens_passed += 1
                 self._screening = self._screens_passed < _SCREENS_IN_VAIN
         confirmed, needed = self._fit_windows(hist.values, n, w, e, reference, screened)
-        # a mode refused for its slow decay twice running at rates that agree: no fit before the windows (w = (n -
-        # n_k) // 4) are long enough for it to decay, nor later than fit_delay periods after the next one due
+        # a mode refused for its slow decay twice running at rates that agree: no fit before the windows are long
+        # enough for it to decay (the first period whose w reaches needed), nor later than fit_delay periods after
+        # the next one due
         last, self._refused_needs = self._refused_needs, needed
         if w < needed < math.inf and abs(needed - last) <= _RATES_AGREE * needed:
-            self._fit_put_off = min(n + 1 + self.fit_delay, self.skip + 4 * math.ceil(needed))
+            self._fit_put_off = min(n + 1 + self.fit_delay, self.skip + _FIT_WINDOW_SHARE * math.ceil(needed))
         return confirmed
 
     def _fit_windows(self, z: np.ndarray, n: int, w: int, e: float, reference: float, screened: bool
