@@ -17,9 +17,9 @@ least CPU time taken (a busy machine only ever adds to it). A warm-up replay of 
 that imports done on first use are not counted.
 
 Then the whole call path: Autointegrator.feed on the linear oscillator at 2 f_n with 1 % noise (harmonics 1
-and 2, the default rule) against its PeriodIntegrator alone on the same samples, fed one period at a time (a
-bench) and 256 at a time (a sweep): what the Autointegrator adds per period per series (least of ``--repeat``
-runs of each).
+and 2, the default rule), fed one period at a time (a bench) and 256 at a time (a sweep), its integrator's
+answers recorded on a first pass and handed back in turn: what the Autointegrator adds to its integrator per
+period per series (least of ``--repeat`` runs).
 
 Then one long series that no rule can close, the friction link at Fbar 0.6 at its natural frequency (a beat that
 never dies: capped at max_periods): the default rule's cost per period over periods 1..1000, 1000..5000 and
@@ -27,8 +27,8 @@ never dies: capped at max_periods): the default rule's cost per period over peri
 
 ``--against REV``: instead, the default rule of this tree against the one of git revision REV (its
 bodebench/core/rules.py, loaded beside this one), replayed in one process series by series in turn (least of
-``--repeat`` each), on the same four grids: both figures, their ratio and whether every series stopped at the same
-period with the same verdict to the bit. Turn by turn, a machine whose speed wanders slows both alike.
+``--repeat`` each), on the same four grids: both figures, their ratio, whether every series stopped at the same
+period with the same status and method, and how far apart the values are (relative). Turn by turn, a machine whose speed wanders slows both alike.
 
 Target: at most 5 us per period per series. Prints figures only.
 """
@@ -97,7 +97,7 @@ def against(revision: str, plants: dict[str, Plant], freqs: tuple[float, ...], a
     for name, plant in plants.items():
         for label, noise in (("clean", None), ("1% noise", NOISE_RELATIVE * steady)):
             seconds = dict.fromkeys(modules, 0.0)
-            periods, same = 0, True
+            periods, same, moved = 0, True, 0.0
             for i, f in enumerate(freqs):
                 sim = Simulation(plant, f, amplitude, analysis.steps_per_period,
                                  0.0 if noise is None else float(noise[i]), 1000 + i)
@@ -112,10 +112,13 @@ def against(revision: str, plants: dict[str, Plant], freqs: tuple[float, ...], a
                 for key in modules:
                     seconds[key] += best[key]
                 periods += verdicts["this tree"].period
-                same &= len({(v.period, v.status, v.method, v.p, v.q, v.uncertainty) for v in verdicts.values()}) == 1
+                same &= len({(v.period, v.status, v.method) for v in verdicts.values()}) == 1
+                old, new = (complex(verdicts[key].p, verdicts[key].q) for key in modules)
+                moved = max(moved, abs(new - old) / max(abs(old), 1e-300))
             old_us, new_us = (seconds[key] / periods * 1e6 for key in modules)
             print(f"  {name} {label}: {revision} {old_us:.2f}, this tree {new_us:.2f} ({periods} periods); ratio "
-                  f"{new_us / old_us:.2f}; {'the same' if same else 'NOT the same'} stops and verdicts")
+                  f"{new_us / old_us:.2f}; {'the same' if same else 'NOT the same'} stops (period, status, method), "
+                  f"values apart by at most {moved:.1e} of themselves")
 
 
 def fresh_rule(criterion: str, analysis: AnalysisConfig) -> StoppingRule:
@@ -221,9 +224,9 @@ def long_run(analysis: AnalysisConfig, pc_mass: float, pc_stiffness: float, ampl
 
 def sampler_overhead(plant: Plant, frequency_hz: float, amplitude: float, analysis: AnalysisConfig,
                      noise_std: float, chunk_periods: int, repeat: int) -> tuple[float, int, int]:
-    """(us per period per series, periods, series) the Autointegrator adds to its integrator: the least CPU time
-    of feed() over ``repeat`` runs less the least of PeriodIntegrator.feed() alone on the same samples, fed in
-    chunks of ``chunk_periods`` periods until every series has its verdict."""
+    """(us per period per series, periods, series) the Autointegrator adds to its integrator: the CPU time of
+    feed() with its integrator's answers (recorded on a first pass) handed back in turn instead of worked out,
+    least of ``repeat`` runs, fed in chunks of ``chunk_periods`` periods until every series has its verdict."""
     steps = analysis.steps_per_period
     h = 1.0 / (steps * frequency_hz)
     n = analysis.max_periods * steps
@@ -231,26 +234,37 @@ def sampler_overhead(plant: Plant, frequency_hz: float, amplitude: float, analys
     y = y + np.random.default_rng(11).normal(0.0, noise_std, y.shape)
     t = (1 + np.arange(n)) * h
     cut = chunk_periods * steps
-    with_rules, alone = [], []
-    periods = fed = 0
+
+    def sampler() -> Autointegrator:
+        fresh = Autointegrator(frequency_hz, amplitude, (OUTPUT_CHANNEL,), analysis)
+        fresh.feed(np.array([0.0]), np.zeros((1, 1)))
+        return fresh
+
+    recording, answers = sampler(), []
+    integrate = recording._integrator.feed_marked
+
+    def recorded(t_chunk: np.ndarray, y_chunk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        answers.append(integrate(t_chunk, y_chunk))
+        return tuple(a.copy() for a in answers[-1])  # type: ignore[return-value]
+
+    recording._integrator.feed_marked = recorded  # type: ignore[method-assign]
+    fed = 0
+    while not recording.done:
+        recording.feed(t[fed:fed + cut], y[fed:fed + cut])
+        fed += cut
+    spent = []
     for _ in range(repeat):
-        sampler = Autointegrator(frequency_hz, amplitude, (OUTPUT_CHANNEL,), analysis)
-        sampler.feed(np.array([0.0]), np.zeros((1, 1)))
+        replayed = sampler()
+        replies = iter([tuple(a.copy() for a in answer) for answer in answers])
+        replayed._integrator.feed_marked = lambda _t, _y, replies=replies: next(replies)  # type: ignore[method-assign]
         started = time.process_time()
-        fed = 0
-        while not sampler.done:
-            sampler.feed(t[fed:fed + cut], y[fed:fed + cut])
-            fed += cut
-        with_rules.append(time.process_time() - started)
-        periods = sampler.periods
-        integ = PeriodIntegrator(frequency_hz, analysis.harmonics, 1)
-        integ.feed(np.array([0.0]), np.zeros((1, 1)))
-        started = time.process_time()
-        for i in range(0, fed, cut):
-            integ.feed(t[i:i + cut], y[i:i + cut])
-        alone.append(time.process_time() - started)
+        for _ in answers:
+            replayed.feed(t[:0], y[:0])
+        spent.append(time.process_time() - started)
+        if not replayed.done or replayed.periods != recording.periods:
+            raise RuntimeError("the replayed feed did not end where the recorded one did")
     series = len(analysis.harmonics)
-    return (min(with_rules) - min(alone)) / (periods * series) * 1e6, periods, series
+    return min(spent) / (recording.periods * series) * 1e6, recording.periods, series
 
 
 def warm_up(plant: Plant, frequency_hz: float, amplitude: float, analysis: AnalysisConfig) -> None:

@@ -159,12 +159,12 @@ class Autointegrator:
         if m == 0:
             return 0
         if m <= _FEW_PERIODS and self.reference is None:
-            values = self._few_values(p.tolist(), q.tolist(), whole.tolist())
-            if values is not None:
+            few = self._few_values(p.tolist(), q.tolist(), whole.tolist())
+            if few is not None:
                 if self.done:
                     self.periods += m
                 else:
-                    self._take(values)
+                    self._take(*few)
                 return m
         whole &= self._usable(p, q)
         if not whole.all():
@@ -188,22 +188,26 @@ class Autointegrator:
         return ok
 
     def _few_values(self, p: list[list[list[float]]], q: list[list[list[float]]], whole: list[bool]
-                    ) -> list[list[list[complex]]] | None:
+                    ) -> tuple[list[list[list[complex]]], list[list[float]]] | None:
         """One-channel mode: the coefficients Z = P + jQ of a few whole periods, per period, channel and harmonic,
-        on Python scalars (numpy's cost per call exceeds the arithmetic); None where a period is not whole or a
-        coefficient not finite (:meth:`_usable`), for the general path."""
+        and each period's scale of each channel (its largest |Z|), on Python scalars (numpy's cost per call
+        exceeds the arithmetic); None where a period is not whole or a coefficient not finite (:meth:`_usable`),
+        for the general path."""
         if not all(whole):
             return None
-        out = []
+        out, scales = [], []
         for p_period, q_period in zip(p, q, strict=True):
-            rows = [[complex(pv, qv) for pv, qv in zip(p_row, q_row, strict=True)]
-                    for p_row, q_row in zip(p_period, q_period, strict=True)]
-            for row in rows:
-                for v in row:
-                    if not (math.isfinite(v.real) and math.isfinite(v.imag)):
-                        return None
+            rows, tops = [], []
+            for p_row, q_row in zip(p_period, q_period, strict=True):
+                row = list(map(complex, p_row, q_row))
+                sizes = list(map(abs, row))
+                if not math.isfinite(sum(sizes)):  # |Z| is inf or NaN where Z is not finite
+                    return None
+                rows.append(row)
+                tops.append(max(sizes))
             out.append(rows)
-        return out
+            scales.append(tops)
+        return out, scales
 
     def _feed_with_gaps(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> int:
         """Periods some of which a gap touched: each run of whole periods integrated, each discarded one counted
@@ -237,7 +241,8 @@ class Autointegrator:
             z = z[:, :-1, : len(self.harmonics)] * (self.amplitude / np.abs(z_ref))[:, None, None] \
                 * rotation[:, None, None] ** powers[None, None, :]
         if m <= _FEW_PERIODS:
-            self._take(z.tolist())
+            values = z.tolist()
+            self._take(values, [[max(abs(v) for v in row) for row in period] for period in values])
             return
         for c, row in enumerate(self._histories):
             for k, hist in enumerate(row):
@@ -245,13 +250,14 @@ class Autointegrator:
         # each channel's scale: its largest coefficient of the period (output units)
         self._judge(m, np.max(np.abs(z), axis=2).tolist())
 
-    def _take(self, values: list[list[list[complex]]]) -> None:
-        """A few whole periods' coefficients, per period, channel and harmonic, into the histories and the rules."""
+    def _take(self, values: list[list[list[complex]]], scales: list[list[float]]) -> None:
+        """A few whole periods' coefficients, per period, channel and harmonic, into the histories and the rules;
+        scales: each period's largest |Z| of each channel (output units)."""
         for period in values:
             for row, histories in zip(period, self._histories, strict=True):
                 for v, hist in zip(row, histories, strict=True):
                     hist.append(v)
-        self._judge(len(values), [[max(abs(v) for v in row) for row in period] for period in values])
+        self._judge(len(values), scales)
 
     def _judge(self, m: int, references: list[list[float]]) -> None:
         """The rules' verdicts on the m periods just appended to the histories; references: each period's scale

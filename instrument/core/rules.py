@@ -18,6 +18,7 @@ import types
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -84,9 +85,10 @@ class SeriesHistory:
 
     Running sums of Z, of |Z - Z(1)|^2 and of (Z(j) - Z(1)) conj(Z(j-k) - Z(1)), k = 1, 2 (taken about the first
     value, so that the sums of squares of a steady series do not cancel catastrophically) make every window
-    mean, spread and lag correlation O(1). Each is kept as a numpy array, for work on many periods at once,
-    and as a Python list with the same values, for the single entries a rule reads every period (a list
-    serves those several times faster).
+    mean, spread and lag correlation O(1). Each is kept as a Python list, for the single entries a rule reads
+    every period (a list serves those several times faster), and as a numpy array with the same values, for work
+    on many periods at once; periods appended one by one reach the arrays when the arrays are next read
+    (:meth:`arrays`), in one slice each.
     """
 
     def __init__(self) -> None:
@@ -102,6 +104,7 @@ class SeriesHistory:
         self._lag_list: list[complex] = [0j]
         self._lag2_list: list[complex] = [0j]
         self.n = 0
+        self._synced = 0  # periods whose entries the arrays hold
 
     def extend(self, z: np.ndarray) -> None:
         """Append the coefficients of the next periods (complex array)."""
@@ -112,6 +115,7 @@ class SeriesHistory:
             for v in z.tolist():
                 self.append(v)
             return
+        self.arrays()
         n, need = self.n, self.n + z.size
         self._reserve(need)
         self._z[n:need] = z
@@ -133,15 +137,14 @@ class SeriesHistory:
         self._cum2_list.extend(self._cum2[n + 1:need + 1].tolist())
         self._lag_list.extend(self._lag[n + 1:need + 1].tolist())
         self._lag2_list.extend(self._lag2[n + 1:need + 1].tolist())
-        self.n = need
+        self.n = self._synced = need
 
     def append(self, v: complex) -> None:
-        """Append the coefficient of the next period."""
+        """Append the coefficient of the next period (to the lists; the arrays take it when next read)."""
         n = self.n
         v = complex(v)
         if n == 0:
             self._first = v
-        self._reserve(n + 1)
         z0 = self._first
         d = v - z0
         c = self._cum_list[n] + v
@@ -149,9 +152,7 @@ class SeriesHistory:
         zs = self._z_list
         lag = self._lag_list[n] + d * (zs[n - 1] - z0).conjugate() if n >= 1 else 0j
         lag2 = self._lag2_list[n] + d * (zs[n - 2] - z0).conjugate() if n >= 2 else 0j
-        self._z[n] = v
         n += 1
-        self._cum[n], self._cum2[n], self._lag[n], self._lag2[n] = c, c2, lag, lag2
         zs.append(v)
         self._cum_list.append(c)
         self._cum2_list.append(c2)
@@ -159,28 +160,42 @@ class SeriesHistory:
         self._lag2_list.append(lag2)
         self.n = n
 
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The arrays, holding every period appended: Z (from index 0: Z(1)) and the running sums of Z, of
+        |Z - Z(1)|^2 and of the lag-1 and lag-2 products (index i: the sum up to period i). Not to be written."""
+        start, n = self._synced, self.n
+        if start < n:
+            self._reserve(n)
+            self._z[start:n] = self._z_list[start:n]
+            self._cum[start + 1:n + 1] = self._cum_list[start + 1:n + 1]
+            self._cum2[start + 1:n + 1] = self._cum2_list[start + 1:n + 1]
+            self._lag[start + 1:n + 1] = self._lag_list[start + 1:n + 1]
+            self._lag2[start + 1:n + 1] = self._lag2_list[start + 1:n + 1]
+            self._synced = n
+        return self._z, self._cum, self._cum2, self._lag, self._lag2
+
     def _reserve(self, need: int) -> None:
-        """Room for ``need`` periods in the arrays."""
+        """Room for ``need`` periods in the arrays (the entries they hold are kept)."""
         if need > self._z.size:
             size = max(need, 2 * self._z.size)
             self._z = np.resize(self._z, size)
             for name in ("_cum", "_cum2", "_lag", "_lag2"):
                 old = getattr(self, name)
                 new = np.zeros(size + 1, dtype=old.dtype)
-                new[: self.n + 1] = old[: self.n + 1]
+                new[: self._synced + 1] = old[: self._synced + 1]
                 setattr(self, name, new)
 
     @property
     def values(self) -> np.ndarray:
         """Z(1..n) as a read-only view."""
-        v = self._z[: self.n]
+        v = self.arrays()[0][: self.n]
         v.flags.writeable = False
         return v
 
     @property
     def cumulative(self) -> np.ndarray:
         """Running sums: ``cumulative[i] = Z(1) + ... + Z(i)``, i = 0..n (read-only view)."""
-        c = self._cum[: self.n + 1]
+        c = self.arrays()[1][: self.n + 1]
         c.flags.writeable = False
         return c
 
@@ -631,11 +646,10 @@ _MAX_DECAY = 0.5  # the most a fitted mode may keep of itself over its window
 _FIT_WINDOW_SHARE = 4  # each of the modal fit's two windows holds 1/this of the analysed periods (min_window at least)
 
 
-@dataclass(frozen=True)
-class ModalFit:
+class ModalFit(NamedTuple):
     """A modal fit of a window: its limit and rms residual (both output units); ``alpha`` the recurrence's
     coefficients (none for a window settled to round-off) and ``tail`` the window's last values (oldest first),
-    from which it forecasts what follows."""
+    from which it forecasts what follows. A named tuple: made at every fit, it costs half a frozen dataclass."""
 
     limit: complex
     residual: float
@@ -655,8 +669,8 @@ class ModalFit:
             errors = [abs(f - v) for f, v in zip(forecast, values, strict=True)]
         else:
             errors = [abs(self.limit - v) for v in values]
-        top = max(errors)
-        return top if sum(errors) == sum(errors) else math.nan  # a NaN anywhere makes the sum NaN
+        total = sum(errors)  # a NaN anywhere makes the sum NaN
+        return max(errors) if total == total else math.nan
 
 
 def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = _MAX_DECAY) -> ModalFit | None:
@@ -667,18 +681,22 @@ def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = _MAX_DECAY) 
     data show the transient dying: every mode must shrink to at most
     ``max_decay`` of itself over the fitted stretch (a mode on or outside the
     unit circle, a beat of a conservative link or a growing response, has no
-    limit). None when the sequence is too short or no limit is shown.
+    limit). None when the sequence is too short, holds a value that is not
+    finite, or no limit is shown.
     """
     return _modal_fit(z, modes, max_decay)[0]
 
 
-def _modal_fit(z: np.ndarray, modes: int, max_decay: float) -> tuple[ModalFit | None, float]:
+def _modal_fit(z: np.ndarray, modes: int, max_decay: float, finite: bool = False) -> tuple[ModalFit | None, float]:
     """:func:`extrapolate_modes`, and the window (periods) over which the slowest mode it refused for not having
     decayed would decay to ``max_decay`` at its fitted rate (inf for a mode on or outside the unit circle; 0 where
-    no mode was refused)."""
+    no mode was refused). finite: the caller knows every value of z to be finite (else it is checked here)."""
     n = z.size
     rows = n - modes
     if rows < modes + 3:
+        return None, 0.0
+    values = np.concatenate((np.ascontiguousarray(z, dtype=complex).view(np.float64), _ONE_ZERO))
+    if not (finite or np.isfinite(values).all()):  # LAPACK, handed one, may print a complaint or return zeros
         return None, 0.0
     if _may_be_settled(z):
         mean = complex(z.sum() / n)
@@ -686,11 +704,12 @@ def _modal_fit(z: np.ndarray, modes: int, max_decay: float) -> tuple[ModalFit | 
             return ModalFit(mean, 0.0), 0.0
     gather, columns = _design(n, modes)
     # the design matrix's columns (Z lagged by 1..modes, the two intercepts) and Z itself over the rows (P then Q
-    # of Z(modes+1..n)), gathered at once; the matrix is then laid out by rows, as the LAPACK wrapper takes it fastest
-    xy = np.concatenate((np.ascontiguousarray(z, dtype=complex).view(np.float64), _ONE_ZERO))[gather]
-    x, y = np.ascontiguousarray(xy[:columns].T), xy[columns]
-    sol = _least_squares(x, y)
-    alpha = sol[:modes].tolist()
+    # of Z(modes+1..n)), gathered at once; the transpose is a column-major view, the layout LAPACK works in (and
+    # overwrites: the residual below is taken on a second gathering)
+    xy = values[gather]
+    sol = _least_squares(xy[:columns].T, xy[columns])
+    found = sol.tolist()
+    alpha = found[:modes]
     # a mode must have decayed over the window, unless it is damped and turns far enough from 1 that the
     # limit does not hang on its decay rate (a rotating mode's mean is its limit); size ** n is taken only
     # below 1, where it cannot overflow
@@ -707,9 +726,10 @@ def _modal_fit(z: np.ndarray, modes: int, max_decay: float) -> tuple[ModalFit | 
     den = 1.0 - (sum(alpha) if modes < 8 else float(sol[:modes].sum()))  # numpy's sum is Python's below 8 terms
     # the residual of the solution returned (LAPACK's own sum of squares is that of the exact least-squares
     # solution, which a badly scaled design can put orders of magnitude lower)
-    resid = y - x @ sol
-    limit = complex(float(sol[modes]), float(sol[modes + 1])) / den
-    residual = math.sqrt(float((resid * resid).sum()) / resid.size) / abs(den)
+    xy = values[gather]
+    resid = xy[columns] - np.dot(sol, xy[:columns])
+    limit = complex(found[modes], found[modes + 1]) / den
+    residual = math.sqrt(float(np.dot(resid, resid)) / resid.size) / abs(den)
     return ModalFit(limit, residual, tuple(alpha), tuple(z[n - modes:].tolist())), 0.0
 
 
@@ -746,29 +766,36 @@ def _design(n: int, modes: int) -> tuple[np.ndarray, int]:
     return found
 
 
-_GELSD: dict[tuple[int, int], tuple[int, int]] = {}  # LAPACK workspace sizes per shape
+_GELSY: dict[tuple[int, int], int] = {}  # LAPACK workspace sizes per shape
 
 
 def _least_squares(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``np.linalg.lstsq(x, y, rcond=None)[0]``: the same LAPACK driver (dgelsd) and cut-off, called directly.
+    """The least-squares solution of x @ sol = y by LAPACK's dgelsy: QR with column pivoting, the rank cut where
+    the triangle's condition estimate passes 1 / (eps max(m, k)).
 
-    numpy's wrapper costs several times the solve of a small system; where LAPACK reports a failure numpy's own
-    call is made instead, so that it fails the way numpy does.
+    The design's columns differ in scale by orders of magnitude (the lagged values against the unit intercepts,
+    the transient against the limit); an SVD cut-off relative to the largest singular value there drops a
+    direction the limit hangs on and leaves errors of 1e-7 of it, where the pivoted QR keeps it and solves to
+    round-off. Called directly: numpy's and scipy's wrappers cost several times the solve of a small system.
+    Where LAPACK reports a failure numpy's lstsq is called instead, so that it fails the way numpy does. LAPACK
+    works in x and y (a column-major x is not copied): both are overwritten.
     """
     lapack = _lapack()
     m, k = x.shape
-    sizes = _GELSD.get((m, k))
-    if sizes is None:
-        work, iwork, info = lapack.dgelsd_lwork(m, k, 1, -1)
+    cond = _EPS * max(m, k)
+    lwork = _GELSY.get((m, k))
+    if lwork is None:
+        work, info = lapack.dgelsy_lwork(m, k, 1, cond)
         if info != 0:
             return np.asarray(np.linalg.lstsq(x, y, rcond=None)[0])
-        if len(_GELSD) > 4096:
-            _GELSD.clear()
-        sizes = _GELSD[(m, k)] = (int(work), int(iwork))
-    sol, _, _, info = lapack.dgelsd(x, y, sizes[0], sizes[1], _EPS * max(m, k))
-    if info != 0:
+        if len(_GELSY) > 4096:
+            _GELSY.clear()
+        lwork = _GELSY[(m, k)] = int(work)
+    # the pivot order is written in place: a fresh one (all free columns) each call
+    sol, info = lapack.dgelsy(x, y, np.zeros(k, dtype=np.intc), cond, lwork, overwrite_a=1, overwrite_b=1)[1::3]
+    if info != 0:  # an argument refused, before any work: x and y are as they were
         return np.asarray(np.linalg.lstsq(x, y, rcond=None)[0])
-    return np.asarray(sol[:k])
+    return sol[:k]
 
 
 @functools.cache
@@ -812,6 +839,15 @@ def _recurrence(last: Sequence[complex], alpha: Sequence[float], limit: complex,
     coef = [float(v) for v in alpha]
     order = len(coef)
     past = [complex(v) - limit for v in last[::-1]]  # the most recent deviation first
+    if order == 2:  # the two-mode fit's, unrolled: the same arithmetic in locals
+        c0, c1 = coef
+        s0, s1 = c0 * past[0] + c1 * past[1], c1 * past[0]
+        out2 = []
+        for _ in range(steps):
+            y = s0
+            s0, s1 = s1 + y * c0, y * c1
+            out2.append(limit + y)
+        return out2
     state = [sum(coef[m + k] * past[k] for k in range(order - m)) for m in range(order)]
     out = []
     for _ in range(steps):
@@ -901,7 +937,8 @@ class _ScreenTable:
         length = (n - skip) // _BLOCKS
         edges = n - _BLOCKS * length + length * np.arange(_BLOCKS + 1)[:, None]  # block edges, one row each
         size = length.astype(float)
-        cum, cum2, z0 = hist._cum, hist._cum2, hist._first
+        _, cum, cum2, lag_sums, _ = hist.arrays()
+        z0 = hist._first
         c = cum[edges]
         means = _divide(c[1:] - c[:-1], size)  # the four block means
         sq = cum2[edges[1:]]
@@ -912,7 +949,7 @@ class _ScreenTable:
         shift = _divide(c[4] - c[1], span.astype(float)) - z0
         inner = c[4] - cum[e1 + 1] - z0 * (span - 1)
         outer = cum[n - 1] - c[1] - z0 * (span - 1)
-        cov = (hist._lag[n] - hist._lag[e1 + 1]) - inner * np.conj(shift) - shift * np.conj(outer) \
+        cov = (lag_sums[n] - lag_sums[e1 + 1]) - inner * np.conj(shift) - shift * np.conj(outer) \
             + (span - 1) * np.abs(shift) ** 2
         spread = np.maximum(sq[3] - sq[0] - span * np.abs(shift) ** 2, 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -965,7 +1002,8 @@ def _two_mode_fit_floors(hist: SeriesHistory, skip: int, n: np.ndarray, min_wind
     s = np.maximum(n - 2 * w, 0)
     rows = w - 2
     end = s + w
-    cum, cum2, lag, lag2, z0 = hist._cum, hist._cum2, hist._lag, hist._lag2, hist._first
+    _, cum, cum2, lag, lag2 = hist.arrays()
+    z0 = hist._first
     d0 = cum[end] - cum[s + 2] - rows * z0
     d1 = cum[end - 1] - cum[s + 1] - rows * z0
     d2 = cum[end - 2] - cum[s] - rows * z0
@@ -1048,7 +1086,7 @@ class AdaptiveRule(StoppingRule):
         self.min_window = min_window
         self.min_periods = min_periods
         self.screened = screened
-        self._next_fit = 0  # the fit's schedule: its next period
+        self._next_fit = skip_periods + 2 * min_window  # the fit's schedule: its next period (first with two windows)
         self._fit_put_off = 0  # no fit before this period (a mode refused for its slow decay)
         self._refused_needs = 0.0  # the window a mode refused at the last fit made would decay over (0: none)
         self._table: _ScreenTable | None = None
@@ -1079,7 +1117,10 @@ class AdaptiveRule(StoppingRule):
                     return None
                 self._screens_passed += 1
                 self._screening = self._screens_passed < _SCREENS_IN_VAIN
-        confirmed, needed = self._fit_windows(hist.values, n, w, e, reference, screened)
+        # the running sum of squares is finite over the windows only where every value in them is
+        cum2 = hist._cum2_list
+        finite = math.isfinite(cum2[n] - cum2[n - 2 * w])
+        confirmed, needed = self._fit_windows(hist.values, n, w, e, reference, screened, finite)
         # a mode refused for its slow decay twice running at rates that agree: no fit before the windows are long
         # enough for it to decay (the first period whose w reaches needed), nor later than fit_delay periods after
         # the next one due
@@ -1088,11 +1129,12 @@ class AdaptiveRule(StoppingRule):
             self._fit_put_off = min(n + 1 + self.fit_delay, self.skip + _FIT_WINDOW_SHARE * math.ceil(needed))
         return confirmed
 
-    def _fit_windows(self, z: np.ndarray, n: int, w: int, e: float, reference: float, screened: bool
-                     ) -> tuple[tuple[complex, float] | None, float]:
+    def _fit_windows(self, z: np.ndarray, n: int, w: int, e: float, reference: float, screened: bool,
+                     finite: bool = False) -> tuple[tuple[complex, float] | None, float]:
         """:meth:`_extrapolated`'s fits of the windows of w periods before n: (limit, bound) or None, and the
-        window over which a mode refused for its slow decay would decay (0: none refused)."""
-        first, needed = _modal_fit(z[n - 2 * w:n - w], self.modes, _MAX_DECAY)
+        window over which a mode refused for its slow decay would decay (0: none refused). finite: every value in
+        the windows is known to be finite."""
+        first, needed = _modal_fit(z[n - 2 * w:n - w], self.modes, _MAX_DECAY, finite)
         if first is None:
             return None, needed
         # screened: the bound holds the prediction error, twice the first residual and the gap between the limits,
@@ -1105,7 +1147,7 @@ class AdaptiveRule(StoppingRule):
         prediction_error = first.forecast_error(z[n - w:n])
         if prediction_error > ceiling:
             return None, 0.0
-        second, needed = _modal_fit(z[n - w:n], self.modes, _MAX_DECAY)
+        second, needed = _modal_fit(z[n - w:n], self.modes, _MAX_DECAY, finite)
         if second is None:
             return None, needed
         bound = abs(first.limit - second.limit) + 2.0 * max(first.residual, second.residual)
