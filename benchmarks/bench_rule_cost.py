@@ -28,7 +28,8 @@ never dies: capped at max_periods): the default rule's cost per period over peri
 ``--against REV``: instead, the default rule of this tree against the one of git revision REV (its
 bodebench/core/rules.py, loaded beside this one), replayed in one process series by series in turn (least of
 ``--repeat`` each), on the same four grids: both figures, their ratio, whether every series stopped at the same
-period with the same status and method, and how far apart the values are (relative). Turn by turn, a machine whose speed wanders slows both alike.
+period with the same status and method, and how far apart the values are (relative). Turn by turn, a machine
+whose speed wanders slows both alike.
 
 Target: at most 5 us per period per series. Prints figures only.
 """
