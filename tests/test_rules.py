@@ -195,6 +195,28 @@ def test_a_window_with_a_value_that_is_not_finite_has_no_limit(bad: complex, whe
     assert capfd.readouterr() == ("", "")
 
 
+def test_a_history_knows_which_stretches_hold_only_finite_values(capfd: pytest.CaptureFixture[str]) -> None:
+    """SeriesHistory.all_finite against numpy's isfinite over every stretch of a series with a NaN and an inf in
+    it (before them: True; any stretch after the first: False, the running sums being spoilt from there on), and
+    the default rule checking such a series period by period: no fit handed to LAPACK, nothing on the terminal."""
+    i = np.arange(1, 81)
+    z = (0.3 - 0.7j + 0.5 * (0.8 * np.exp(0.4j)) ** i).astype(complex)
+    z[40], z[55] = complex(math.nan, 0.0), complex(0.0, math.inf)
+    for pieces in ([80], [1] * 80):
+        hist = SeriesHistory()
+        for chunk in np.split(z, np.cumsum(pieces)[:-1]):
+            hist.extend(chunk)
+        for a in range(80):
+            for b in range(a + 1, 81):
+                assert hist.all_finite(a, b) == (b <= 40), (a, b)
+    rule = AdaptiveRule(0.01, 1)
+    hist = SeriesHistory()
+    for n in range(1, 81):
+        hist.append(z[n - 1])
+        rule.check(hist, n, 1.0)
+    assert capfd.readouterr() == ("", "")
+
+
 def test_extrapolation_refuses_a_beat_that_never_decays() -> None:
     i = np.arange(1, 200)
     z = 1.0 + 0.5 * np.exp(0.05j * i)  # conservative link: a mode on the unit circle

@@ -115,7 +115,7 @@ class SeriesHistory:
             for v in z.tolist():
                 self.append(v)
             return
-        self.arrays()
+        self._sync()
         n, need = self.n, self.n + z.size
         self._reserve(need)
         self._z[n:need] = z
@@ -163,6 +163,11 @@ class SeriesHistory:
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The arrays, holding every period appended: Z (from index 0: Z(1)) and the running sums of Z, of
         |Z - Z(1)|^2 and of the lag-1 and lag-2 products (index i: the sum up to period i). Not to be written."""
+        self._sync()
+        return self._z, self._cum, self._cum2, self._lag, self._lag2
+
+    def _sync(self) -> None:
+        """Write the periods appended since the arrays were last read into them, one slice per array."""
         start, n = self._synced, self.n
         if start < n:
             self._reserve(n)
@@ -172,7 +177,11 @@ class SeriesHistory:
             self._lag[start + 1:n + 1] = self._lag_list[start + 1:n + 1]
             self._lag2[start + 1:n + 1] = self._lag2_list[start + 1:n + 1]
             self._synced = n
-        return self._z, self._cum, self._cum2, self._lag, self._lag2
+
+    def all_finite(self, a: int, b: int) -> bool:
+        """Whether Z(a+1..b) are all finite, from the running sum of squares (O(1)): a value that is not finite
+        makes every later sum infinite or NaN. False also where the sum itself overflows (|Z| above ~1e154)."""
+        return math.isfinite(self._cum2_list[b] - self._cum2_list[a])
 
     def _reserve(self, need: int) -> None:
         """Room for ``need`` periods in the arrays (the entries they hold are kept)."""
@@ -1117,10 +1126,8 @@ class AdaptiveRule(StoppingRule):
                     return None
                 self._screens_passed += 1
                 self._screening = self._screens_passed < _SCREENS_IN_VAIN
-        # the running sum of squares is finite over the windows only where every value in them is
-        cum2 = hist._cum2_list
-        finite = math.isfinite(cum2[n] - cum2[n - 2 * w])
-        confirmed, needed = self._fit_windows(hist.values, n, w, e, reference, screened, finite)
+        confirmed, needed = self._fit_windows(hist.values, n, w, e, reference, screened,
+                                              hist.all_finite(n - 2 * w, n))
         # a mode refused for its slow decay twice running at rates that agree: no fit before the windows are long
         # enough for it to decay (the first period whose w reaches needed), nor later than fit_delay periods after
         # the next one due
