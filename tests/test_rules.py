@@ -657,3 +657,32 @@ def test_a_clean_series_near_round_off_states_what_its_fit_leaves() -> None:
     assert verdict.status == CONVERGED
     assert error <= verdict.uncertainty
     assert error <= eps / 100 * abs(limit)
+
+
+@pytest.mark.parametrize("modes", [1, 2, 3])
+def test_the_fit_residual_is_the_rms_error_of_the_recurrence_it_returns(modes: int) -> None:
+    """The modal fit's residual against the one-step errors of the recurrence it returns, worked out here with
+    numpy from its alpha and limit (intercept = limit (1 - sum alpha)): their rms over the P and Q rows of the
+    window, over |1 - sum alpha|. Windows of one to three decaying modes with noise well above round-off."""
+    rng = np.random.default_rng(11)
+    checked = 0
+    for _ in range(150):
+        n = int(rng.integers(2 * modes + 3, 80))
+        i = np.arange(n)
+        limit = complex(rng.normal(), rng.normal())
+        z = np.full(n, limit)
+        for _ in range(int(rng.integers(1, 4))):
+            lam = rng.uniform(0.3, 0.95) * np.exp(1j * rng.uniform(-3.0, 3.0))
+            z = z + complex(rng.normal(), rng.normal()) * lam ** i
+        z = z + 1e-4 * (rng.normal(size=n) + 1j * rng.normal(size=n))
+        fit, _ = _modal_fit(z, modes, 1.0)
+        if fit is None or not fit.alpha:
+            continue
+        alpha = np.array(fit.alpha)
+        den = 1.0 - alpha.sum()
+        predicted = fit.limit * den + sum(alpha[r - 1] * z[modes - r:n - r] for r in range(1, modes + 1))
+        errors = z[modes:] - predicted
+        expected = math.sqrt(float(np.sum(np.abs(errors) ** 2)) / (2 * errors.size)) / abs(den)
+        assert fit.residual == pytest.approx(expected, rel=1e-6)
+        checked += 1
+    assert checked > 100

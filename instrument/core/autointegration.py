@@ -51,6 +51,16 @@ class AnalysisSettings(Protocol):
     @property
     def max_discarded_percent(self) -> float: ...
 
+def _all_finite(p: list[list[list[float]]], q: list[list[list[float]]]) -> bool:
+    """Whether nested lists of P and Q (period x channel x harmonic) hold finite numbers only; False also where the
+    sum of a row overflows (the caller's general path then looks at each value)."""
+    for p_period, q_period in zip(p, q, strict=True):
+        for p_row, q_row in zip(p_period, q_period, strict=True):
+            if not math.isfinite(sum(p_row) + sum(q_row)):
+                return False
+    return True
+
+
 class GapsError(ValueError):
     """A point of which too many periods were discarded for gaps in its samples; the message says how many."""
 
@@ -159,12 +169,12 @@ class Autointegrator:
         if m == 0:
             return 0
         if m <= _FEW_PERIODS and self.reference is None:
-            few = self._few_values(p.tolist(), q.tolist(), whole.tolist())
-            if few is not None:
+            p_lists, q_lists = p.tolist(), q.tolist()
+            if all(whole.tolist()) and _all_finite(p_lists, q_lists):
                 if self.done:
                     self.periods += m
                 else:
-                    self._take(*few)
+                    self._take(p_lists, q_lists)
                 return m
         whole &= self._usable(p, q)
         if not whole.all():
@@ -186,28 +196,6 @@ class Autointegrator:
         if self.reference is not None:
             ok &= np.hypot(p[:, -1, self._ref_index], q[:, -1, self._ref_index]) >= RESOLUTION * self.amplitude
         return ok
-
-    def _few_values(self, p: list[list[list[float]]], q: list[list[list[float]]], whole: list[bool]
-                    ) -> tuple[list[list[list[complex]]], list[list[float]]] | None:
-        """One-channel mode: the coefficients Z = P + jQ of a few whole periods, per period, channel and harmonic,
-        and each period's scale of each channel (its largest |Z|), on Python scalars (numpy's cost per call
-        exceeds the arithmetic); None where a period is not whole or a coefficient not finite (:meth:`_usable`),
-        for the general path."""
-        if not all(whole):
-            return None
-        out, scales = [], []
-        for p_period, q_period in zip(p, q, strict=True):
-            rows, tops = [], []
-            for p_row, q_row in zip(p_period, q_period, strict=True):
-                row = list(map(complex, p_row, q_row))
-                sizes = list(map(abs, row))
-                if not math.isfinite(sum(sizes)):  # |Z| is inf or NaN where Z is not finite
-                    return None
-                rows.append(row)
-                tops.append(max(sizes))
-            out.append(rows)
-            scales.append(tops)
-        return out, scales
 
     def _feed_with_gaps(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> int:
         """Periods some of which a gap touched: each run of whole periods integrated, each discarded one counted
@@ -241,8 +229,7 @@ class Autointegrator:
             z = z[:, :-1, : len(self.harmonics)] * (self.amplitude / np.abs(z_ref))[:, None, None] \
                 * rotation[:, None, None] ** powers[None, None, :]
         if m <= _FEW_PERIODS:
-            values = z.tolist()
-            self._take(values, [[max(abs(v) for v in row) for row in period] for period in values])
+            self._take(z.real.tolist(), z.imag.tolist())
             return
         for c, row in enumerate(self._histories):
             for k, hist in enumerate(row):
@@ -250,14 +237,23 @@ class Autointegrator:
         # each channel's scale: its largest coefficient of the period (output units)
         self._judge(m, np.max(np.abs(z), axis=2).tolist())
 
-    def _take(self, values: list[list[list[complex]]], scales: list[list[float]]) -> None:
-        """A few whole periods' coefficients, per period, channel and harmonic, into the histories and the rules;
-        scales: each period's largest |Z| of each channel (output units)."""
-        for period in values:
-            for row, histories in zip(period, self._histories, strict=True):
-                for v, hist in zip(row, histories, strict=True):
+    def _take(self, p: list[list[list[float]]], q: list[list[list[float]]]) -> None:
+        """A few whole periods' coefficients P and Q, per period, channel and harmonic (output units), into the
+        histories and the rules, on Python scalars (numpy's cost per call exceeds the arithmetic)."""
+        references = []
+        histories = self._histories
+        for p_period, q_period in zip(p, q, strict=True):
+            scales = []  # each channel's largest |Z| of the period
+            for p_row, q_row, row_histories in zip(p_period, q_period, histories, strict=True):
+                top = 0.0
+                for v, hist in zip(map(complex, p_row, q_row), row_histories, strict=True):
                     hist.append(v)
-        self._judge(len(values), scales)
+                    size = abs(v)
+                    if size > top:
+                        top = size
+                scales.append(top)
+            references.append(scales)
+        self._judge(len(references), references)
 
     def _judge(self, m: int, references: list[list[float]]) -> None:
         """The rules' verdicts on the m periods just appended to the histories; references: each period's scale

@@ -673,12 +673,23 @@ class ModalFit(NamedTuple):
         """The largest |forecast - value| over the values that followed the window (output units; NaN where a
         forecast is not a number): ``max(abs(forecast - following))`` without making the forecast an array."""
         values = following.tolist()
-        if self.alpha:
-            forecast = _recurrence(self.tail, self.alpha, self.limit, len(values))
-            errors = [abs(f - v) for f, v in zip(forecast, values, strict=True)]
-        else:
-            errors = [abs(self.limit - v) for v in values]
-        total = sum(errors)  # a NaN anywhere makes the sum NaN
+        limit = self.limit
+        if len(self.alpha) == 2:  # the two-mode fit's recurrence (as _recurrence runs it), unrolled in locals
+            c0, c1 = self.alpha
+            p1, p0 = self.tail[0] - limit, self.tail[1] - limit
+            s0, s1 = c0 * p0 + c1 * p1, c1 * p0
+            worst = total = 0.0
+            for v in values:
+                y = s0
+                s0, s1 = s1 + y * c0, y * c1
+                error = abs(limit + y - v)
+                total += error
+                if error > worst:
+                    worst = error
+            return worst if total == total else math.nan  # a NaN anywhere makes the sum NaN
+        forecast = _recurrence(self.tail, self.alpha, limit, len(values)) if self.alpha else [limit] * len(values)
+        errors = [abs(f - v) for f, v in zip(forecast, values, strict=True)]
+        total = sum(errors)
         return max(errors) if total == total else math.nan
 
 
@@ -701,23 +712,26 @@ def _modal_fit(z: np.ndarray, modes: int, max_decay: float, finite: bool = False
     decayed would decay to ``max_decay`` at its fitted rate (inf for a mode on or outside the unit circle; 0 where
     no mode was refused). finite: the caller knows every value of z to be finite (else it is checked here)."""
     n = z.size
-    rows = n - modes
-    if rows < modes + 3:
+    if n - modes < modes + 3:
         return None, 0.0
-    values = np.concatenate((np.ascontiguousarray(z, dtype=complex).view(np.float64), _ONE_ZERO))
+    z = np.ascontiguousarray(z, dtype=complex)
+    values = np.empty(2 * n + 2)  # (P(1), Q(1), ..., P(n), Q(n), 1, 0): the intercepts' entries last
+    values[:-2] = z.view(np.float64)
+    values[-2] = 1.0
+    values[-1] = 0.0
     if not (finite or np.isfinite(values).all()):  # LAPACK, handed one, may print a complaint or return zeros
         return None, 0.0
     if _may_be_settled(z):
         mean = complex(z.sum() / n)
         if float(np.abs(z - mean).max()) <= _ROUND_OFF * abs(mean):  # settled to round-off: no mode to fit
             return ModalFit(mean, 0.0), 0.0
-    gather, columns = _design(n, modes)
+    design = _DESIGNS.get((n, modes)) or _design(n, modes)
+    columns = modes + 2
     # the design matrix's columns (Z lagged by 1..modes, the two intercepts) and Z itself over the rows (P then Q
-    # of Z(modes+1..n)), gathered at once; the transpose is a column-major view, the layout LAPACK works in (and
-    # overwrites: the residual below is taken on a second gathering)
-    xy = values[gather]
-    sol = _least_squares(xy[:columns].T, xy[columns])
-    found = sol.tolist()
+    # of Z(modes+1..n)), gathered at once; the transpose is a column-major view, the layout LAPACK works in
+    xy = values[design.gather]
+    sol = _least_squares(xy, design)
+    found = sol[:columns].tolist()
     alpha = found[:modes]
     # a mode must have decayed over the window, unless it is damped and turns far enough from 1 that the
     # limit does not hang on its decay rate (a rotating mode's mean is its limit); size ** n is taken only
@@ -734,11 +748,12 @@ def _modal_fit(z: np.ndarray, modes: int, max_decay: float, finite: bool = False
         return None, needed
     den = 1.0 - (sum(alpha) if modes < 8 else float(sol[:modes].sum()))  # numpy's sum is Python's below 8 terms
     # the residual of the solution returned (LAPACK's own sum of squares is that of the exact least-squares
-    # solution, which a badly scaled design can put orders of magnitude lower)
-    xy = values[gather]
-    resid = xy[columns] - np.dot(sol, xy[:columns])
+    # solution, which a badly scaled design can put orders of magnitude lower): with -1 after the solution, the
+    # product with the gathered columns and values is (design @ solution - values), row by row
+    sol[columns] = -1.0
+    resid = sol[:columns + 1].dot(xy)  # the method: numpy's function adds a dispatch to the same product
     limit = complex(found[modes], found[modes + 1]) / den
-    residual = math.sqrt(float(np.dot(resid, resid)) / resid.size) / abs(den)
+    residual = math.sqrt(float(resid.dot(resid)) / resid.size) / abs(den)
     return ModalFit(limit, residual, tuple(alpha), tuple(z[n - modes:].tolist())), 0.0
 
 
@@ -747,64 +762,64 @@ def _may_be_settled(z: np.ndarray) -> bool:
     (every value within _ROUND_OFF |mean| of its mean) allows: 2 _ROUND_OFF |mean| <= 2 _ROUND_OFF |Z(1)| (1 + 2
     _ROUND_OFF), with a margin for the round-off of the comparison. True also where the first or last value is
     not a number, and where |Z(1)| is so small that the bound itself rounds (below 1e-280)."""
-    first, last = complex(z[0]), complex(z[-1])
+    first, last = z.item(0), z.item(-1)  # Python complex numbers
     size = abs(first)
     return not (abs(first - last) > 2.0 * _ROUND_OFF * (1.0 + 1e-6) * size and size > 1e-280)
 
 
-_ONE_ZERO = np.array([1.0, 0.0])  # appended to the interleaved (P, Q) values: the intercepts' entries
-_DESIGNS: dict[tuple[int, int], tuple[np.ndarray, int]] = {}
+class _Design(NamedTuple):
+    """A window shape's least-squares problem: ``gather`` indexes (P(1), Q(1), ..., P(n), Q(n), 1, 0) to make,
+    one row each, the design matrix's columns (Z lagged by 1..modes, the P and Q intercepts) and then the fitted
+    values Z(t), over the fit's rows (P then Q of Z(modes+1..n)); ``lwork`` is LAPACK's workspace for it (0:
+    its query failed) and ``cond`` the condition at which dgelsy cuts the rank."""
+
+    gather: np.ndarray
+    lwork: int
+    cond: float
 
 
-def _design(n: int, modes: int) -> tuple[np.ndarray, int]:
-    """For a window of n values: indices into (P(1), Q(1), ..., P(n), Q(n), 1, 0) that make, one row each, the
-    columns of the design matrix (Z lagged by 1..modes, the P and Q intercepts) and then the fitted values Z(t),
-    over the fit's rows (P then Q of Z(modes+1..n)); and the number of design columns (cached per shape)."""
-    key = (n, modes)
-    found = _DESIGNS.get(key)
-    if found is None:
-        t = np.arange(modes, n)  # 0-based index of Z(t) for the rows
-        one, zero = 2 * n, 2 * n + 1
-        p_rows = [2 * (t - r) for r in range(1, modes + 1)] + [np.full(t.size, one), np.full(t.size, zero), 2 * t]
-        q_rows = [2 * (t - r) + 1 for r in range(1, modes + 1)] + [np.full(t.size, zero), np.full(t.size, one),
-                                                                   2 * t + 1]
-        gather = np.concatenate((np.stack(p_rows), np.stack(q_rows)), axis=1)
-        if len(_DESIGNS) > 1024:
-            _DESIGNS.clear()
-        found = _DESIGNS[key] = (gather, modes + 2)
-    return found
+_DESIGNS: dict[tuple[int, int], _Design] = {}
 
 
-_GELSY: dict[tuple[int, int], int] = {}  # LAPACK workspace sizes per shape
+def _design(n: int, modes: int) -> _Design:
+    """The least-squares problem of a window of n values fitted with ``modes`` modes (cached per shape)."""
+    t = np.arange(modes, n)  # 0-based index of Z(t) for the rows
+    one, zero = 2 * n, 2 * n + 1
+    p_rows = [2 * (t - r) for r in range(1, modes + 1)] + [np.full(t.size, one), np.full(t.size, zero), 2 * t]
+    q_rows = [2 * (t - r) + 1 for r in range(1, modes + 1)] + [np.full(t.size, zero), np.full(t.size, one),
+                                                               2 * t + 1]
+    gather = np.concatenate((np.stack(p_rows), np.stack(q_rows)), axis=1)
+    m, k = gather.shape[1], modes + 2
+    cond = _EPS * max(m, k)
+    work, info = _lapack().dgelsy_lwork(m, k, 1, cond)
+    if len(_DESIGNS) > 1024:
+        _DESIGNS.clear()
+    design = _DESIGNS[(n, modes)] = _Design(gather, int(work) if info == 0 else 0, cond)
+    return design
 
 
-def _least_squares(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The least-squares solution of x @ sol = y by LAPACK's dgelsy: QR with column pivoting, the rank cut where
-    the triangle's condition estimate passes 1 / (eps max(m, k)).
+def _least_squares(xy: np.ndarray, design: _Design) -> np.ndarray:
+    """The least-squares solution of x @ sol = y, x the first ``modes + 2`` rows of xy transposed and y its last
+    row, by LAPACK's dgelsy: QR with column pivoting, the rank cut where the triangle's condition estimate passes
+    1 / (eps max(m, k)). Returned with the m - k entries LAPACK leaves after it (an array of xy's row length; the
+    caller may write there); xy is left as it was.
 
     The design's columns differ in scale by orders of magnitude (the lagged values against the unit intercepts,
     the transient against the limit); an SVD cut-off relative to the largest singular value there drops a
     direction the limit hangs on and leaves errors of 1e-7 of it, where the pivoted QR keeps it and solves to
     round-off. Called directly: numpy's and scipy's wrappers cost several times the solve of a small system.
-    Where LAPACK reports a failure numpy's lstsq is called instead, so that it fails the way numpy does. LAPACK
-    works in x and y (a column-major x is not copied): both are overwritten.
+    Where LAPACK reports a failure numpy's lstsq is called instead, so that it fails the way numpy does.
     """
-    lapack = _lapack()
-    m, k = x.shape
-    cond = _EPS * max(m, k)
-    lwork = _GELSY.get((m, k))
-    if lwork is None:
-        work, info = lapack.dgelsy_lwork(m, k, 1, cond)
-        if info != 0:
-            return np.asarray(np.linalg.lstsq(x, y, rcond=None)[0])
-        if len(_GELSY) > 4096:
-            _GELSY.clear()
-        lwork = _GELSY[(m, k)] = int(work)
-    # the pivot order is written in place: a fresh one (all free columns) each call
-    sol, info = lapack.dgelsy(x, y, np.zeros(k, dtype=np.intc), cond, lwork, overwrite_a=1, overwrite_b=1)[1::3]
-    if info != 0:  # an argument refused, before any work: x and y are as they were
-        return np.asarray(np.linalg.lstsq(x, y, rcond=None)[0])
-    return sol[:k]
+    k = xy.shape[0] - 1
+    x, y = xy[:k].T, xy[k]
+    if design.lwork:
+        # the pivot order is read and written: a fresh one (all free columns) each call; LAPACK works on copies
+        out = _lapack().dgelsy(x, y, np.zeros(k, dtype=np.intc), design.cond, design.lwork)
+        if out[4] == 0:  # else an argument refused, before any work
+            return out[1]
+    sol = np.zeros(y.size)
+    sol[:k] = np.linalg.lstsq(x, y, rcond=None)[0]
+    return sol
 
 
 @functools.cache
@@ -848,15 +863,6 @@ def _recurrence(last: Sequence[complex], alpha: Sequence[float], limit: complex,
     coef = [float(v) for v in alpha]
     order = len(coef)
     past = [complex(v) - limit for v in last[::-1]]  # the most recent deviation first
-    if order == 2:  # the two-mode fit's, unrolled: the same arithmetic in locals
-        c0, c1 = coef
-        s0, s1 = c0 * past[0] + c1 * past[1], c1 * past[0]
-        out2 = []
-        for _ in range(steps):
-            y = s0
-            s0, s1 = s1 + y * c0, y * c1
-            out2.append(limit + y)
-        return out2
     state = [sum(coef[m + k] * past[k] for k in range(order - m)) for m in range(order)]
     out = []
     for _ in range(steps):
@@ -1075,10 +1081,10 @@ class AdaptiveRule(StoppingRule):
     ``fit_delay`` periods at most (far above resonance a slow mode is refused for dozens of periods in a row;
     a fitted rate that wanders, or a mode on the unit circle, puts nothing off: a fit may pass at isolated
     periods there).
-    After eight screens in a row that spared no fit, fits are made unscreened until one fails on its residual
-    (a clean series, whose fits all explain their windows, is not screened in vain at every period). A screen
-    only skips analyses that cannot give a verdict, so with ``fit_delay=0`` (no fit put off) the stop is the one
-    the full analysis at every period of the schedule gives (``screened=False, fit_delay=0`` runs that, for
+    Fits are made unscreened until one fails on its residual, then screened until eight screens in a row have
+    spared none (a clean series, whose fits all explain their windows, is not screened in vain at every period).
+    A screen only skips analyses that cannot give a verdict, so with ``fit_delay=0`` (no fit put off) the stop is
+    the one the full analysis at every period of the schedule gives (``screened=False, fit_delay=0`` runs that, for
     comparison).
     """
 
@@ -1099,7 +1105,7 @@ class AdaptiveRule(StoppingRule):
         self._fit_put_off = 0  # no fit before this period (a mode refused for its slow decay)
         self._refused_needs = 0.0  # the window a mode refused at the last fit made would decay over (0: none)
         self._table: _ScreenTable | None = None
-        self._screening = True  # whether the next fit is screened first
+        self._screening = False  # whether the next fit is screened first
         self._screens_passed = 0  # screens passed in a row since the last that spared a fit
 
     def _extrapolated(self, hist: SeriesHistory, n: int, reference: float) -> tuple[complex, float] | None:
@@ -1126,7 +1132,7 @@ class AdaptiveRule(StoppingRule):
                     return None
                 self._screens_passed += 1
                 self._screening = self._screens_passed < _SCREENS_IN_VAIN
-        confirmed, needed = self._fit_windows(hist.values, n, w, e, reference, screened,
+        confirmed, needed = self._fit_windows(hist.arrays()[0], n, w, e, reference, screened,
                                               hist.all_finite(n - 2 * w, n))
         # a mode refused for its slow decay twice running at rates that agree: no fit before the windows are long
         # enough for it to decay (the first period whose w reaches needed), nor later than fit_delay periods after
