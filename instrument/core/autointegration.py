@@ -51,16 +51,6 @@ class AnalysisSettings(Protocol):
     @property
     def max_discarded_percent(self) -> float: ...
 
-def _all_finite(p: list[list[list[float]]], q: list[list[list[float]]]) -> bool:
-    """Whether nested lists of P and Q (period x channel x harmonic) hold finite numbers only; False also where the
-    sum of a row overflows (the caller's general path then looks at each value)."""
-    for p_period, q_period in zip(p, q, strict=True):
-        for p_row, q_row in zip(p_period, q_period, strict=True):
-            if not math.isfinite(sum(p_row) + sum(q_row)):
-                return False
-    return True
-
-
 class GapsError(ValueError):
     """A point of which too many periods were discarded for gaps in its samples; the message says how many."""
 
@@ -131,6 +121,7 @@ class Autointegrator:
             PeriodIntegrator(frequency_hz, harmonics, columns, t0,
                              max_gap=self.max_gap_periods if check_gaps else math.inf))
         self._histories = [[SeriesHistory() for _ in self.harmonics] for _ in self.channels]
+        self._series = [hist for row in self._histories for hist in row]  # channel by channel, harmonic by harmonic
         self._rules: list[list[StoppingRule]] = [
             [make_rule(analysis.criterion, tolerance_percent=analysis.tolerance_percent,
                        skip_periods=analysis.skip_periods, window=analysis.window,
@@ -169,12 +160,13 @@ class Autointegrator:
         if m == 0:
             return 0
         if m <= _FEW_PERIODS and self.reference is None:
-            p_lists, q_lists = p.tolist(), q.tolist()
-            if all(whole.tolist()) and _all_finite(p_lists, q_lists):
+            values = list(map(complex, p.ravel().tolist(), q.ravel().tolist()))
+            sizes = list(map(abs, values))
+            if all(whole.tolist()) and math.isfinite(sum(sizes)):  # |Z| is inf or NaN where Z is not finite
                 if self.done:
                     self.periods += m
                 else:
-                    self._take(p_lists, q_lists)
+                    self._take(values, sizes)
                 return m
         whole &= self._usable(p, q)
         if not whole.all():
@@ -229,7 +221,8 @@ class Autointegrator:
             z = z[:, :-1, : len(self.harmonics)] * (self.amplitude / np.abs(z_ref))[:, None, None] \
                 * rotation[:, None, None] ** powers[None, None, :]
         if m <= _FEW_PERIODS:
-            self._take(z.real.tolist(), z.imag.tolist())
+            values = z.ravel().tolist()
+            self._take(values, list(map(abs, values)))
             return
         for c, row in enumerate(self._histories):
             for k, hist in enumerate(row):
@@ -237,22 +230,18 @@ class Autointegrator:
         # each channel's scale: its largest coefficient of the period (output units)
         self._judge(m, np.max(np.abs(z), axis=2).tolist())
 
-    def _take(self, p: list[list[list[float]]], q: list[list[list[float]]]) -> None:
-        """A few whole periods' coefficients P and Q, per period, channel and harmonic (output units), into the
-        histories and the rules, on Python scalars (numpy's cost per call exceeds the arithmetic)."""
+    def _take(self, values: list[complex], sizes: list[float]) -> None:
+        """A few whole periods' coefficients (output units), period by period, channel by channel, harmonic by
+        harmonic, and their sizes |Z|, into the histories and the rules, on Python scalars (numpy's cost per call
+        exceeds the arithmetic)."""
+        series = self._series
+        count, harmonics = len(series), len(self.harmonics)
         references = []
-        histories = self._histories
-        for p_period, q_period in zip(p, q, strict=True):
-            scales = []  # each channel's largest |Z| of the period
-            for p_row, q_row, row_histories in zip(p_period, q_period, histories, strict=True):
-                top = 0.0
-                for v, hist in zip(map(complex, p_row, q_row), row_histories, strict=True):
-                    hist.append(v)
-                    size = abs(v)
-                    if size > top:
-                        top = size
-                scales.append(top)
-            references.append(scales)
+        for start in range(0, len(values), count):
+            for hist, v in zip(series, values[start:start + count], strict=True):
+                hist.append(v)
+            # each channel's scale: its largest coefficient of the period
+            references.append([max(sizes[first:first + harmonics]) for first in range(start, start + count, harmonics)])
         self._judge(len(references), references)
 
     def _judge(self, m: int, references: list[list[float]]) -> None:
