@@ -686,3 +686,20 @@ def test_the_fit_residual_is_the_rms_error_of_the_recurrence_it_returns(modes: i
         assert fit.residual == pytest.approx(expected, rel=1e-6)
         checked += 1
     assert checked > 100
+
+
+def test_a_fit_whose_workspace_query_failed_is_solved_by_numpy_to_the_same_limit(monkeypatch: pytest.MonkeyPatch
+                                                                                 ) -> None:
+    """Where LAPACK's workspace query for a window length failed, the fit is solved by numpy's lstsq instead: the
+    same limit and residual as dgelsy's (to 1e-12 on a well-conditioned window), the fit otherwise unchanged."""
+    i = np.arange(40)
+    z = (0.3 - 0.2j) + (0.5 + 0.1j) * (0.8 * np.exp(0.6j)) ** i + 0.2 * 0.6 ** i
+    z = z + 1e-3 * np.random.default_rng(2).normal(size=(40, 2)) @ np.array([1.0, 1.0j])
+    lapack_fit, _ = _modal_fit(z, 2, 0.5)
+    design = rules._design(z.size, 2)
+    monkeypatch.setitem(rules._DESIGNS, (z.size, 2), design._replace(lwork=0))
+    numpy_fit, _ = _modal_fit(z, 2, 0.5)
+    assert lapack_fit is not None and numpy_fit is not None
+    assert abs(numpy_fit.limit - lapack_fit.limit) <= 1e-12 * abs(lapack_fit.limit)
+    assert numpy_fit.residual == pytest.approx(lapack_fit.residual, rel=1e-9)
+    assert numpy_fit.alpha == pytest.approx(lapack_fit.alpha, rel=1e-12)
