@@ -16,6 +16,7 @@ from bodebench.core.rules import (
     CRITERIA,
     NOISE_LIMITED,
     AdaptiveRule,
+    ModalFit,
     SeriesHistory,
     _modal_fit,
     extrapolate_modes,
@@ -618,6 +619,10 @@ def test_forecast_error_is_the_largest_distance_of_the_forecast_from_what_follow
     assert settled is not None and settled.alpha == ()
     assert settled.forecast_error(np.array([1.0 + 2.0j, 1.5 + 2.0j])) == 0.5
     assert math.isnan(settled.forecast_error(np.array([1.0 + 2.0j, complex(math.nan, 0.0)])))
+    # nothing followed: no distance, whatever the number of modes
+    for alpha in ((), (0.5,), (0.5, 0.25), (0.5, 0.25, -0.1)):
+        fit = ModalFit(1.0 + 0.0j, 0.0, alpha, tuple([1.0 + 0.0j] * len(alpha)))
+        assert fit.forecast_error(np.array([], dtype=complex)) == 0.0
 
 
 def test_student_t_factor_is_scipy_stats_quantile() -> None:

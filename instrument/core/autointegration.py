@@ -159,10 +159,10 @@ class Autointegrator:
         m = p.shape[0]
         if m == 0:
             return 0
-        if m <= _FEW_PERIODS and self.reference is None:
+        if m <= _FEW_PERIODS and self.reference is None and all(whole.tolist()):
             values = list(map(complex, p.ravel().tolist(), q.ravel().tolist()))
             sizes = list(map(abs, values))
-            if all(whole.tolist()) and math.isfinite(sum(sizes)):  # |Z| is inf or NaN where Z is not finite
+            if math.isfinite(sum(sizes)):  # |Z| is inf or NaN where Z is not finite
                 if self.done:
                     self.periods += m
                 else:

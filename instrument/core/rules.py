@@ -671,7 +671,8 @@ class ModalFit(NamedTuple):
 
     def forecast_error(self, following: np.ndarray) -> float:
         """The largest |forecast - value| over the values that followed the window (output units; NaN where a
-        forecast is not a number): ``max(abs(forecast - following))`` without making the forecast an array."""
+        forecast is not a number; 0 where none followed): ``max(abs(forecast - following))`` without making the
+        forecast an array."""
         values = following.tolist()
         limit = self.limit
         if len(self.alpha) == 2:  # the two-mode fit's recurrence (as _recurrence runs it), unrolled in locals
@@ -690,7 +691,7 @@ class ModalFit(NamedTuple):
         forecast = _recurrence(self.tail, self.alpha, limit, len(values)) if self.alpha else [limit] * len(values)
         errors = [abs(f - v) for f, v in zip(forecast, values, strict=True)]
         total = sum(errors)
-        return max(errors) if total == total else math.nan
+        return max(errors, default=0.0) if total == total else math.nan
 
 
 def extrapolate_modes(z: np.ndarray, modes: int, max_decay: float = _MAX_DECAY) -> ModalFit | None:
@@ -782,7 +783,8 @@ _DESIGNS: dict[tuple[int, int], _Design] = {}
 
 
 def _design(n: int, modes: int) -> _Design:
-    """The least-squares problem of a window of n values fitted with ``modes`` modes (cached per shape)."""
+    """The least-squares problem of a window of n values fitted with ``modes`` modes, made and kept in _DESIGNS
+    for the next fit of that shape (the fit looks there first)."""
     t = np.arange(modes, n)  # 0-based index of Z(t) for the rows
     one, zero = 2 * n, 2 * n + 1
     p_rows = [2 * (t - r) for r in range(1, modes + 1)] + [np.full(t.size, one), np.full(t.size, zero), 2 * t]
