@@ -1145,7 +1145,7 @@ class AdaptiveRule(StoppingRule):
         return confirmed
 
     def _fit_windows(self, z: np.ndarray, n: int, w: int, e: float, reference: float, screened: bool,
-                     finite: bool = False) -> tuple[tuple[complex, float] | None, float]:
+                     finite: bool) -> tuple[tuple[complex, float] | None, float]:
         """:meth:`_extrapolated`'s fits of the windows of w periods before n: (limit, bound) or None, and the
         window over which a mode refused for its slow decay would decay (0: none refused). finite: every value in
         the windows is known to be finite."""
