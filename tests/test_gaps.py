@@ -109,12 +109,18 @@ def test_the_point_is_exact_and_counts_the_periods_the_gaps_touched(cut: list[tu
     assert abs(complex(third.p, third.q) - 0.2j) < 1e-12
     if cut[0][0] < 2:  # a gap in the settle periods does not reach the average
         return
-    # integrated across, the same gaps move the point well past the integration's accuracy
+    # integrated across by the trapezoidal rule, the same gaps move the coefficient well past its accuracy; the
+    # sampler's moment solve, which knows where the samples are, still gets this signal (a constant and harmonics up
+    # to the highest measured) exactly, leaving out only a period with no sample inside it at all
+    bridged = PeriodIntegrator(F, (1, 3), 1, T0)
+    p, q = bridged.feed(t, y)
+    assert np.max(np.abs(p[:, 0, 0] + 1j * q[:, 0, 0] - A * cmath.exp(1j * PHI))) > 1e-4
     across = Autointegrator(F, A, ("y",), fixed(), t0=T0, check_gaps=False)
     across.feed(t, y[:, None])
-    (wrong, _) = across.points()
-    assert wrong.periods_discarded == 0
-    assert abs(complex(wrong.p, wrong.q) - A * cmath.exp(1j * PHI)) > 1e-4
+    (first_across, _) = across.points()
+    empty = sum(math.floor(hi) - math.ceil(lo) for lo, hi in cut if math.floor(hi) > math.ceil(lo))
+    assert first_across.periods_discarded == empty
+    assert abs(complex(first_across.p, first_across.q) - A * cmath.exp(1j * PHI)) < 1e-12
 
 
 def test_gaps_after_the_rules_stopped_are_not_counted() -> None:
@@ -225,14 +231,16 @@ def test_a_stalling_drive_on_the_virtual_bus_measures_the_exact_response(tmp_pat
         return tuple(str(v) for v in dataclasses.astuple(p))  # NaN equal to NaN, every float to the last bit
 
     assert [exactly(p) for p in again.response] == [exactly(p) for p in measured]
-    # integrated across, the stalls would have put the point well outside what it states (by how much depends on
-    # where the stalls fell in the periods averaged: 57 to over 100 times in runs seen)
+    # integrated across the stalls, the moment solve still fits a sine to the samples that are there: the lag's
+    # output is one, so even the periods the stalls cut give it (the trapezoidal rule alone, bridging the stalls by
+    # straight lines, put points 57 to over 100 times outside what they stated); gaps are left out for what the
+    # basis does not hold (noise, harmonics above the highest measured)
     across = {p.frequency_hz: p for p in reanalyse(out, max_gap_cycles=1.0).response}
     for p in measured:
         z = exact(p.frequency_hz, p.amplitude)
         wrong = across[p.frequency_hz]
         assert wrong.periods_discarded == 0
-        assert abs(complex(wrong.p, wrong.q) - z) > 10 * (0.01 / 100 * abs(z) + p.uncertainty), (p, wrong)
+        assert abs(complex(wrong.p, wrong.q) - z) <= 0.01 / 100 * abs(z), (p, wrong)
 
 
 @pytest.mark.slow

@@ -20,7 +20,7 @@ from typing import Protocol
 
 import numpy as np
 
-from bodebench.core.fourier import GridPeriodIntegrator, PeriodIntegrator
+from bodebench.core.fourier import ExactPeriodIntegrator, GridPeriodIntegrator
 from bodebench.core.quality import coherence, coherence_periods, total_harmonic_distortion
 from bodebench.core.response import ResponsePoint
 from bodebench.core.rules import RESOLUTION, SeriesHistory, StoppingRule, Verdict, make_rule
@@ -90,10 +90,13 @@ class Autointegrator:
     are output over input whatever delay or amplitude error the path to the
     drive added, and the rules judge that ratio.
 
-    check_gaps: discard the periods gaps in the samples touch (False takes every period).
+    check_gaps: discard the periods gaps in the samples touch (False takes every period whose samples resolve the
+    harmonics, gaps bridged by straight lines).
     grid_steps_per_period: the samples of a computation, on a uniform grid of this many steps per period that t0
     lies on (:class:`~bodebench.core.fourier.GridPeriodIntegrator`: the same coefficients as a matrix product per
-    chunk; a grid has no gaps); 0: samples at any times, as a bench delivers them.
+    chunk; a grid has no gaps); 0: samples at any times, as a bench delivers them
+    (:class:`~bodebench.core.fourier.ExactPeriodIntegrator`: exact for a constant plus the harmonics up to the
+    highest integrated, whatever the grid).
 
     periods: whole periods integrated; discarded: periods a gap in the samples touched, up to the period at which
     the rules stopped (see the module docstring); failure: why the point is not a measurement ("" while it is).
@@ -118,8 +121,8 @@ class Autointegrator:
         self._integrator = (
             GridPeriodIntegrator(frequency_hz, harmonics, columns, grid_steps_per_period, t0)
             if grid_steps_per_period else
-            PeriodIntegrator(frequency_hz, harmonics, columns, t0,
-                             max_gap=self.max_gap_periods if check_gaps else math.inf))
+            ExactPeriodIntegrator(frequency_hz, harmonics, columns, t0,
+                                  max_gap=self.max_gap_periods if check_gaps else math.inf))
         self._histories = [[SeriesHistory() for _ in self.harmonics] for _ in self.channels]
         self._series = [hist for row in self._histories for hist in row]  # channel by channel, harmonic by harmonic
         self._rules: list[list[StoppingRule]] = [

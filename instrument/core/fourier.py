@@ -29,7 +29,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["GridPeriodIntegrator", "PeriodIntegrator"]
+__all__ = ["ExactPeriodIntegrator", "GridPeriodIntegrator", "PeriodIntegrator"]
 
 _TWO_PI = 2.0 * math.pi
 
@@ -46,6 +46,8 @@ class PeriodIntegrator:
         max_gap: longest interval between two samples a whole period may contain, in periods (inf: any).
     """
 
+    _LEAST_HARMONIC = 1  # harmonic 0 (P = 0, Q = twice the mean) is for the moments of ExactPeriodIntegrator
+
     def __init__(self, frequency_hz: float, harmonics: Sequence[int], n_channels: int, t0: float = 0.0,
                  max_gap: float = math.inf) -> None:
         freq = float(frequency_hz)
@@ -56,7 +58,7 @@ class PeriodIntegrator:
         if len(harmonics) == 0:
             raise ValueError("harmonics must contain at least one harmonic number")
         for k in harmonics:
-            if isinstance(k, bool) or not isinstance(k, numbers.Integral) or k < 1:
+            if isinstance(k, bool) or not isinstance(k, numbers.Integral) or k < self._LEAST_HARMONIC:
                 raise ValueError(f"harmonics must be positive integers, got {k!r} in {list(harmonics)!r}")
         if isinstance(n_channels, bool) or not isinstance(n_channels, numbers.Integral) or n_channels < 1:
             raise ValueError(f"n_channels must be a positive integer, got {n_channels!r}")
@@ -391,3 +393,103 @@ class GridPeriodIntegrator(PeriodIntegrator):
         self.periods_done += m
         return (np.ascontiguousarray(out[:, :, :n_h]), np.ascontiguousarray(out[:, :, n_h:]),
                 np.ones(m, dtype=bool))
+
+
+class ExactPeriodIntegrator:
+    """Per-period Fourier coefficients that are exact, to round-off, for a signal made of a constant and harmonics
+    1 .. K of f (K the highest harmonic asked for), on any sample times: a rate whose period is not a whole number of
+    samples, jittered times, a period edge anywhere between two samples.
+
+    The trapezoidal rule of :class:`PeriodIntegrator` is a linear functional of the samples. Applied to a sampled
+    sinusoid on a grid that does not fit the period, it misses by about (samples per period)^-3 and leaks one
+    harmonic into another, the same way in every period, so no averaging removes it. Here each period's trapezoidal
+    moments of the signal against the 2K + 1 test functions (1, sin and cos of harmonics 1 .. K) are taken together
+    with the same moments of the 2K + 1 basis functions themselves, sampled at the very same times. The second set is
+    the matrix A that maps true coefficients to what the trapezoid returns on this period's samples, so solving
+    ``A c = b`` gives back the coefficients c exactly for any signal the basis spans. Content above harmonic K is
+    treated as the trapezoidal rule treats it (it leaks by the rule's own small amount). Where the samples of a period
+    fit its grid (a whole number of steps, edges on samples) A is the identity and the result is the trapezoid's.
+
+    Same interface and conventions as :class:`PeriodIntegrator` (P multiplies sin, Q cos, period i spans
+    [t0 + (i - 1)/f, t0 + i/f]); a period whose samples cannot resolve the basis (fewer samples than unknowns, a
+    condition number of A above ``MAX_CONDITION``) is reported not whole, as a gap would be.
+
+    Cost: the moments of n_channels + 2K + 1 columns against K + 1 harmonics per sample, and one (2K + 1)-square
+    solve per period.
+    """
+
+    #: Largest condition number of a period's moment matrix A for which its coefficients are taken.
+    MAX_CONDITION = 1e8
+
+    def __init__(self, frequency_hz: float, harmonics: Sequence[int], n_channels: int, t0: float = 0.0,
+                 max_gap: float = math.inf) -> None:
+        front = PeriodIntegrator(frequency_hz, harmonics, n_channels, t0, max_gap)  # checks the arguments
+        self.frequency_hz: float = front.frequency_hz
+        self.harmonics: tuple[int, ...] = front.harmonics
+        self.n_channels: int = front.n_channels
+        self.t0: float = front.t0
+        self.max_gap: float = front.max_gap
+        self.fit_order: int = max(self.harmonics)
+        """K: the coefficients are exact for a constant plus harmonics 1 .. K."""
+        k = self.fit_order
+        self._basis_size = 2 * k + 1
+        self._moments = _MomentIntegrator(self.frequency_hz, tuple(range(k + 1)), self.n_channels + self._basis_size,
+                                          self.t0, self.max_gap)
+        self._scale = np.ones(self._basis_size)
+        self._scale[0] = 2.0  # the constant's moment against the constant: 2 f * integral of 1 over a period
+        self._sin_rows = np.asarray(self.harmonics)
+        self._cos_rows = self._sin_rows + k
+
+    @property
+    def periods_done(self) -> int:
+        """Number of complete periods emitted so far."""
+        return self._moments.periods_done
+
+    def feed(self, t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`PeriodIntegrator.feed`, with coefficients exact for a constant plus harmonics 1 .. K."""
+        p, q, _ = self.feed_marked(t, y)
+        return p, q
+
+    def feed_marked(self, t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`PeriodIntegrator.feed_marked`, with coefficients exact for a constant plus harmonics 1 .. K; a
+        period whose samples cannot resolve those is marked not whole."""
+        t_arr = np.asarray(t, dtype=np.float64)
+        y_arr = np.asarray(y, dtype=np.float64)
+        if y_arr.ndim == 1 and self.n_channels == 1:
+            y_arr = y_arr.reshape(-1, 1)
+        n = t_arr.shape[0] if t_arr.ndim == 1 else -1
+        if t_arr.ndim == 1 and y_arr.shape != (n, self.n_channels):
+            expected = f"({n}, {self.n_channels})" + (f" or ({n},)" if self.n_channels == 1 else "")
+            raise ValueError(f"y must have shape {expected} to match t of length {n}, got shape {y_arr.shape}")
+        columns = np.concatenate((y_arr, self._basis(t_arr)), axis=1) if t_arr.ndim == 1 else y_arr
+        p, q, whole = self._moments.feed_marked(t_arr, columns)
+        m = p.shape[0]
+        shape = (m, self.n_channels, len(self.harmonics))
+        if m == 0:
+            return np.zeros(shape), np.zeros(shape), whole
+        # moments (period, column, test): the constant's, then sin 1 .. K, then cos 1 .. K
+        moments = np.concatenate((q[..., :1], p[..., 1:], q[..., 1:]), axis=-1)
+        nc = self.n_channels
+        a = np.swapaxes(moments[:, nc:, :], 1, 2)  # (period, test, basis)
+        b = np.swapaxes(moments[:, :nc, :], 1, 2)  # (period, test, channel)
+        with np.errstate(all="ignore"):
+            resolved = np.isfinite(a).all(axis=(1, 2))
+            resolved[resolved] = np.linalg.cond(a[resolved]) <= self.MAX_CONDITION
+        whole = whole & resolved
+        a[~resolved] = np.diag(self._scale)  # unresolved periods are discarded: anything invertible will do
+        c = np.linalg.solve(a, b)  # (period, basis, channel)
+        out_p = np.ascontiguousarray(np.swapaxes(c[:, self._sin_rows, :], 1, 2))
+        out_q = np.ascontiguousarray(np.swapaxes(c[:, self._cos_rows, :], 1, 2))
+        return out_p, out_q, whole
+
+    def _basis(self, t: np.ndarray) -> np.ndarray:
+        """(n, 2K + 1) the basis at times t: 1, sin(2 pi j f (t - t0)) for j = 1 .. K, then the cosines."""
+        u = (t - self.t0) * self.frequency_hz
+        phase = np.outer(_TWO_PI * (u - np.floor(u)), np.arange(1, self.fit_order + 1))
+        return np.concatenate((np.ones((t.shape[0], 1)), np.sin(phase), np.cos(phase)), axis=1)
+
+
+class _MomentIntegrator(PeriodIntegrator):
+    """:class:`PeriodIntegrator` that also takes harmonic 0 (the constant: P = 0, Q = 2 f * the integral)."""
+
+    _LEAST_HARMONIC = 0
