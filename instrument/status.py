@@ -40,6 +40,9 @@ class FaultKind(StrEnum):
     """An unexpected error in the bus worker."""
     TIMEOUT = "timeout"
     """The bus worker did not answer in time."""
+    NO_RESPONSE = "no_response"
+    """The feedback stopped answering the sine: an output or the setpoint echo held one value for whole periods (a
+    drive disabled or tripped by its own watchdog, a setpoint below the resolution of its frame)."""
     ABORT = "abort"
     """The user aborted (Ctrl-C, the abort key, SIGTERM or SIGHUP)."""
     OUTPUT = "output"

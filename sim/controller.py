@@ -234,6 +234,9 @@ class SimulatedController:
             nominal_next = (self.tick_count + 1) * self.period
             target = nominal_next + self.timing.jitter * self.period * self._rng.uniform(-1.0, 1.0)
             dt = target - self.time
+        if self.enabled and self.faults is not None and self.faults.disabled(self.time):
+            self.enabled = False
+            self.on_event("disabled (a fault the drive does not report)")
         self.applied = self.setpoint if self.enabled else 0.0
         self._u[0] = self.applied
         y = self.plant.run_held(self.state, self._u, dt)[0]

@@ -41,6 +41,8 @@ class FaultConfig:
     stop_after_s: from then on the drive answers nothing (cable pulled, drive crashed).
     silent_until_s: before then the drive answers nothing (still booting), its clock going on.
     bus_off_after_s: from then on the drive sends only error frames (its CAN controller went bus-off).
+    disable_after_s: from then on the drive is disabled, its output stage at zero, and goes on answering (a trip it
+    does not report: the host sees valid frames of a plant at rest and an echo of 0).
     stall_every_s, stall_s: the last ``stall_s`` of every ``stall_every_s`` the drive answers nothing (a stalled bus,
     frames lost in a burst): its clock and counter go on, so the host's samples have a gap there.
     seed: random seed.
@@ -66,6 +68,7 @@ class FaultConfig:
     stop_after_s: float = field(default=-1.0, metadata={"doc": "controller time, s (negative: never)"})
     silent_until_s: float = field(default=0.0, metadata={"min": 0, "doc": "controller time, s"})
     bus_off_after_s: float = field(default=-1.0, metadata={"doc": "controller time, s (negative: never)"})
+    disable_after_s: float = field(default=-1.0, metadata={"doc": "controller time, s (negative: never)"})
     stall_every_s: float = field(default=0.0, metadata={"min": 0, "doc": "controller time, s (0: never)"})
     stall_s: float = field(default=0.0, metadata={"min": 0, "doc": "s of each stall_every_s without an answer"})
     seed: int = field(default=0, metadata={"min": 0, "doc": "numpy random seed"})
@@ -91,6 +94,10 @@ class ValueFaults:
         if c.stall_every_s > 0 and time_s % c.stall_every_s >= c.stall_every_s - c.stall_s:
             return True
         return 0 <= c.stop_after_s <= time_s
+
+    def disabled(self, time_s: float) -> bool:
+        """The drive has disabled itself, unreported, at controller time ``time_s``."""
+        return 0 <= self.config.disable_after_s <= time_s
 
     def bus_off(self, time_s: float) -> bool:
         """The drive sends only error frames (bus-off) at controller time ``time_s``."""

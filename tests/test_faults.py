@@ -6,6 +6,8 @@ drive with the fault injected; a completed sweep must agree with the fault-free 
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -112,6 +114,7 @@ def test_nan_and_infinity_in_float_frames_are_dropped(offline_can) -> None:
     ("drive stops answering", {"stop_after_s": 1.5}, "watchdog"),
     ("bus-off", {"bus_off_after_s": 1.5}, "watchdog"),
     ("sensor out of range", {"out_of_range_after_s": 1.5}, "feedback_limit"),
+    ("drive disables itself and goes on answering", {"disable_after_s": 1.5}, "no_response"),
 ])
 def test_faults_that_end_the_sweep_leave_the_drive_safe(name: str, faults: dict[str, Any], kind: str) -> None:
     from helpers import BusRecorder
@@ -126,3 +129,22 @@ def test_faults_that_end_the_sweep_leave_the_drive_safe(name: str, faults: dict[
     # what was measured before the fault is kept, whole
     assert all(p.converged for p in session.response.points)
     assert np.all(np.isfinite([p.gain for p in session.response.points]))
+
+
+def test_a_drive_that_stops_following_is_never_a_point_and_the_run_keeps_its_record(tmp_path: Path) -> None:
+    """Disabled unreported before the first point ends: valid frames of a plant at rest. No point is written, the
+    sweep ends saying why, and the results directory holds the run's record with the bus counters and the reason."""
+    from bodebench.bench.procedure import SweepProcedure
+    from bodebench.io.results import load_response
+
+    data = can_config("faults-disabled-record", {"disable_after_s": 0.3})
+    out = tmp_path / "out"
+    with pytest.raises(SessionError) as raised:
+        SweepProcedure(parse_config(data, "faults.toml"), out).run()
+    assert raised.value.kind == "no_response"
+    assert "not following the setpoint" in str(raised.value)
+    assert len(load_response(out)) == 0
+    run = json.loads((out / "response.json").read_text())["runs"][-1]
+    assert run["completed"] is False and run["points"] == 0
+    assert "not following the setpoint" in run["ended_by"] and run["refused"][0]["frequency_hz"] > 0
+    assert run["bus"]["frames_in"] > 0 if "frames_in" in run["bus"] else run["bus"]

@@ -271,12 +271,15 @@ class SweepProcedure:
             result = self._bench_case(outcome, previous, write=True)
         except BaseException:
             outcome.response = outcome.session.response if outcome.session else outcome.response
-            if outcome.response.points:
+            ended = outcome.session.ended if outcome.session is not None else None
+            # every run that sent the drive a frame leaves its record, point or none
+            if outcome.response.points or (ended is not None and ended.frames_out):
                 try:
                     self._summarize(outcome, completed=False)
-                    self._draw(outcome)
+                    if outcome.response.points:
+                        self._draw(outcome)
                 except (OSError, ResultsError):
-                    pass  # the plots only: the points are on disk already
+                    pass  # the record or the plots only: the points are on disk already
             raise
         outcome.response = latest_points(result.response)
         if len(outcome.response) < len(result.response):  # a frequency measured again: its first rows go
@@ -404,10 +407,15 @@ class SweepProcedure:
         if result is None and outcome.session is not None and outcome.session.last_health is not None:
             health = outcome.session.last_health
             result = SessionResult(outcome.response, False, "", math.nan, False, health.round_trip_s, health)
+        session = outcome.session
+        reason = outcome.result.reason if outcome.result is not None else \
+            session.ended.reason if session is not None and session.ended is not None else ""
         record = run_record(outcome.case, outcome.clock, direct=self.direct, points=len(outcome.response),
                             resumed=outcome.resumed, result=result,
                             completed=completed and (outcome.result is None or outcome.result.completed),
-                            reason=outcome.result.reason if outcome.result is not None else "")
+                            reason=reason, refused=session.refused if session is not None else ())
+        if not (outcome.directory / SIDECAR_NAME).exists():  # a run that measured nothing still leaves its record
+            ResultsWriter(outcome.directory, outcome.case.name, outcome.case.raw, resume=True)
         update_sidecar(outcome.directory, {"summary": [s.to_json() for s in outcome.summary],
                                            "runs": [*outcome.earlier_runs, record]})
 

@@ -45,7 +45,9 @@ from bodebench.bench.worker import (
     start_worker,
 )
 from bodebench.core.autointegration import Autointegrator
+from bodebench.core.liveness import FlatWatch, no_fundamental
 from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.drivers.layout import SETPOINT_ECHO
 from bodebench.drivers.scheduling import pacing_cpu_left_alone
 from bodebench.drivers.stop_signals import StopSignal
 from bodebench.io.config import AnalysisConfig, CaseConfig
@@ -303,6 +305,14 @@ class BenchSession:
                 return reason
         return ""
 
+    def _no_response(self, f: float, what: str) -> None:
+        """End the sweep: the feedback at ``f`` Hz stopped answering the sine (``what`` says how); never a point."""
+        why = (f"{f:g} Hz: {what}: the drive is not following the setpoint (disabled, tripped by its own watchdog, "
+               "or a setpoint below the resolution of its frame); no point at this frequency")
+        self.refused.append((f, why))
+        self.listener(SessionFault(FaultKind.NO_RESPONSE, why, len(self.response.points)))
+        raise SessionError(FaultKind.NO_RESPONSE, why)
+
     def _analysis(self) -> AnalysisConfig:
         if self.controls.tolerance_percent is not None:
             return replace(self.analysis, tolerance_percent=self.controls.tolerance_percent)
@@ -316,6 +326,10 @@ class BenchSession:
         outputs = bench.output_channels
         reference = bench.reference_channel
         columns = [self.channels.index(n) for n in outputs + ((reference,) if reference else ())]
+        # the drive's echo, where it sends one, is watched with the outputs: a drive that stopped applying the sine
+        watched = columns + [self.channels.index(SETPOINT_ECHO)] \
+            if SETPOINT_ECHO in self.channels and reference != SETPOINT_ECHO else columns
+        watch = FlatWatch([self.channels[i] for i in watched], f)
         self._tell(StartSine(f, amplitude, bench.ramp_in_periods, bench.ramp_out_periods))
         self.listener(PointStarted(index, f, analysis.tolerance_percent, analysis.criterion))
         started = self._expect(SineStarted, timeout=60.0)
@@ -342,7 +356,7 @@ class BenchSession:
             message = self._receive(1.0)
             if not isinstance(message, Samples):
                 continue
-            t, values = message.t, message.values[:, columns]
+            t, values = message.t, message.values[:, watched]
             scope.add(t, message.setpoint, values[:, 0])
             stale.extend((a, b) for a, b in message.held if b - a > longest_gap_s)
             if stale and t.size:
@@ -371,6 +385,11 @@ class BenchSession:
                 t = np.concatenate([[held[0]], t])
                 values = np.vstack([held[1][None, :], values])
                 held = (math.inf, held[1])
+            watch.add(t, values)
+            stopped = watch.stuck()
+            if stopped:
+                self._no_response(f, stopped)
+            values = values[:, :len(columns)]
             record.add(t, values)
             with np.errstate(all="ignore"):  # garbage that got this far is refused below, not warned about
                 sampler.feed(t, values)
@@ -390,6 +409,9 @@ class BenchSession:
             points, refused = [], f"not a measurement: {exc}"
         else:
             refused = self._absurd(points)
+            silent = no_fundamental(points)
+            if silent:
+                self._no_response(f, silent)
         if refused:
             self.refused.append((f, refused))
             self.listener(PointFinished(index, (), skipped=True, refused=refused))

@@ -1,0 +1,48 @@
+"""The watch that tells a drive that stopped answering from one that measures: a held value, a silent fundamental."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bodebench.core.liveness import FLAT_PERIODS, FlatWatch, no_fundamental
+from bodebench.core.response import ResponsePoint
+from bodebench.status import PointStatus
+
+
+def test_a_channel_holding_one_value_for_whole_periods_is_named_and_a_moving_one_is_not() -> None:
+    f, rate = 5.0, 1000.0
+    t = np.arange(0, 2000) / rate  # 10 periods
+    moving = 1e-9 * np.sin(2 * np.pi * f * t)  # tiny, but it moves
+    frozen = np.where(t < 0.5, np.sin(2 * np.pi * f * t), 0.0)  # at rest from 0.5 s (2.5 periods)
+    watch = FlatWatch(("position", "setpoint_echo"), f)
+    for part in np.array_split(np.arange(t.size), 13):  # the verdict does not depend on how the stream is cut
+        watch.add(t[part], np.column_stack((moving[part], frozen[part])))
+        held = t[part][-1] - 0.5
+        assert bool(watch.stuck()) == (held > FLAT_PERIODS / f)
+    line = watch.stuck()
+    assert line.startswith("setpoint_echo held 0 for") and "periods) while the sine ran" in line
+
+
+def test_a_value_that_comes_back_restarts_the_count() -> None:
+    watch = FlatWatch(("y",), 1.0)
+    watch.add(np.array([0.0, 1.0, 1.9]), np.array([[3.0], [3.0], [3.0]]))
+    assert not watch.stuck()
+    watch.add(np.array([2.5]), np.array([[3.0]]))
+    assert watch.stuck()
+    watch.add(np.array([2.6, 4.5]), np.array([[3.1], [3.0]]))
+    assert not watch.stuck()  # 3.0 again, but only since 4.5 s
+
+
+def point(harmonic: int, status: PointStatus, p: float) -> ResponsePoint:
+    return ResponsePoint(frequency_hz=2.0, harmonic=harmonic, channel="position", amplitude=1.0, p=p, q=0.0,
+                         periods=10, converged=status is PointStatus.CONVERGED, status=status,
+                         uncertainty=0.0, uncertainty_1d=0.0, within_eps=True, periods_needed=0,
+                         thd=math.nan, coherence=1.0)
+
+
+def test_a_fundamental_below_resolution_is_no_response_and_a_small_harmonic_is_a_measurement() -> None:
+    assert no_fundamental([point(1, PointStatus.CONVERGED, 0.5), point(3, PointStatus.BELOW_RESOLUTION, 0.0)]) == ""
+    line = no_fundamental([point(1, PointStatus.BELOW_RESOLUTION, 0.0), point(3, PointStatus.BELOW_RESOLUTION, 0.0)])
+    assert line.startswith("position shows no response at harmonic 1")
