@@ -20,6 +20,9 @@ class PointStatus(StrEnum):
     """The noise would need more periods than allowed; the interval is stated, not within the tolerance."""
     CAPPED = "capped"
     """The period limit came first; the interval is stated, not within the tolerance."""
+    DISTURBED = "disturbed"
+    """A periodic disturbance line ([analysis] disturbance_hz) lies within the point's resolution of its harmonic:
+    whatever of it reached the output is in the value, and the interval cannot show it; not converged."""
     FIXED = "fixed"
     """A fixed number of periods was averaged (criterion "fixed")."""
 

@@ -74,15 +74,18 @@ class FeedbackSensing:
 
     noise: standard deviation of additive white Gaussian noise (the channel's units); quantization: the
     least significant bit a value is rounded to after the noise (the channel's units, 0 = none); seed: of the
-    noise, its own stream apart from the jitter's.
+    noise, its own stream apart from the jitter's; hum, hum_hz: a sine of this amplitude (the channel's units) and
+    frequency (Hz, on the drive's clock) added before the noise, as mains pick-up on a sensor line.
     """
 
     noise: float = 0.0
     quantization: float = 0.0
     seed: int = 0
+    hum: float = 0.0
+    hum_hz: float = 50.0
 
     def __post_init__(self) -> None:
-        for name in ("noise", "quantization"):
+        for name in ("noise", "quantization", "hum", "hum_hz"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
@@ -90,14 +93,16 @@ class FeedbackSensing:
     @property
     def any(self) -> bool:
         """True when the sensors corrupt anything."""
-        return self.noise > 0.0 or self.quantization > 0.0
+        return self.noise > 0.0 or self.quantization > 0.0 or self.hum > 0.0
 
     def rng(self) -> np.random.Generator:
         """A new generator of the noise, from ``seed`` (a stream apart from the jitter's)."""
         return np.random.default_rng([self.seed, 1])
 
-    def apply(self, value: float, rng: np.random.Generator) -> float:
-        """The value as the sensor reports it."""
+    def apply(self, value: float, rng: np.random.Generator, time_s: float = 0.0) -> float:
+        """The value as the sensor reports it at drive time ``time_s`` (s)."""
+        if self.hum > 0.0:
+            value += self.hum * math.sin(2.0 * math.pi * self.hum_hz * time_s)
         if self.noise > 0.0:
             value += self.noise * float(rng.standard_normal())
         if self.quantization > 0.0:
@@ -250,7 +255,7 @@ class SimulatedController:
         index = self._source(name)
         value = float(y[index]) if index >= 0 else self.applied
         if self.sensing is not None and self._sensing_rng is not None:
-            value = self.sensing.apply(value, self._sensing_rng)
+            value = self.sensing.apply(value, self._sensing_rng, self.time)
         return value
 
     def _step(self) -> list[Frame]:
@@ -280,7 +285,7 @@ class SimulatedController:
                 else:
                     value = float(y[index]) if index >= 0 else self.applied
                     if sensing is not None and sensing_rng is not None:
-                        value = sensing.apply(value, sensing_rng)
+                        value = sensing.apply(value, sensing_rng, self.time)
                     values[name] = value if faults is None else faults.value(name, value, self.time)
             try:
                 payload = message.encode(values)

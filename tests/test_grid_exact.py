@@ -1,4 +1,5 @@
-"""ExactPeriodIntegrator: per-period coefficients exact on any sample times, for a constant plus harmonics 1 .. K.
+"""ExactPeriodIntegrator: per-period coefficients exact on any sample times, for a constant, a linear drift and
+harmonics 1 .. K.
 
 Truth is the signal's own coefficients (it is built from them); grids are a bench's: a fixed rate whose period is not
 a whole number of samples, t0 between samples, jittered instants, gaps. The trapezoidal rule alone misses on the same
@@ -48,12 +49,14 @@ def test_a_constant_plus_the_harmonics_is_exact_on_any_grid(seed: int) -> None:
     t = bench_grid(rng, f, rate, 12, t0, jitter=rng.choice([0.0, 0.2]), gaps=int(rng.integers(0, 3)))
     z = {k: complex(*rng.normal(size=2)) for k in range(1, k_max + 1)}
     dc = rng.normal() * 100  # a position far from zero
-    y = np.column_stack([signal(t, f, t0, dc, z), signal(t, f, t0, -dc, {k: 2j * v for k, v in z.items()})])
+    slope = rng.normal() * f * rng.choice([0.0, 0.01])  # a drift of up to about 1 % of the response a period
+    y = np.column_stack([signal(t, f, t0, dc, z) + slope * t,
+                         signal(t, f, t0, -dc, {k: 2j * v for k, v in z.items()})])
     integ = ExactPeriodIntegrator(f, harmonics, 2, t0)
-    ps, qs, marks = [], [], []
+    ps, qs, marks, drifts = [], [], [], []
     for part in np.array_split(np.arange(t.size), int(rng.integers(1, 9))):
         p, q, whole = integ.feed_marked(t[part], y[part])
-        ps.append(p), qs.append(q), marks.append(whole)
+        ps.append(p), qs.append(q), marks.append(whole), drifts.append(integ.drift[whole])
     p, q, whole = np.concatenate(ps), np.concatenate(qs), np.concatenate(marks)
     assert p.shape == (integ.periods_done, 2, len(harmonics)) and integ.periods_done >= 11
     scale = max(abs(v) for v in z.values()) + abs(dc)
@@ -62,6 +65,8 @@ def test_a_constant_plus_the_harmonics_is_exact_on_any_grid(seed: int) -> None:
             error = np.abs(p[whole, c, j] + 1j * q[whole, c, j] - factor * z[k])
             assert error.max() <= 1e-10 * scale, (k, c, error.max())
     assert whole.sum() >= integ.periods_done - 6  # only periods a gap left with too few samples may be dropped
+    drift = np.concatenate(drifts) * f  # channel units per second
+    assert np.abs(drift[:, 0] - slope).max() <= 1e-9 * scale and np.abs(drift[:, 1]).max() <= 1e-9 * scale
 
 
 @pytest.mark.parametrize("rate, f, trapezoid_error", [(200.0, 11.0, 1e-3), (200.0, 23.0, 9e-3), (2000.0, 60.0, 1.5e-4)])
@@ -104,3 +109,23 @@ def test_its_arguments_are_checked_as_the_trapezoids_are() -> None:
         ExactPeriodIntegrator(1.0, (1,), 2).feed(np.arange(3.0), np.zeros((3, 3)))
     with pytest.raises(ValueError, match=r"t\[1\]"):
         ExactPeriodIntegrator(1.0, (1,), 1).feed(np.array([0.0, 0.0, 1.0]), np.zeros(3))
+
+
+def test_a_drift_biases_the_trapezoid_by_its_known_amount_and_the_sampler_takes_it_off_and_reports_it() -> None:
+    """The bench's case: 0.2 % of the response amplitude per second at 0.5 Hz (P_1 off by 2a / (w |Z|), 12.7 eps at
+    0.01 %), a whole number of samples a period, so the drift is the only error."""
+    from bodebench.core.autointegration import Autointegrator
+    from bodebench.io.config import AnalysisConfig
+
+    f, rate, amplitude, slope = 0.5, 1000.0, 1.0, 0.002
+    t = np.arange(0, int(40 / f * rate) + 1) / rate
+    y = amplitude * np.sin(2 * np.pi * f * t + 0.4) + slope * t
+    p, q = PeriodIntegrator(f, (1,), 1).feed(t, y)
+    bias = np.mean(p[:, 0, 0]) - amplitude * math.cos(0.4)
+    assert bias == pytest.approx(-slope / (math.pi * f), rel=1e-3)
+    sampler = Autointegrator(f, amplitude, ("y",), AnalysisConfig(harmonics=(1,), tolerance_percent=0.01), t0=0.0)
+    sampler.feed(t, y[:, None])
+    (point,) = sampler.points()
+    assert point.converged
+    assert abs(complex(point.p, point.q) - amplitude * complex(math.cos(0.4), math.sin(0.4))) < 1e-9
+    assert point.drift_per_s == pytest.approx(slope, rel=1e-9)

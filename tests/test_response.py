@@ -22,7 +22,7 @@ from bodebench.io.results import ResultsError, ResultsWriter, load_response, sav
 HEADER = (
     "frequency_hz,harmonic,channel,amplitude,gain,gain_db,phase_deg,p,q,periods,converged,status,"
     "uncertainty,gain_ci,gain_db_ci,phase_ci_deg,uncertainty_1d,within_eps,periods_needed,thd,coherence,"
-    "periods_discarded"
+    "periods_discarded,drift_per_s"
 )
 HEAD = 3 + len(HEADER.split(","))
 """Comment lines above the header of a response.csv: what a row is, the confidence level, the style, a line per
@@ -309,7 +309,7 @@ def test_csv_layout(tmp_path: Path) -> None:
 def test_sidecar_content(tmp_path: Path) -> None:
     save_response(sample_response(), tmp_path)
     data = json.loads((tmp_path / "response.json").read_text())
-    assert data["format"] == "bodebench-response" and data["version"] == 4
+    assert data["format"] == "bodebench-response" and data["version"] == 5
     assert data["case"] == "friction Fbar=0.8"
     assert data["config"]["frequencies_hz"] == [1.0, 1.3, 2.0]
     assert data["software"]["name"] == "bodebench" and isinstance(data["software"]["version"], str)
@@ -427,7 +427,7 @@ def test_missing_files(tmp_path: Path) -> None:
         ("{not json", "not valid JSON"),
         ("[1, 2]", "JSON object"),
         (json.dumps({"format": "other", "version": 1, "case": "", "config": {}}), "'format'"),
-        (json.dumps({"format": "bodebench-response", "version": 5, "case": "", "config": {}}), "'version'"),
+        (json.dumps({"format": "bodebench-response", "version": 6, "case": "", "config": {}}), "'version'"),
         (json.dumps({"format": "bodebench-response", "version": 1, "case": ""}), "'config'"),
     ],
 )

@@ -132,7 +132,7 @@ def simulator_spec(case: CaseConfig, *, wire_faults: bool = True) -> SimulatorSp
         raise ConfigError(f"{case.source}: plant: missing: the simulated drive needs a [plant] table", "plant")
     timing = ControllerTiming(bench.rate_hz, bench.clock, sim.jitter if sim else 0.0,
                               sim.seed if sim else 0, bench.pacing_cpu)
-    sensing = FeedbackSensing(sim.noise, sim.quantization, sim.seed) if sim else None
+    sensing = FeedbackSensing(sim.noise, sim.quantization, sim.seed, sim.hum, sim.hum_hz) if sim else None
     can_map: dict[str, Any] = {}
     if can is not None:
         can_map = {"interface": can.interface, "channel": can.channel or "bodebench", "bitrate": can.bitrate,

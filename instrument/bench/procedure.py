@@ -261,6 +261,8 @@ class SweepProcedure:
         directory = self._directory(index)
         log.info("case %s: %d frequencies -> %s%s", case.name, len(case.excitation.frequencies_hz), directory,
                  f" (resuming after {len(previous.points)} points)" if previous else "")
+        for note in case.plan_notes:
+            log.warning("case %s: %s", case.name, note)
         self.listener(CaseBegins(index, case.name, directory))
         outcome = CaseOutcome(index, case, directory, FrequencyResponse(config=case.raw, case=case.name),
                               earlier_runs=sidecar_runs(directory) if previous is not None else [],
@@ -413,7 +415,8 @@ class SweepProcedure:
         record = run_record(outcome.case, outcome.clock, direct=self.direct, points=len(outcome.response),
                             resumed=outcome.resumed, result=result,
                             completed=completed and (outcome.result is None or outcome.result.completed),
-                            reason=reason, refused=session.refused if session is not None else ())
+                            reason=reason, refused=session.refused if session is not None else (),
+                            plan_notes=outcome.case.plan_notes)
         if not (outcome.directory / SIDECAR_NAME).exists():  # a run that measured nothing still leaves its record
             ResultsWriter(outcome.directory, outcome.case.name, outcome.case.raw, resume=True)
         update_sidecar(outcome.directory, {"summary": [s.to_json() for s in outcome.summary],

@@ -45,6 +45,7 @@ from bodebench.bench.worker import (
     start_worker,
 )
 from bodebench.core.autointegration import Autointegrator
+from bodebench.core.benchgrid import flag_disturbed
 from bodebench.core.liveness import FlatWatch, no_fundamental
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.drivers.layout import SETPOINT_ECHO
@@ -102,6 +103,7 @@ class BenchSession:
         self.bench = tables.bench
         self.safety = tables.safety
         self.analysis: AnalysisConfig = case.analysis
+        self.disturbance_lines = case.disturbance_lines
         self.worker_mode = worker_mode or tables.bench.worker_mode()
         self.controls = _Controls()
         self.response = FrequencyResponse(resume.points if resume else (), config=case.raw, case=case.name)
@@ -412,6 +414,7 @@ class BenchSession:
             silent = no_fundamental(points)
             if silent:
                 self._no_response(f, silent)
+        points = flag_disturbed(points, self.disturbance_lines)
         if refused:
             self.refused.append((f, refused))
             self.listener(PointFinished(index, (), skipped=True, refused=refused))

@@ -141,6 +141,10 @@ class Autointegrator:
         self._primary = self.harmonics.index(1) if 1 in self.harmonics else 0
         self._order = [self._primary] + [k for k in range(len(self.harmonics)) if k != self._primary]
         self._last_references: list[float] = [math.nan] * len(self.channels)
+        # the drift the bench's integrator took off, summed (channel units per period) over the whole periods it
+        # returned while a rule was still open, and their count
+        self._drift_sum = np.zeros(len(self.channels))
+        self._drift_periods = 0
 
     @property
     def done(self) -> bool:
@@ -162,6 +166,10 @@ class Autointegrator:
         m = p.shape[0]
         if m == 0:
             return 0
+        if isinstance(self._integrator, ExactPeriodIntegrator) and not self.done:
+            drift = self._integrator.drift[whole, : len(self.channels)]
+            self._drift_sum += drift.sum(axis=0)
+            self._drift_periods += drift.shape[0]
         if m <= _FEW_PERIODS and self.reference is None and all(whole.tolist()):
             values = list(map(complex, p.ravel().tolist(), q.ravel().tolist()))
             sizes = list(map(abs, values))
@@ -314,6 +322,8 @@ class Autointegrator:
         if self.failure:
             raise GapsError(self.failure)
         pts = []
+        drift = self._drift_sum / self._drift_periods * self.frequency_hz if self._drift_periods else \
+            np.full(len(self.channels), math.nan)
         for c, name in enumerate(self.channels):
             verdicts = self._verdicts[c]
             thd = math.nan
@@ -334,5 +344,6 @@ class Autointegrator:
                                          uncertainty_1d=v.uncertainty_1d, within_eps=v.within_eps,
                                          periods_needed=v.periods_needed, periods_discarded=self.discarded,
                                          thd=thd if harmonic == 1 else math.nan,
-                                         coherence=coherence(self._histories[c][k].values[start:stop])))
+                                         coherence=coherence(self._histories[c][k].values[start:stop]),
+                                         drift_per_s=float(drift[c])))
         return pts

@@ -396,25 +396,34 @@ class GridPeriodIntegrator(PeriodIntegrator):
 
 
 class ExactPeriodIntegrator:
-    """Per-period Fourier coefficients that are exact, to round-off, for a signal made of a constant and harmonics
-    1 .. K of f (K the highest harmonic asked for), on any sample times: a rate whose period is not a whole number of
-    samples, jittered times, a period edge anywhere between two samples.
+    """Per-period Fourier coefficients that are exact, to round-off, for a signal made of a constant, a linear drift
+    and harmonics 1 .. K of f (K the highest harmonic asked for), on any sample times: a rate whose period is not a
+    whole number of samples, jittered times, a period edge anywhere between two samples.
 
-    The trapezoidal rule of :class:`PeriodIntegrator` is a linear functional of the samples. Applied to a sampled
-    sinusoid on a grid that does not fit the period, it misses by about (samples per period)^-3 and leaks one
-    harmonic into another, the same way in every period, so no averaging removes it. Here each period's trapezoidal
-    moments of the signal against the 2K + 1 test functions (1, sin and cos of harmonics 1 .. K) are taken together
-    with the same moments of the 2K + 1 basis functions themselves, sampled at the very same times. The second set is
-    the matrix A that maps true coefficients to what the trapezoid returns on this period's samples, so solving
-    ``A c = b`` gives back the coefficients c exactly for any signal the basis spans. Content above harmonic K is
-    treated as the trapezoidal rule treats it (it leaks by the rule's own small amount). Where the samples of a period
-    fit its grid (a whole number of steps, edges on samples) A is the identity and the result is the trapezoid's.
+    **Any grid.** The trapezoidal rule of :class:`PeriodIntegrator` is a linear functional of the samples. Applied to
+    a sampled sinusoid on a grid that does not fit the period, it misses by about (samples per period)^-3 and leaks
+    one harmonic into another, the same way in every period, so no averaging removes it. Here each period's
+    trapezoidal moments of the signal against the 2K + 1 test functions (1, sin and cos of harmonics 1 .. K) are
+    taken together with the same moments of the 2K + 1 basis functions themselves, sampled at the very same times.
+    The second set is the matrix A that maps true coefficients to what the trapezoid returns on this period's samples,
+    so solving ``A c = b`` gives back the coefficients c exactly for any signal the basis spans. Content above
+    harmonic K is treated as the trapezoidal rule treats it (it leaks by the rule's own small amount). Where the
+    samples of a period fit its grid (a whole number of steps, edges on samples) A is the identity and the result is
+    the trapezoid's.
+
+    **Drift.** A linear drift ``a t`` of the output (thermal drift, a creeping cylinder) adds ``-a / (pi k f)`` to
+    P_k in every period: a bias no spread between periods reveals. Each period's constant term (its mean) is solved
+    with the harmonics, and the drift's own coefficients on this period's samples with it (a ramp sampled at the same
+    times, through the same solve); the slope between the means of this whole period and the previous one (the next
+    one, for the first) times those coefficients is taken off. Over a point the corrections telescope: the noise they
+    add to an average of n periods falls as 1/n, not 1/sqrt(n). ``drift`` holds each period's slope per channel.
 
     Same interface and conventions as :class:`PeriodIntegrator` (P multiplies sin, Q cos, period i spans
     [t0 + (i - 1)/f, t0 + i/f]); a period whose samples cannot resolve the basis (fewer samples than unknowns, a
-    condition number of A above ``MAX_CONDITION``) is reported not whole, as a gap would be.
+    condition number of A above ``MAX_CONDITION``) is reported not whole, as a gap would be. The first whole period is
+    returned with the second (its drift needs a neighbour).
 
-    Cost: the moments of n_channels + 2K + 1 columns against K + 1 harmonics per sample, and one (2K + 1)-square
+    Cost: the moments of n_channels + 2K + 2 columns against K + 1 harmonics per sample, and one (2K + 1)-square
     solve per period.
     """
 
@@ -430,29 +439,35 @@ class ExactPeriodIntegrator:
         self.t0: float = front.t0
         self.max_gap: float = front.max_gap
         self.fit_order: int = max(self.harmonics)
-        """K: the coefficients are exact for a constant plus harmonics 1 .. K."""
+        """K: the coefficients are exact for a constant, a drift and harmonics 1 .. K."""
         k = self.fit_order
         self._basis_size = 2 * k + 1
-        self._moments = _MomentIntegrator(self.frequency_hz, tuple(range(k + 1)), self.n_channels + self._basis_size,
-                                          self.t0, self.max_gap)
+        # columns: the channels, the ramp (t - t0) f, then the basis
+        self._moments = _MomentIntegrator(self.frequency_hz, tuple(range(k + 1)),
+                                          self.n_channels + 1 + self._basis_size, self.t0, self.max_gap)
         self._scale = np.ones(self._basis_size)
         self._scale[0] = 2.0  # the constant's moment against the constant: 2 f * integral of 1 over a period
         self._sin_rows = np.asarray(self.harmonics)
         self._cos_rows = self._sin_rows + k
+        self.drift: np.ndarray = np.zeros((0, self.n_channels))
+        """(m, n_channels) the slope (channel units per period) taken off each period of the last call's output."""
+        self._previous: tuple[np.ndarray, float] | None = None  # the last whole period's means and ramp mean
+        self._held: tuple[np.ndarray, ...] | None = None  # the first whole period, waiting for its neighbour
+        self._emitted = 0
 
     @property
     def periods_done(self) -> int:
         """Number of complete periods emitted so far."""
-        return self._moments.periods_done
+        return self._emitted
 
     def feed(self, t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`PeriodIntegrator.feed`, with coefficients exact for a constant plus harmonics 1 .. K."""
+        """:meth:`PeriodIntegrator.feed`, with coefficients exact for a constant, a drift and harmonics 1 .. K."""
         p, q, _ = self.feed_marked(t, y)
         return p, q
 
     def feed_marked(self, t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`PeriodIntegrator.feed_marked`, with coefficients exact for a constant plus harmonics 1 .. K; a
-        period whose samples cannot resolve those is marked not whole."""
+        """:meth:`PeriodIntegrator.feed_marked`, with coefficients exact for a constant, a drift and harmonics 1 .. K;
+        a period whose samples cannot resolve those is marked not whole."""
         t_arr = np.asarray(t, dtype=np.float64)
         y_arr = np.asarray(y, dtype=np.float64)
         if y_arr.ndim == 1 and self.n_channels == 1:
@@ -461,32 +476,72 @@ class ExactPeriodIntegrator:
         if t_arr.ndim == 1 and y_arr.shape != (n, self.n_channels):
             expected = f"({n}, {self.n_channels})" + (f" or ({n},)" if self.n_channels == 1 else "")
             raise ValueError(f"y must have shape {expected} to match t of length {n}, got shape {y_arr.shape}")
-        columns = np.concatenate((y_arr, self._basis(t_arr)), axis=1) if t_arr.ndim == 1 else y_arr
+        columns = np.concatenate((y_arr, self._ramp_and_basis(t_arr)), axis=1) if t_arr.ndim == 1 else y_arr
         p, q, whole = self._moments.feed_marked(t_arr, columns)
-        m = p.shape[0]
-        shape = (m, self.n_channels, len(self.harmonics))
-        if m == 0:
-            return np.zeros(shape), np.zeros(shape), whole
+        nc = self.n_channels
+        if p.shape[0] == 0:
+            self.drift = np.zeros((0, nc))
+            return self._release(np.zeros((0, nc, len(self.harmonics))), np.zeros((0, nc, len(self.harmonics))),
+                                 whole)
         # moments (period, column, test): the constant's, then sin 1 .. K, then cos 1 .. K
         moments = np.concatenate((q[..., :1], p[..., 1:], q[..., 1:]), axis=-1)
-        nc = self.n_channels
-        a = np.swapaxes(moments[:, nc:, :], 1, 2)  # (period, test, basis)
-        b = np.swapaxes(moments[:, :nc, :], 1, 2)  # (period, test, channel)
+        a = np.swapaxes(moments[:, nc + 1:, :], 1, 2)  # (period, test, basis)
+        b = np.swapaxes(moments[:, : nc + 1, :], 1, 2)  # (period, test, channels and the ramp)
         with np.errstate(all="ignore"):
             resolved = np.isfinite(a).all(axis=(1, 2))
             resolved[resolved] = np.linalg.cond(a[resolved]) <= self.MAX_CONDITION
         whole = whole & resolved
         a[~resolved] = np.diag(self._scale)  # unresolved periods are discarded: anything invertible will do
-        c = np.linalg.solve(a, b)  # (period, basis, channel)
-        out_p = np.ascontiguousarray(np.swapaxes(c[:, self._sin_rows, :], 1, 2))
-        out_q = np.ascontiguousarray(np.swapaxes(c[:, self._cos_rows, :], 1, 2))
-        return out_p, out_q, whole
+        c = np.linalg.solve(a, b)  # (period, basis, channels and the ramp)
+        out_p = np.swapaxes(c[:, self._sin_rows, :], 1, 2)  # (period, channels and the ramp, harmonic)
+        out_q = np.swapaxes(c[:, self._cos_rows, :], 1, 2)
+        return self._release(out_p, out_q, whole, c[:, 0, :])
 
-    def _basis(self, t: np.ndarray) -> np.ndarray:
-        """(n, 2K + 1) the basis at times t: 1, sin(2 pi j f (t - t0)) for j = 1 .. K, then the cosines."""
+    def _release(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray, means: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Take each period's drift off (p, q: (m, channels + the ramp, harmonic); means: (m, channels + the ramp))
+        and return the periods ready: all but a first whole period still waiting for its neighbour."""
+        nc = self.n_channels
+        if self._held is not None and means is not None:  # the held first period goes out with the rest
+            hp, hq, hw, hm = self._held
+            p, q, whole, means = (np.concatenate((hp, p)), np.concatenate((hq, q)), np.concatenate((hw, whole)),
+                                  np.concatenate((hm, means)))
+            self._held = None
+        m = p.shape[0]
+        if m == 0 or means is None:
+            return p[:, :nc], q[:, :nc], whole
+        slope = np.zeros((m, nc))
+        previous = self._previous
+        waiting = -1  # index of the first whole period when no earlier one exists
+        for i in range(m):
+            if not whole[i]:
+                continue
+            if previous is not None:
+                slope[i] = (means[i, :nc] - previous[0]) / (means[i, nc] - previous[1])
+            elif waiting < 0:
+                waiting = i
+            else:  # the first whole period's slope: the one to its neighbour
+                slope[waiting] = slope[i] = (means[i, :nc] - means[waiting, :nc]) / (means[i, nc] - means[waiting, nc])
+            if waiting < 0 or i > waiting:
+                previous = (means[i, :nc], float(means[i, nc]))
+            if waiting >= 0 and i > waiting:
+                waiting = -1
+        if previous is None and waiting >= 0:  # a first whole period and no neighbour yet: hold it and what follows
+            self._held = (p[waiting:], q[waiting:], whole[waiting:], means[waiting:])
+            p, q, whole, slope = p[:waiting], q[:waiting], whole[:waiting], slope[:waiting]
+        self._previous = previous
+        out_p = p[:, :nc] - slope[:, :, None] * p[:, nc:nc + 1]
+        out_q = q[:, :nc] - slope[:, :, None] * q[:, nc:nc + 1]
+        self.drift = slope
+        self._emitted += out_p.shape[0]
+        return np.ascontiguousarray(out_p), np.ascontiguousarray(out_q), whole
+
+    def _ramp_and_basis(self, t: np.ndarray) -> np.ndarray:
+        """(n, 2K + 2) at times t: the ramp (t - t0) f, then the basis: 1, sin(2 pi j f (t - t0)) for j = 1 .. K,
+        then the cosines."""
         u = (t - self.t0) * self.frequency_hz
         phase = np.outer(_TWO_PI * (u - np.floor(u)), np.arange(1, self.fit_order + 1))
-        return np.concatenate((np.ones((t.shape[0], 1)), np.sin(phase), np.cos(phase)), axis=1)
+        return np.concatenate((u[:, None], np.ones((t.shape[0], 1)), np.sin(phase), np.cos(phase)), axis=1)
 
 
 class _MomentIntegrator(PeriodIntegrator):

@@ -67,7 +67,9 @@ class ResponsePoint:
     harmonic-1 point), ``coherence`` the series' coherence with the excitation over its later analysed periods
     (dimensionless, 0 to 1; NaN: not stated), both defined in :mod:`bodebench.core.quality` and left out of
     comparisons between points (NaN, their usual value where not stated, equals nothing), ``periods_discarded``
-    the periods not integrated because a gap in the samples touched them (not among ``periods``).
+    the periods not integrated because a gap in the samples touched them (not among ``periods``), ``drift_per_s``
+    the channel's linear drift over the analysed periods, taken off every period's coefficients (output units per
+    second; NaN: not estimated, as offline; left out of comparisons).
     ``p`` and ``q`` may be NaN (e.g. a failed point) but not infinite.
     """
 
@@ -87,12 +89,14 @@ class ResponsePoint:
     thd: float = field(default=math.nan, compare=False)
     coherence: float = field(default=math.nan, compare=False)
     periods_discarded: int = 0
+    drift_per_s: float = field(default=math.nan, compare=False)
 
     def __post_init__(self) -> None:
         def set_(name: str, value: object) -> None:
             object.__setattr__(self, name, value)
 
-        for name in ("frequency_hz", "amplitude", "p", "q", "uncertainty", "uncertainty_1d", "thd", "coherence"):
+        for name in ("frequency_hz", "amplitude", "p", "q", "uncertainty", "uncertainty_1d", "thd", "coherence",
+                     "drift_per_s"):
             value = getattr(self, name)
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
                 raise ValueError(f"{name} must be a real number, got {value!r}")

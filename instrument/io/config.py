@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from bodebench.core.benchgrid import disturbance_lines, folding_notes, move_off_disturbances
 from bodebench.drivers.canopen_link import STATUSWORD, CanopenSetup, load_od, resolve_object
 from bodebench.drivers.cia402 import TARGET_OBJECTS
 from bodebench.drivers.codec import COUNTER, TIMESTAMP
@@ -40,6 +41,7 @@ from bodebench.io.schema import (
     build_table,
 )
 from bodebench.io.tables import (
+    DEFAULT_DISTURBANCE_HZ,
     MIN_FREQUENCY_HZ,
     MIN_SAMPLES_PER_PERIOD,
     AnalysisConfig,
@@ -137,6 +139,15 @@ class CaseConfig:
     layout: Layout | None = field(default=None, compare=False, repr=False)
     canopen: CanopenConfig | None = None
     canopen_setup: CanopenSetup | None = field(default=None, compare=False, repr=False)
+    plan_notes: tuple[str, ...] = field(default=(), compare=False)
+    """What the loader changed in the frequency plan and why (a frequency moved off a disturbance line), and what it
+    warns of (a harmonic that the bench's sample rate folds onto a measured one)."""
+
+    @property
+    def disturbance_lines(self) -> tuple[float, ...]:
+        """The disturbance lines (Hz) a bench point is judged against: [analysis] disturbance_hz with harmonics,
+        by default mains at 50 Hz on a real drive and none on the simulated one (it has no mains); () offline."""
+        return _disturbance_lines(self.analysis, self.bench, self.simulator)
 
     @property
     def on_bench(self) -> BenchTables:
@@ -214,7 +225,17 @@ def _build_case(
     if built["plant"] is None and (built["bench"] is None or built["simulator"] is not None):
         what = "an offline experiment" if built["bench"] is None else "a simulated drive ([simulator])"
         raise _Fault(_key_path("plant"), f"missing: {what} needs a [plant] table (only a real drive needs none)")
+    notes: tuple[str, ...] = ()
+    if built["bench"] is not None and built["analysis"].disturbance_policy == "move":
+        excitation = built["excitation"]
+        frequencies, notes = move_off_disturbances(excitation.frequencies_hz, built["analysis"].harmonics,
+                                                   _disturbance_lines(built["analysis"], built["bench"],
+                                                                      built["simulator"]))
+        if notes:
+            built["excitation"] = replace(excitation, frequencies_hz=frequencies, frequencies=None)
     layout, setup = _check_bench(built, frames, key, source)
+    if built["bench"] is not None:
+        notes += folding_notes(built["bench"].rate_hz, built["excitation"].frequencies_hz, built["analysis"].harmonics)
     return CaseConfig(
         name=name,
         source=Path(source),
@@ -231,7 +252,21 @@ def _build_case(
         layout=layout,
         canopen=built["canopen"],
         canopen_setup=setup,
+        plan_notes=notes,
     )
+
+
+def _disturbance_lines(analysis: AnalysisConfig, bench: BenchConfig | None, simulator: SimulatorConfig | None
+                       ) -> tuple[float, ...]:
+    """The disturbance lines (Hz) of a case: [analysis] disturbance_hz with their harmonics; when not given, mains
+    (DEFAULT_DISTURBANCE_HZ) on a real drive, the simulated drive's own hum where it has one ([simulator] hum), and
+    none offline."""
+    if bench is None:
+        return ()
+    listed = analysis.disturbance_hz
+    if listed is None:
+        listed = DEFAULT_DISTURBANCE_HZ if simulator is None else (simulator.hum_hz,) if simulator.hum > 0 else ()
+    return disturbance_lines(listed)
 
 
 def _parse(data: Mapping[str, Any], source: str) -> ExperimentConfig:

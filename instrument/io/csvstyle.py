@@ -44,6 +44,8 @@ COLUMN_DOCS: dict[str, str] = {
                  "output's power at k f locked to the excitation, 0 to 1",
     "periods_discarded": "periods not integrated because a gap in the samples, longer than max_gap_cycles of the "
                          "highest harmonic, touched them (not among periods)",
+    "drift_per_s": "the channel's linear drift over the analysed periods, estimated and taken off every period's "
+                   "coefficients, output units per second (nan: not estimated, as offline)",
 }
 
 

@@ -28,7 +28,7 @@ class MissingDependency(ImportError):
 MAT_COLUMNS: tuple[str, ...] = (
     "frequency_hz", "harmonic", "channel", "amplitude", "p", "q", "gain", "gain_db", "phase_deg", "uncertainty",
     "uncertainty_1d", "gain_ci", "gain_db_ci", "phase_ci_deg", "periods", "converged", "within_eps",
-    "periods_needed", "periods_discarded", "thd", "coherence", "status",
+    "periods_needed", "periods_discarded", "thd", "coherence", "drift_per_s", "status",
 )
 
 

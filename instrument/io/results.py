@@ -46,7 +46,7 @@ SIDECAR_NAME = "response.json"
 PLOT_FIGURES = ("bode", "periods")
 """The figures a results directory holds: the stems of their files (the suffix is the format)."""
 FORMAT_NAME = "bodebench-response"
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 
 #: Columns of response.csv, in file order.
 CSV_COLUMNS: tuple[str, ...] = (
@@ -72,12 +72,14 @@ CSV_COLUMNS: tuple[str, ...] = (
     "thd",
     "coherence",
     "periods_discarded",
+    "drift_per_s",
 )
-#: Columns of a version-1, -2 and -3 response.csv (read; the added columns take their defaults).
+#: Columns of a version-1 to -4 response.csv (read; the added columns take their defaults).
 _CSV_COLUMNS_V1 = CSV_COLUMNS[:16]
 _CSV_COLUMNS_V2 = CSV_COLUMNS[:19]
 _CSV_COLUMNS_V3 = CSV_COLUMNS[:21]
-_OLDER_COLUMNS = (_CSV_COLUMNS_V1, _CSV_COLUMNS_V2, _CSV_COLUMNS_V3)
+_CSV_COLUMNS_V4 = CSV_COLUMNS[:22]
+_OLDER_COLUMNS = (_CSV_COLUMNS_V1, _CSV_COLUMNS_V2, _CSV_COLUMNS_V3, _CSV_COLUMNS_V4)
 _DERIVED_COLUMNS: tuple[str, ...] = ("gain", "gain_db", "phase_deg", "gain_ci", "gain_db_ci", "phase_ci_deg")
 _DERIVED_RTOL = 1e-9
 _DEFAULT_STYLE = CsvStyle()
@@ -192,6 +194,7 @@ def _point_row(point: ResponsePoint, style: CsvStyle = _DEFAULT_STYLE) -> str:
         "thd": num(point.thd),
         "coherence": num(point.coherence),
         "periods_discarded": str(point.periods_discarded),
+        "drift_per_s": num(point.drift_per_s),
     }
     for name in _DERIVED_COLUMNS:
         values[name] = num(getattr(point, name))
@@ -322,6 +325,7 @@ def _parse_row(path: Path, lineno: int, row: dict[str, str], decimal_comma: bool
             thd=number("thd") if "thd" in row else math.nan,
             coherence=number("coherence") if "coherence" in row else math.nan,
             periods_discarded=integer("periods_discarded") if "periods_discarded" in row else 0,
+            drift_per_s=number("drift_per_s") if "drift_per_s" in row else math.nan,
         )
     except ResultsError:
         raise

@@ -19,6 +19,11 @@ from bodebench.io.schema import FieldError
 from bodebench.sim.cia402_drive import Cia402Faults
 from bodebench.sim.faults import FaultConfig
 
+DEFAULT_DISTURBANCE_HZ = (50.0,)
+"""[analysis] disturbance_hz on a real drive when the configuration gives none: mains."""
+DISTURBANCE_POLICIES = ("flag", "move")
+"""What a bench does with a frequency whose measured harmonic lies on a disturbance line ([analysis] disturbances)."""
+
 __all__ = [
     "AmplitudeProfile",
     "AnalysisConfig",
@@ -352,10 +357,24 @@ class AnalysisConfig:
     max_discarded_percent: float = field(default=50.0, metadata={
         "min": 0, "max": 100, "max_exclusive": True,
         "doc": "a point fails when more than this share of its periods was discarded for gaps, percent"})
+    disturbance_hz: tuple[float, ...] | None = field(default=None, metadata={
+        "min": 0, "min_exclusive": True, "unique": True,
+        "doc": "periodic disturbances on the bench, Hz, each with its 2nd and 3rd harmonic (mains hum): a point "
+               "whose measured harmonic lies within its resolution of one is flagged disturbed; [] for none "
+               "(default: [50] on a real drive; on the simulated drive its hum_hz where it has a hum, else none)"})
+    disturbances: str | None = field(default=None, metadata={
+        "choices": DISTURBANCE_POLICIES,
+        "doc": "flag (default): such points are measured and flagged disturbed; move: the plan moves each frequency "
+               "whose harmonic lies within 2 % of a disturbance line off it, saying so"})
     response: str | None = field(default=None, metadata={
         "choices": RESPONSE_KINDS,
         "doc": "what the measured response is, for its summary: system (default), closed_loop, or open_loop "
                "(adds the gain and phase margins)"})
+
+    @property
+    def disturbance_policy(self) -> str:
+        """What the plan does with a frequency on a disturbance line (:data:`DISTURBANCE_POLICIES`)."""
+        return self.disturbances or DISTURBANCE_POLICIES[0]
 
     @property
     def response_kind(self) -> str:
@@ -549,8 +568,12 @@ class SimulatorConfig:
     quantization: float = field(default=0.0, metadata={"min": 0, "doc": "least significant bit of every feedback "
                                                                         "channel, the channel's units (0: none)"})
     seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of the jitter and the noise"})
+    hum: float = field(default=0.0, metadata={"min": 0, "doc": "amplitude of a sine added to every feedback "
+                                                               "channel (mains pick-up), the channel's units"})
+    hum_hz: float = field(default=50.0, metadata={"min": 0, "min_exclusive": True,
+                                                  "doc": "frequency of the hum, Hz"})
     faults: FaultConfig = field(default_factory=FaultConfig, metadata={
-        "doc": "fault injection on the wire and in the drive (drivers/PROTOCOL.md section 7)"})
+        "doc": "fault injection on the wire and in the drive (README, \"Faults and what bodebench does\")"})
     cia402: Cia402Faults = field(default_factory=Cia402Faults, metadata={
         "doc": "faults of the simulated CiA 402 drive (transport canopen)"})
 

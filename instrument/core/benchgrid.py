@@ -1,0 +1,123 @@
+"""What a bench's own grid and surroundings do to a point that no spread between periods can show.
+
+Two effects repeat identically, or nearly, in every period, so the per-period coefficients agree with each other and
+the stated interval shrinks while the value is off:
+
+- **A periodic disturbance** at a frequency d (mains hum at 50 or 60 Hz and its 2nd and 3rd harmonics, a pump's
+  ripple) adds to harmonic k of a point at f a phasor that turns by ``2 pi (d / f - k)`` every period. Averaged over
+  n periods it is smaller than itself by about ``1 / (pi n |d/f - k|)``; when ``|d - k f| < f / n`` it has not turned
+  even once: it is a constant the average keeps, indistinguishable from the response. Such a point is flagged
+  ``disturbed``; the plan can move the frequency so the disturbance turns at least once in ``MIN_BEAT_PERIODS``
+  periods (its pass through the periods then shows in their spread and in the stated interval).
+- **Aliasing**: at N = rate / f samples a period, harmonic j of a nonlinear response is indistinguishable from
+  harmonic ``|j - m N|``. When N is a whole number (or a fraction with a small denominator) some harmonic
+  ``j = m N +- k`` folds exactly onto a measured harmonic k, every period alike. :func:`folding_harmonic` names the
+  lowest such j; below ``FOLD_ORDER`` the loader warns, since a strongly nonlinear response still has content there.
+
+Pure numerics: no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+
+from bodebench.core.response import ResponsePoint
+from bodebench.status import PointStatus
+
+__all__ = ["DISTURBANCE_HARMONICS", "FOLD_ORDER", "MIN_BEAT_PERIODS", "disturbance_lines", "flag_disturbed",
+           "folding_harmonic", "folding_notes", "move_off_disturbances", "nearest_line"]
+
+DISTURBANCE_HARMONICS = 3
+"""Each listed disturbance frequency counts with its harmonics up to this one (mains: 50, 100, 150 Hz)."""
+
+MIN_BEAT_PERIODS = 50.0
+"""A moved frequency lets every disturbance line turn once against each measured harmonic within this many
+periods."""
+
+FOLD_ORDER = 32
+"""Harmonics up to this order of a nonlinear response are taken as able to matter when they fold onto a measured
+one."""
+
+
+def disturbance_lines(disturbance_hz: Sequence[float]) -> tuple[float, ...]:
+    """Every disturbance line (Hz): each listed frequency and its harmonics up to ``DISTURBANCE_HARMONICS``."""
+    return tuple(sorted({m * d for d in disturbance_hz for m in range(1, DISTURBANCE_HARMONICS + 1)}))
+
+
+def nearest_line(frequency_hz: float, harmonic: int, lines: Sequence[float]) -> float:
+    """The disturbance line (Hz) closest to harmonic ``harmonic`` of ``frequency_hz`` (NaN when there is none)."""
+    target = harmonic * frequency_hz
+    return min(lines, key=lambda d: abs(d - target)) if lines else math.nan
+
+
+def flag_disturbed(points: Sequence[ResponsePoint], lines: Sequence[float]) -> list[ResponsePoint]:
+    """``points`` with every point whose harmonic lies within its resolution of a disturbance line (``|d - k f| <
+    f / n`` for the n periods it took) marked ``disturbed`` and not converged: whatever of the disturbance reached
+    the output is in its value, and its interval cannot show it."""
+    out = []
+    for p in points:
+        d = nearest_line(p.frequency_hz, p.harmonic, lines)
+        if math.isfinite(d) and p.periods and abs(d - p.harmonic * p.frequency_hz) * p.periods < p.frequency_hz:
+            p = replace(p, converged=False, within_eps=False, status=PointStatus.DISTURBED)
+        out.append(p)
+    return out
+
+
+def move_off_disturbances(frequencies_hz: Sequence[float], harmonics: Sequence[int], lines: Sequence[float]
+                          ) -> tuple[tuple[float, ...], tuple[str, ...]]:
+    """The plan moved so that no measured harmonic of any frequency lies closer to a disturbance line than ``f /
+    MIN_BEAT_PERIODS``: each frequency too close moves away from the line, by the least that frees it from all
+    lines (at most a few percent). Returns the frequencies and one line per move saying why."""
+    moved: list[float] = []
+    notes: list[str] = []
+    for f in frequencies_hz:
+        g = f
+        for _ in range(8):  # moving off one line can approach another: a few rounds settle it
+            close = [(k, d) for k in harmonics for d in lines if abs(d - k * g) * MIN_BEAT_PERIODS < g]
+            if not close:
+                break
+            k, d = close[0]
+            # k g' - d = +-g'/B  ->  g' = d / (k -+ 1/B); away from the line, on the side g already is
+            side = 1.0 if k * g >= d else -1.0
+            g = d / (k - side / MIN_BEAT_PERIODS) * (1.0 + side * 1e-9)
+        if g != f:
+            k_lines = ", ".join(f"{k} x {f:g} Hz = {k * f:g} Hz" for k in harmonics for d in lines
+                                if abs(d - k * f) * MIN_BEAT_PERIODS < f)
+            notes.append(f"{f:g} Hz moved to {g:.6g} Hz: {k_lines} lay within {100 / MIN_BEAT_PERIODS:g} % of a "
+                         f"disturbance line ({', '.join(f'{d:g}' for d in lines)} Hz)")
+        moved.append(g)
+    return tuple(moved), tuple(notes)
+
+
+def folding_notes(rate_hz: float, frequencies_hz: Sequence[float], harmonics: Sequence[int]) -> tuple[str, ...]:
+    """One line for each frequency at which the sample rate folds a harmonic up to ``FOLD_ORDER`` exactly onto a
+    measured one."""
+    notes = []
+    for f in frequencies_hz:
+        fold = folding_harmonic(rate_hz, f, harmonics)
+        if fold is not None:
+            notes.append(f"{f:g} Hz: at {rate_hz / f:.6g} samples a period, harmonic {fold[0]} of a nonlinear "
+                         f"response folds exactly onto measured harmonic {fold[1]} in every period, where no interval "
+                         "can see it; a frequency a little off this one spreads it over the periods instead")
+    return tuple(notes)
+
+
+def folding_harmonic(rate_hz: float, frequency_hz: float, harmonics: Sequence[int], order: int = FOLD_ORDER,
+                     resolution: float = 1e-3) -> tuple[int, int] | None:
+    """(j, k): the lowest harmonic j <= ``order`` of ``frequency_hz`` that the sample rate folds onto a measured
+    harmonic k to within ``resolution`` of a harmonic spacing (a beat slower than 1 / resolution periods); None when
+    none does. j folds onto |j - m N| for N = rate / f samples a period."""
+    n = rate_hz / frequency_hz
+    best: tuple[int, int] | None = None
+    for m in range(1, int((order + max(harmonics)) / n) + 2):
+        x = m * n
+        nearest = round(x)
+        if abs(x - nearest) > resolution:
+            continue
+        for k in harmonics:
+            for j in (nearest - k, nearest + k):
+                if j > max(harmonics) and j <= order and j != k and (best is None or j < best[0]):
+                    best = (j, k)
+    return best
