@@ -23,6 +23,9 @@ class PointStatus(StrEnum):
     DISTURBED = "disturbed"
     """A periodic disturbance line ([analysis] disturbance_hz) lies within the point's resolution of its harmonic:
     whatever of it reached the output is in the value, and the interval cannot show it; not converged."""
+    UNTIED = "untied"
+    """Realtime clock, and the drive gives no way to date the sine on its own clock (no setpoint echo, no SYNC):
+    the host's latency is in the phase; the gain stands, the phase does not; not converged."""
     FIXED = "fixed"
     """A fixed number of periods was averaged (criterion "fixed")."""
 
@@ -31,7 +34,8 @@ class FaultKind(StrEnum):
     """Why a bench sweep stopped before its end. In every case the drive was sent zero and disabled first."""
 
     WATCHDOG = "watchdog"
-    """No valid feedback within the safety watchdog."""
+    """No valid feedback within the safety watchdog, or the host itself silent for longer than the drive's watchdog
+    (the drive has then zeroed and disabled itself)."""
     FEEDBACK_LIMIT = "feedback_limit"
     """A feedback sample left its [safety] window."""
     BUS = "bus"

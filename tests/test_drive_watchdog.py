@@ -156,3 +156,14 @@ def test_without_a_heartbeat_a_paused_sweep_trips_the_drive() -> None:
     trips, beats, events = _paused_sweep(frames, "watchdog-starved", resume=False)
     assert trips == 1 and beats == 0
     assert any(e.startswith("watchdog trip") for e in events) and "disabled (watchdog)" in events
+
+
+def test_a_host_silent_longer_than_the_drives_watchdog_ends_the_sweep_instead_of_measuring_a_tripped_drive() -> None:
+    """No heartbeat, the sweep paused for four drive watchdog times, then resumed: the drive tripped meanwhile (it says
+    so), and the host, which knows how long it was silent, ends the sweep with a line saying why at its next
+    setpoint, instead of integrating what a zeroed, disabled drive answers."""
+    frames = {k: v for k, v in CAN_FRAMES.items() if k != "heartbeat"}
+    with pytest.raises(SessionError) as raised:
+        _paused_sweep(frames, "watchdog-host-silent", resume=True)
+    assert raised.value.kind == "watchdog"
+    assert "the host sent the drive nothing for" in str(raised.value) and "drive_watchdog_s = 0.5" in str(raised.value)

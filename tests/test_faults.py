@@ -115,6 +115,7 @@ def test_nan_and_infinity_in_float_frames_are_dropped(offline_can) -> None:
     ("bus-off", {"bus_off_after_s": 1.5}, "watchdog"),
     ("sensor out of range", {"out_of_range_after_s": 1.5}, "feedback_limit"),
     ("drive disables itself and goes on answering", {"disable_after_s": 1.5}, "no_response"),
+    ("every feedback value NaN", {"nan": 1.0}, "watchdog"),  # frames that carry nothing valid feed no watchdog
 ])
 def test_faults_that_end_the_sweep_leave_the_drive_safe(name: str, faults: dict[str, Any], kind: str) -> None:
     from helpers import BusRecorder

@@ -48,7 +48,8 @@ def reanalyse_point(samples: PointSamples, analysis: AnalysisSettings) -> tuple[
     ValueError saying why when too many of its periods had gaps."""
     grid = _grid_steps_per_period(samples) if samples.source == "offline" else 0
     sampler = Autointegrator(samples.frequency_hz, samples.amplitude, samples.channels, analysis, t0=samples.t0,
-                             reference=samples.reference or None, grid_steps_per_period=grid)
+                             reference=samples.reference or None, grid_steps_per_period=grid,
+                             reference_phase=samples.reference_phase)
     for t, y in samples.batches:
         if sampler.done:
             break

@@ -51,10 +51,10 @@ from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.drivers.layout import SETPOINT_ECHO
 from bodebench.drivers.scheduling import pacing_cpu_left_alone
 from bodebench.drivers.stop_signals import StopSignal
-from bodebench.io.config import AnalysisConfig, CaseConfig
+from bodebench.io.config import AnalysisConfig, BenchConfig, CaseConfig
 from bodebench.io.results import CSV_NAME, ResultsWriter, check_output
 from bodebench.io.samples import PointSamples
-from bodebench.status import FaultKind
+from bodebench.status import FaultKind, PointStatus
 
 
 @dataclass
@@ -326,7 +326,7 @@ class BenchSession:
         amplitude = self.case.excitation.amplitude_at(f)
         settle = self.case.excitation.settle_at(f)  # whole periods at full amplitude before period 1
         outputs = bench.output_channels
-        reference = bench.reference_channel
+        reference, reference_phase, untied = sine_dating(bench, self.channels, f)
         columns = [self.channels.index(n) for n in outputs + ((reference,) if reference else ())]
         # the drive's echo, where it sends one, is watched with the outputs: a drive that stopped applying the sine
         watched = columns + [self.channels.index(SETPOINT_ECHO)] \
@@ -336,8 +336,13 @@ class BenchSession:
         self.listener(PointStarted(index, f, analysis.tolerance_percent, analysis.criterion))
         started = self._expect(SineStarted, timeout=60.0)
         t0 = started.tick * self.period + (bench.ramp_in_periods + settle) / f
-        sampler = Autointegrator(f, amplitude, outputs, analysis, t0=t0, reference=reference or None)
-        record = PointSamples(f, amplitude, outputs, t0, reference, "bench")
+
+        def start(t0: float) -> tuple[Autointegrator, PointSamples]:
+            return (Autointegrator(f, amplitude, outputs, analysis, t0=t0, reference=reference or None,
+                                   reference_phase=reference_phase),
+                    PointSamples(f, amplitude, outputs, t0, reference, "bench", reference_phase))
+
+        sampler, record = start(t0)
         ticks_per_period = max(1, math.ceil(1.0 / (f * self.period)))
         held: tuple[float, np.ndarray] | None = None  # the last sample at or before t0
         # realtime: stretches (s) in which the drive held a stale setpoint (one sent late, ticks skipped) longer
@@ -371,8 +376,7 @@ class BenchSession:
                 # the drive's first sample of the point came after t0 (it answered late): period 1 is the first
                 # whole period after it (t0 moves by whole periods, so the excitation's phase stays zero there)
                 t0 += math.ceil((t[0] - t0) * f) / f
-                sampler = Autointegrator(f, amplitude, outputs, analysis, t0=t0, reference=reference or None)
-                record = PointSamples(f, amplitude, outputs, t0, reference, "bench")
+                sampler, record = start(t0)
             keep = t > t0
             if held is None or not np.all(keep):
                 before = np.flatnonzero(~keep)
@@ -415,6 +419,8 @@ class BenchSession:
             if silent:
                 self._no_response(f, silent)
         points = flag_disturbed(points, self.disturbance_lines)
+        if untied:
+            points = [replace(p, converged=False, within_eps=False, status=PointStatus.UNTIED) for p in points]
         if refused:
             self.refused.append((f, refused))
             self.listener(PointFinished(index, (), skipped=True, refused=refused))
@@ -432,6 +438,23 @@ class BenchSession:
         for p in points:
             self.response.add(p)
         self.listener(PointFinished(index, tuple(points)))
+
+
+def sine_dating(bench: BenchConfig, channels: tuple[str, ...], frequency_hz: float) -> tuple[str, float, bool]:
+    """How a point's sine is dated against its feedback: (reference channel, its ideal phase in rad, untied).
+
+    Two-channel mode divides by ``bench.reference_channel``. On the lockstep clock, and over CANopen where each
+    sample answers the host's SYNC, the feedback's counter is the host's own tick. On the realtime clock otherwise
+    the host's send times and the drive's counter are two clocks: the drive's ``setpoint_echo`` (the setpoint it
+    applied over the period before each sample, PROTOCOL.md section 7) dates the sine on the drive's clock, taken as
+    the reference with the phase an ideal echo has, -2 pi f h, so the result reads as on the lockstep clock and the
+    host's latency never enters it. A drive with no echo gives no way to tie the clocks: untied (its phase holds the
+    host's latency)."""
+    if bench.reference_channel or bench.clock != "realtime" or bench.transport == "canopen":
+        return bench.reference_channel, 0.0, False
+    if SETPOINT_ECHO in channels:
+        return SETPOINT_ECHO, -2.0 * math.pi * frequency_hz / bench.rate_hz, False
+    return "", 0.0, True
 
 
 def outside(t: np.ndarray, stretches: list[tuple[float, float]]) -> np.ndarray:

@@ -353,6 +353,9 @@ class BusWorker:
         self._anomalies_in_row = 0
         self._heartbeat_s = 0.0  # s between heartbeats this loop sends (0: none, or the port repeats it itself)
         self._next_heartbeat = 0.0
+        # monotonic time of the last frame this loop sent that feeds the drive's watchdog (a setpoint, a heartbeat);
+        # None while nothing is known of it: before the enable frame, or where the port repeats the heartbeat itself
+        self._last_fed: float | None = None
 
     # --- plumbing
     def _post(self, message: object) -> None:
@@ -435,8 +438,22 @@ class BusWorker:
 
     def _send(self, u: float) -> None:
         assert self.driver is not None
+        self._check_fed()
         self.driver.send_setpoint(u, self.tick)
         self.last_sent = u
+        if self._last_fed is not None:
+            self._last_fed = time.monotonic()
+
+    def _check_fed(self) -> None:
+        """The host's own silence: longer than the drive's watchdog (frames.drive_watchdog_s), and the drive has
+        zeroed and disabled itself (PROTOCOL.md section 5), so whatever it answers next is not its response."""
+        limit = self.layout.drive_watchdog_s
+        if limit and self._last_fed is not None:
+            silent = time.monotonic() - self._last_fed
+            if silent > limit:
+                raise _Trip("watchdog", f"the host sent the drive nothing for {silent:.3g} s, longer than its watchdog "
+                                        f"(frames.drive_watchdog_s = {limit:g} s): the drive has zeroed and disabled "
+                                        "itself, and what it answers now is not its response")
 
     # --- feedback
     def _time_of(self, s: FeedbackSample, answered_tick: int | None) -> float:
@@ -531,7 +548,10 @@ class BusWorker:
         """Send the heartbeat when it is due (ports without a periodic send of their own)."""
         if self._heartbeat_s and time.monotonic() >= self._next_heartbeat:
             assert self.driver is not None
+            self._check_fed()
             self.driver.heartbeat()
+            if self._last_fed is not None:
+                self._last_fed = time.monotonic()
             self._next_heartbeat += self._heartbeat_s
             if self._next_heartbeat < time.monotonic():  # fell behind (a stall): the next one a period from now
                 self._next_heartbeat = time.monotonic() + self._heartbeat_s
@@ -561,6 +581,7 @@ class BusWorker:
             if samples:
                 self.round_trips.append(time.perf_counter() - sent)
                 self._accept(samples, self.tick)
+                self._watchdog()  # frames that carry nothing valid (NaN, a failed check) feed nothing
                 break
             self._watchdog()
             # a reply cut short on the line will not complete: it is lost now, not after the wait
@@ -616,6 +637,9 @@ class BusWorker:
                 self._echo_index = self.layout_channels.index(SETPOINT_ECHO)
             self.driver.enable()
             self._start_heartbeat()
+            # the host's silence is known where this loop sends every frame that feeds the drive's watchdog
+            if self.layout.heartbeat is None or self._heartbeat_s:
+                self._last_fed = time.monotonic()
             self._post(Ready(self.layout.channels, self.h))
             self.wall0 = time.time()
             self.last_feedback = time.monotonic()
@@ -706,6 +730,7 @@ class BusWorker:
         if self.driver is None:
             return False, False
         zero_sent = disabled = False
+        self._last_fed = None  # the way out is sent whatever the host's silence was
         try:
             lim = self.spec.limits
             steps = 0

@@ -88,7 +88,10 @@ class Autointegrator:
     coefficient is taken relative to that period's reference fundamental
     ``Z_r``: ``Z_k * A_i * (conj(Z_r)/|Z_r|)**k / |Z_r|``, so gain and phase
     are output over input whatever delay or amplitude error the path to the
-    drive added, and the rules judge that ratio.
+    drive added, and the rules judge that ratio. reference_phase (rad): the phase the reference's fundamental has
+    on an ideal bench, put back on every coefficient (harmonic k turned by k times it); the drive's echo of the
+    setpoint of control period c - 1, dated c h, has -2 pi f h, and with it the ratio reads as a single-channel
+    measurement dated on the drive's own clock (drivers/PROTOCOL.md section 7).
 
     check_gaps: discard the periods gaps in the samples touch (False takes every period whose samples resolve the
     harmonics, gaps bridged by straight lines).
@@ -104,7 +107,7 @@ class Autointegrator:
 
     def __init__(self, frequency_hz: float, amplitude: float, channels: Sequence[str],
                  analysis: AnalysisSettings, t0: float = 0.0, reference: str | None = None,
-                 check_gaps: bool = True, grid_steps_per_period: int = 0) -> None:
+                 check_gaps: bool = True, grid_steps_per_period: int = 0, reference_phase: float = 0.0) -> None:
         self.frequency_hz = frequency_hz
         self.amplitude = amplitude
         self.channels = tuple(channels)
@@ -112,6 +115,7 @@ class Autointegrator:
         self.max_periods = analysis.max_periods
         self.skip_periods = analysis.skip_periods
         self.reference = reference
+        self.reference_phase = reference_phase
         harmonics = self.harmonics if reference is None or 1 in self.harmonics else (*self.harmonics, 1)
         self._ref_index = harmonics.index(1) if reference is not None else -1
         self.max_gap_periods = analysis.max_gap_cycles / max(harmonics)
@@ -231,6 +235,8 @@ class Autointegrator:
             powers = np.array(self.harmonics)
             z = z[:, :-1, : len(self.harmonics)] * (self.amplitude / np.abs(z_ref))[:, None, None] \
                 * rotation[:, None, None] ** powers[None, None, :]
+            if self.reference_phase:
+                z = z * np.exp(1j * self.reference_phase * powers)[None, None, :]
         if m <= _FEW_PERIODS:
             values = z.ravel().tolist()
             self._take(values, list(map(abs, values)))

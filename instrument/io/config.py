@@ -72,6 +72,7 @@ __all__ = [
     "SimulatorConfig",
     "TABLES",
     "build_table",
+    "disturbance_lines_of",
     "load_config",
     "parse_config",
     "read_document",
@@ -147,7 +148,7 @@ class CaseConfig:
     def disturbance_lines(self) -> tuple[float, ...]:
         """The disturbance lines (Hz) a bench point is judged against: [analysis] disturbance_hz with harmonics,
         by default mains at 50 Hz on a real drive and none on the simulated one (it has no mains); () offline."""
-        return _disturbance_lines(self.analysis, self.bench, self.simulator)
+        return disturbance_lines_of(self.raw, self.analysis)
 
     @property
     def on_bench(self) -> BenchTables:
@@ -229,8 +230,7 @@ def _build_case(
     if built["bench"] is not None and built["analysis"].disturbance_policy == "move":
         excitation = built["excitation"]
         frequencies, notes = move_off_disturbances(excitation.frequencies_hz, built["analysis"].harmonics,
-                                                   _disturbance_lines(built["analysis"], built["bench"],
-                                                                      built["simulator"]))
+                                                   disturbance_lines_of(raw, built["analysis"]))
         if notes:
             built["excitation"] = replace(excitation, frequencies_hz=frequencies, frequencies=None)
     layout, setup = _check_bench(built, frames, key, source)
@@ -256,16 +256,21 @@ def _build_case(
     )
 
 
-def _disturbance_lines(analysis: AnalysisConfig, bench: BenchConfig | None, simulator: SimulatorConfig | None
-                       ) -> tuple[float, ...]:
-    """The disturbance lines (Hz) of a case: [analysis] disturbance_hz with their harmonics; when not given, mains
+def disturbance_lines_of(config: Mapping[str, Any], analysis: AnalysisConfig) -> tuple[float, ...]:
+    """The disturbance lines (Hz) of a case, from its validated configuration (``CaseConfig.raw``, a sidecar's
+    ``config``) and [analysis] table: disturbance_hz with their harmonics; when not given, mains
     (DEFAULT_DISTURBANCE_HZ) on a real drive, the simulated drive's own hum where it has one ([simulator] hum), and
     none offline."""
-    if bench is None:
+    if not isinstance(config.get("bench"), Mapping):
         return ()
     listed = analysis.disturbance_hz
     if listed is None:
-        listed = DEFAULT_DISTURBANCE_HZ if simulator is None else (simulator.hum_hz,) if simulator.hum > 0 else ()
+        simulator = config.get("simulator")
+        if not isinstance(simulator, Mapping):
+            listed = DEFAULT_DISTURBANCE_HZ
+        else:
+            hum, hum_hz = simulator.get("hum", 0.0), simulator.get("hum_hz", 50.0)
+            listed = (float(hum_hz),) if isinstance(hum, (int, float)) and hum > 0 else ()
     return disturbance_lines(listed)
 
 
