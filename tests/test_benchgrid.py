@@ -105,6 +105,10 @@ def test_a_simulated_drive_with_hum_on_the_virtual_bus_flags_the_point_on_the_li
     points = {p.harmonic: p for p in load_response(tmp_path / "flag")}
     assert points[3].status == PointStatus.DISTURBED and not points[3].converged
     assert points[1].converged
+    # analysed again from its samples, the sweep flags the same point: the lines come from the stored configuration
+    from bodebench.analysis.reanalyse import reanalyse
+    assert [(p.harmonic, p.status, p.p) for p in reanalyse(tmp_path / "flag").response] == \
+        [(p.harmonic, p.status, p.p) for p in load_response(tmp_path / "flag")]
 
     moved = parse_config(config("move"), "hum.toml")
     (g,) = moved.cases[0].excitation.frequencies_hz

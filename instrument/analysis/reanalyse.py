@@ -16,8 +16,9 @@ from typing import Any
 import numpy as np
 
 from bodebench.core.autointegration import AnalysisSettings, Autointegrator, GapsError
+from bodebench.core.benchgrid import flag_disturbed, mark_untied
 from bodebench.core.response import FrequencyResponse, ResponsePoint
-from bodebench.io.config import AnalysisConfig, build_table
+from bodebench.io.config import AnalysisConfig, build_table, disturbance_lines_of
 from bodebench.io.results import SIDECAR_NAME, load_response
 from bodebench.io.samples import PointSamples, load_samples, samples_path
 
@@ -61,7 +62,8 @@ def reanalyse_point(samples: PointSamples, analysis: AnalysisSettings) -> tuple[
     if ended:
         sampler.end_of_record()
     with np.errstate(all="ignore"):
-        return sampler.points(), ended
+        points = sampler.points()
+    return (mark_untied(points) if samples.untied else points), ended
 
 
 def reanalyse(directory: str | Path, **overrides: Any) -> Reanalysis:
@@ -77,13 +79,14 @@ def reanalyse(directory: str | Path, **overrides: Any) -> Reanalysis:
     points: list[ResponsePoint] = []
     ended: list[float] = []
     failed: list[tuple[float, str]] = []
+    lines = disturbance_lines_of(stored.config, analysis)
     for f in dict.fromkeys(p.frequency_hz for p in stored.points):
         try:
             found, short = reanalyse_point(load_samples(samples_path(directory, f)), analysis)
         except GapsError as exc:
             failed.append((f, str(exc)))
             continue
-        points.extend(found)
+        points.extend(flag_disturbed(found, lines))
         if short:
             ended.append(f)
     return Reanalysis(FrequencyResponse(points, config=config, case=stored.case), analysis, tuple(ended),

@@ -45,7 +45,7 @@ from bodebench.bench.worker import (
     start_worker,
 )
 from bodebench.core.autointegration import Autointegrator
-from bodebench.core.benchgrid import flag_disturbed
+from bodebench.core.benchgrid import flag_disturbed, mark_untied
 from bodebench.core.liveness import FlatWatch, no_fundamental
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.drivers.layout import SETPOINT_ECHO
@@ -54,7 +54,7 @@ from bodebench.drivers.stop_signals import StopSignal
 from bodebench.io.config import AnalysisConfig, BenchConfig, CaseConfig
 from bodebench.io.results import CSV_NAME, ResultsWriter, check_output
 from bodebench.io.samples import PointSamples
-from bodebench.status import FaultKind, PointStatus
+from bodebench.status import FaultKind
 
 
 @dataclass
@@ -340,7 +340,7 @@ class BenchSession:
         def start(t0: float) -> tuple[Autointegrator, PointSamples]:
             return (Autointegrator(f, amplitude, outputs, analysis, t0=t0, reference=reference or None,
                                    reference_phase=reference_phase),
-                    PointSamples(f, amplitude, outputs, t0, reference, "bench", reference_phase))
+                    PointSamples(f, amplitude, outputs, t0, reference, "bench", reference_phase, untied))
 
         sampler, record = start(t0)
         ticks_per_period = max(1, math.ceil(1.0 / (f * self.period)))
@@ -418,9 +418,7 @@ class BenchSession:
             silent = no_fundamental(points)
             if silent:
                 self._no_response(f, silent)
-        points = flag_disturbed(points, self.disturbance_lines)
-        if untied:
-            points = [replace(p, converged=False, within_eps=False, status=PointStatus.UNTIED) for p in points]
+        points = flag_disturbed(mark_untied(points) if untied else points, self.disturbance_lines)
         if refused:
             self.refused.append((f, refused))
             self.listener(PointFinished(index, (), skipped=True, refused=refused))

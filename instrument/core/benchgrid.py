@@ -27,7 +27,7 @@ from bodebench.core.response import ResponsePoint
 from bodebench.status import PointStatus
 
 __all__ = ["DISTURBANCE_HARMONICS", "FOLD_ORDER", "MIN_BEAT_PERIODS", "disturbance_lines", "flag_disturbed",
-           "folding_harmonic", "folding_notes", "move_off_disturbances", "nearest_line"]
+           "folding_harmonic", "folding_notes", "mark_untied", "move_off_disturbances", "nearest_line"]
 
 DISTURBANCE_HARMONICS = 3
 """Each listed disturbance frequency counts with its harmonics up to this one (mains: 50, 100, 150 Hz)."""
@@ -63,6 +63,12 @@ def flag_disturbed(points: Sequence[ResponsePoint], lines: Sequence[float]) -> l
             p = replace(p, converged=False, within_eps=False, status=PointStatus.DISTURBED)
         out.append(p)
     return out
+
+
+def mark_untied(points: Sequence[ResponsePoint]) -> list[ResponsePoint]:
+    """``points`` marked ``untied`` and not converged: measured on the realtime clock by a drive that gives no way to
+    date the sine on its own clock, so the host's latency is in their phase."""
+    return [replace(p, converged=False, within_eps=False, status=PointStatus.UNTIED) for p in points]
 
 
 def move_off_disturbances(frequencies_hz: Sequence[float], harmonics: Sequence[int], lines: Sequence[float]

@@ -19,6 +19,8 @@ rows are appended to ``response.csv``. Its arrays:
 ``chunks``         int64 (k,)       the sizes of the successive batches the sampler was fed (they sum to n)
 ``reference_phase`` float64         the phase the reference's fundamental has on an ideal bench, rad (0 where the
                                     file has none: a two-channel measurement's reference is phase zero)
+``untied``         bool             realtime samples of a drive that gave no way to date the sine on its clock (False
+                                    where the file has none)
 =================  ===============  ===============================================================================
 
 The samples are those the sampler integrated: on a bench, from the end of the amplitude ramp (the last sample
@@ -63,6 +65,7 @@ class PointSamples:
     reference: str = ""
     source: str = "bench"
     reference_phase: float = 0.0
+    untied: bool = False
     batches: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
 
     def add(self, t: np.ndarray, y: np.ndarray) -> None:
@@ -94,7 +97,7 @@ class PointSamples:
             "t0": np.float64(self.t0), "channels": np.array(self.channels, dtype=str),
             "reference": np.array(self.reference), "t": self.t, "y": self.y,
             "chunks": np.array([len(b[0]) for b in self.batches], dtype=np.int64),
-            "reference_phase": np.float64(self.reference_phase),
+            "reference_phase": np.float64(self.reference_phase), "untied": np.bool_(self.untied),
         }
         buffer = io.BytesIO()
         # an .npz as numpy.savez_compressed writes it, at deflate level 1: samples are mostly noise-like mantissas,
@@ -133,7 +136,8 @@ def load_samples(path: str | Path) -> PointSamples:
         raise SamplesError(f"{path}: t {t.shape}, y {y.shape} and chunks (sum {int(chunks.sum())}) do not agree "
                            f"with {columns} columns")
     out = PointSamples(float(arrays["frequency_hz"]), float(arrays["amplitude"]), channels, float(arrays["t0"]),
-                       reference, str(arrays["source"]), float(arrays.get("reference_phase", 0.0)))
+                       reference, str(arrays["source"]), float(arrays.get("reference_phase", 0.0)),
+                       bool(arrays.get("untied", False)))
     if chunks.size:
         edges = np.cumsum(chunks)[:-1]
         for tb, yb in zip(np.split(t, edges), np.split(y, edges), strict=True):
