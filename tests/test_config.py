@@ -624,13 +624,14 @@ def valid_tables(draw: st.DrawFn, model: str | None = None) -> dict[str, Any]:
                 plant[key] = draw(st.one_of(positive, st.integers(1, 10)))
     excitation = {
         "amplitude": draw(positive),
-        "frequencies_hz": draw(st.lists(positive, min_size=1, max_size=5, unique=True)),
+        "frequencies_hz": draw(st.lists(st.floats(min_value=1e-3, max_value=1e6), min_size=1, max_size=5,
+                                        unique=True)),
     }
     analysis: dict[str, Any] = {}
     if draw(st.booleans()):
         analysis["harmonics"] = draw(st.lists(st.integers(1, 9), min_size=1, max_size=4, unique=True))
     if draw(st.booleans()):
-        analysis["tolerance_percent"] = draw(positive)
+        analysis["tolerance_percent"] = draw(st.floats(min_value=1e-6, max_value=99.0))
     if draw(st.booleans()):
         analysis["criterion"] = draw(st.sampled_from(CRITERIA))
     if draw(st.booleans()):
@@ -839,3 +840,23 @@ def test_dbc_signals_load_or_fail_cleanly_naming_the_key(dbc: tuple[str, bool], 
         assert refused or "ActPos" in message, message  # a good signal may still not fit (e.g. overlap), by name
     else:
         assert not refused, text
+
+
+@pytest.mark.parametrize("table, key, value, message", [
+    ("excitation", "frequencies_hz", [5e-324, 1.0], "excitation.frequencies_hz[0]: 4.94066e-324 Hz is below 0.001 Hz"),
+    ("excitation", "frequencies_hz", [1.0, 1e300], "excitation.frequencies_hz[1]: 1e+300 Hz is above 1e+06 Hz"),
+    ("analysis", "tolerance_percent", 65536, "analysis.tolerance_percent: must be < 100, got 65536.0"),
+    ("analysis", "tolerance_percent", 100, "analysis.tolerance_percent: must be < 100, got 100.0"),
+])
+def test_nonsense_that_once_loaded_is_one_line_naming_the_key(table: str, key: str, value: Any, message: str) -> None:
+    data = {"plant": {"model": "lag"}, "excitation": {"amplitude": 1.0, "frequencies_hz": [1.0]}, "analysis": {}}
+    data[table][key] = value
+    with pytest.raises(ConfigError) as info:
+        parse_config(data, "nonsense.toml")
+    assert str(info.value).startswith(f"nonsense.toml: {message}")
+
+
+def test_a_bench_rate_beyond_any_bus_is_refused() -> None:
+    from test_bench_config import error
+
+    assert "bench.rate_hz: must be <= 100000.0, got 9.2e+18" in error(lambda d: d["bench"].update(rate_hz=9.2e18))

@@ -42,6 +42,7 @@ from bodebench.io.schema import (
 )
 from bodebench.io.tables import (
     DEFAULT_DISTURBANCE_HZ,
+    MAX_FREQUENCY_HZ,
     MIN_FREQUENCY_HZ,
     MIN_SAMPLES_PER_PERIOD,
     AnalysisConfig,
@@ -226,6 +227,7 @@ def _build_case(
     if built["plant"] is None and (built["bench"] is None or built["simulator"] is not None):
         what = "an offline experiment" if built["bench"] is None else "a simulated drive ([simulator])"
         raise _Fault(_key_path("plant"), f"missing: {what} needs a [plant] table (only a real drive needs none)")
+    _check_frequencies(built["excitation"], key)
     notes: tuple[str, ...] = ()
     if built["bench"] is not None and built["analysis"].disturbance_policy == "move":
         excitation = built["excitation"]
@@ -254,6 +256,18 @@ def _build_case(
         canopen_setup=setup,
         plan_notes=notes,
     )
+
+
+def _check_frequencies(excitation: ExcitationConfig, key: Callable[[str, str], str]) -> None:
+    """Every frequency of the plan within what any drive is swept at; raises :class:`_Fault` naming the key."""
+    for i, f in enumerate(excitation.frequencies_hz):
+        at = (f"{key('excitation', 'frequencies_hz')}[{i}]" if excitation.frequencies is None
+              else f"{key('excitation', 'frequencies')} (frequency {i})")
+        if f < MIN_FREQUENCY_HZ:
+            raise _Fault(at, f"{f:g} Hz is below {MIN_FREQUENCY_HZ:g} Hz (a period of 1000 s): a point would "
+                             "take hours")
+        if f > MAX_FREQUENCY_HZ:
+            raise _Fault(at, f"{f:g} Hz is above {MAX_FREQUENCY_HZ:g} Hz, far beyond any servo drive's loop")
 
 
 def disturbance_lines_of(config: Mapping[str, Any], analysis: AnalysisConfig) -> tuple[float, ...]:
@@ -400,9 +414,6 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
             rule = "amplitudes" if excitation.amplitudes is not None else "amplitude_profile"
             raise _Fault(f"{key('excitation', rule)}" + (f"[{i}]" if rule == "amplitudes" else ""),
                          f"{amplitude:g} at {f:g} Hz exceeds safety.max_amplitude ({safety.max_amplitude:g})")
-        if f < MIN_FREQUENCY_HZ:
-            raise _Fault(at, f"{f:g} Hz is below {MIN_FREQUENCY_HZ:g} Hz (a period of 1000 s): a point would "
-                                 "take hours")
         if top * f * MIN_SAMPLES_PER_PERIOD > bench.rate_hz:
             raise _Fault(at, f"{f:g} Hz: harmonic {top} needs at least {MIN_SAMPLES_PER_PERIOD} samples a "
                                  f"period at bench.rate_hz = {bench.rate_hz:g} (at most "

@@ -44,9 +44,14 @@ CLOCKS = ("lockstep", "realtime")
 TIMEBASES = ("counter", "timestamp", "receive")
 MIN_SAMPLES_PER_PERIOD = 8  # of the highest harmonic measured
 MIN_FREQUENCY_HZ = 1e-3
-"""Lowest frequency a bench sweeps: a period of 1000 s, so that a point (a ramp of whole periods, then the periods
-the stopping rule needs) takes more than an hour. No drive is swept slower on a bench; a smaller value is a typing
-error (a frequency in kHz, a wrong exponent)."""
+"""Lowest frequency swept: a period of 1000 s, so that a point (a ramp of whole periods, then the periods the
+stopping rule needs) takes more than an hour. No drive is swept slower; a smaller value is a typing error (a
+frequency in kHz, a wrong exponent)."""
+MAX_FREQUENCY_HZ = 1e6
+"""Highest frequency swept: far above any servo drive's loop (a few kHz at most); a larger value is a typing error."""
+MAX_RATE_HZ = 1e5
+"""Highest sample rate of a drive's setpoints and feedback: more frames a second than a CAN bus or a serial line
+carries."""
 
 
 _HYDRAULIC = ("model", ("hydraulic",))
@@ -253,7 +258,7 @@ class ExcitationConfig:
             "min_exclusive": True,
             "non_empty": True,
             "unique": True,
-            "doc": "measurement frequencies, Hz (or give frequencies)",
+            "doc": f"measurement frequencies, Hz, {MIN_FREQUENCY_HZ:g} to {MAX_FREQUENCY_HZ:g} (or give frequencies)",
         }
     )
     frequencies: FrequencyRange | None = field(default=None, metadata={
@@ -337,7 +342,8 @@ class AnalysisConfig:
     )
     tolerance_percent: float = field(
         default=0.01,
-        metadata={"min": 0, "min_exclusive": True, "doc": "stopping tolerance eps, percent"},
+        metadata={"min": 0, "min_exclusive": True, "max": 100, "max_exclusive": True,
+                  "doc": "stopping tolerance eps, percent (below 100: a tolerance of the whole response is none)"},
     )
     skip_periods: int = field(default=1, metadata={"min": 0, "doc": "periods n_k not analysed"})
     criterion: str = field(default="adaptive", metadata={"choices": CRITERIA, "doc": "stopping rule"})
@@ -395,7 +401,7 @@ class BenchConfig:
 
     transport: str = field(metadata={"choices": TRANSPORTS, "doc": "bus to the drive: can, serial, or canopen "
                                                                    "(a CiA 402 drive on the [can] bus)"})
-    rate_hz: float = field(metadata={"min": 0, "min_exclusive": True,
+    rate_hz: float = field(metadata={"min": 0, "min_exclusive": True, "max": MAX_RATE_HZ,
                                      "doc": "setpoint and feedback sample rate of the drive controller, Hz"})
     clock: str = field(default="lockstep", metadata={
         "choices": CLOCKS, "doc": "lockstep: one controller period per setpoint (simulated drives); realtime"})
