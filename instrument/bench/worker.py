@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from bodebench.core.autointegration import MAX_COEFFICIENT
 from bodebench.drivers.driver import BusHealth, Driver, FeedbackSample
 from bodebench.drivers.errors import DriveFaultError, DriverError
 from bodebench.drivers.layout import SETPOINT_ECHO
@@ -482,7 +483,8 @@ class BusWorker:
         lim = self.spec.limits
         channels = self.layout_channels
         for s in samples:
-            if not all(math.isfinite(v) for v in s.values):  # NaN or inf on the wire: not a measurement
+            # NaN, inf or a value beyond any sensor on the wire: not a measurement, and it feeds no watchdog
+            if not all(abs(v) <= MAX_COEFFICIENT for v in s.values):
                 self.invalid_samples += 1
                 continue
             for name, (lo, hi) in lim.feedback_limits.items():

@@ -57,6 +57,11 @@ class GapsError(ValueError):
 
 _FEW_PERIODS = 4  # periods up to which feed() works on Python scalars (cheaper than numpy's per-call cost)
 
+MAX_COEFFICIENT = 1e100
+"""Largest coefficient a period may have (output units): beyond any sensor's range in any unit, and far enough below
+the float range that the rules' squares and sums cannot overflow. A larger one is garbage, discarded as a
+non-finite one is."""
+
 
 @dataclass(frozen=True)
 class SeriesState:
@@ -177,7 +182,7 @@ class Autointegrator:
         if m <= _FEW_PERIODS and self.reference is None and all(whole.tolist()):
             values = list(map(complex, p.ravel().tolist(), q.ravel().tolist()))
             sizes = list(map(abs, values))
-            if math.isfinite(sum(sizes)):  # |Z| is inf or NaN where Z is not finite
+            if max(sizes) <= MAX_COEFFICIENT:  # False for inf and NaN too
                 if self.done:
                     self.periods += m
                 else:
@@ -197,9 +202,11 @@ class Autointegrator:
         return m
 
     def _usable(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """(m,) periods with finite coefficients whose reference fundamental, in two-channel mode, shows the sine
-        (at least RESOLUTION of the amplitude: the others would divide by nothing); the rest are discarded."""
-        ok = np.isfinite(p).all(axis=(1, 2)) & np.isfinite(q).all(axis=(1, 2))
+        """(m,) periods with coefficients within MAX_COEFFICIENT whose reference fundamental, in two-channel mode,
+        shows the sine (at least RESOLUTION of the amplitude: the others would divide by nothing); the rest are
+        discarded."""
+        with np.errstate(invalid="ignore"):
+            ok = (np.abs(p) <= MAX_COEFFICIENT).all(axis=(1, 2)) & (np.abs(q) <= MAX_COEFFICIENT).all(axis=(1, 2))
         if self.reference is not None:
             ok &= np.hypot(p[:, -1, self._ref_index], q[:, -1, self._ref_index]) >= RESOLUTION * self.amplitude
         return ok
