@@ -186,3 +186,24 @@ def test_the_in_process_drive_gets_a_worker_process_for_a_long_sweep_only() -> N
     assert bench.worker_mode(in_process_setpoints=least_setpoints(case)) == "process"
     assert bench.worker_mode(in_process_setpoints=SETPOINTS_FOR_A_PROCESS - 1) == "thread"
     assert bench.worker_mode(beside_a_ui=True) == "process"
+
+
+def _integer_setpoint(scale: float) -> Any:
+    def edit(d: dict[str, Any]) -> None:
+        d["frames"] = copy.deepcopy(d.get("frames") or FRAMES)
+        d["frames"]["setpoint"]["signals"] = [{"name": "setpoint", "byte": 0, "type": "int16", "scale": scale},
+                                              {"name": "counter", "byte": 4, "type": "uint16"}]
+    return edit
+
+
+def test_a_setpoint_the_frame_rounds_to_a_few_steps_is_refused_and_a_coarse_one_warned() -> None:
+    """An int16 setpoint of 0.003 units a count carries an amplitude of 0.01 in 3.3 steps: a staircase; at 0.001 in
+    10 steps: measured, with a warning of the harmonics the rounding adds; float32 carries it whole."""
+    amplitude = GOOD["excitation"]["amplitude"]
+    text = error(_integer_setpoint(0.003))
+    assert f"excitation.amplitude: {amplitude:g} at " in text and "3.33 steps of the setpoint's frame" in text
+    data = copy.deepcopy(GOOD)
+    _integer_setpoint(0.001)(data)
+    notes = parse_config(data, "bench.toml").cases[0].plan_notes
+    assert any("is 10 steps of the setpoint's frame (0.001 each)" in n for n in notes), notes
+    assert not any("steps of the setpoint" in n for n in parse_config(GOOD, "bench.toml").cases[0].plan_notes)

@@ -129,3 +129,22 @@ def test_a_drift_biases_the_trapezoid_by_its_known_amount_and_the_sampler_takes_
     assert point.converged
     assert abs(complex(point.p, point.q) - amplitude * complex(math.cos(0.4), math.sin(0.4))) < 1e-9
     assert point.drift_per_s == pytest.approx(slope, rel=1e-9)
+
+
+@pytest.mark.parametrize("steps, offset", [(66, 0.37), (25, 0.5), (40, 0.9)])
+def test_a_whole_grid_leaks_no_harmonic_above_the_fit_whatever_t0_is(steps: int, offset: float) -> None:
+    """A uniform grid of a whole number of samples a period, t0 a fraction of a sample off it, and a response with
+    every harmonic up to just below the Nyquist rate (a band-limited square-ish wave): period 1 starts on the first
+    sample after t0, so no edge needs an interpolated sample and harmonics 1 .. 3 come out exact, as on the grid
+    itself; the trapezoid with interpolated edges leaks the harmonics above into them, the same in every period."""
+    f, rate = 5.0, 5.0 * steps
+    t0 = 1.0 + offset / rate
+    t = np.arange(int(t0 * rate) - 1, int(t0 * rate) + 60 * steps) / rate
+    top = (steps - 1) // 2
+    z = {k: complex(*np.random.default_rng(k).normal(size=2)) / k for k in range(1, top + 1)}
+    y = signal(t, f, t0, 0.2, z)
+    p, q = ExactPeriodIntegrator(f, (1, 2, 3), 1, t0).feed(t, y)
+    for j, k in enumerate((1, 2, 3)):
+        assert np.abs(p[:, 0, j] + 1j * q[:, 0, j] - z[k]).max() < 1e-11, k
+    pt, qt = PeriodIntegrator(f, (1, 2, 3), 1, t0).feed(t, y)
+    assert max(abs(np.mean(pt[:, 0, j] + 1j * qt[:, 0, j]) - z[k]) for j, k in enumerate((1, 2, 3))) > 1e-5

@@ -418,8 +418,14 @@ class ExactPeriodIntegrator:
     one, for the first) times those coefficients is taken off. Over a point the corrections telescope: the noise they
     add to an average of n periods falls as 1/n, not 1/sqrt(n). ``drift`` holds each period's slope per channel.
 
+    **Edges on samples.** Period 1 starts at the first sample at or after t0 (t0' = t0 + d, d less than one sample
+    interval), and each period's coefficients are turned back by ``exp(-j 2 pi k f d)`` to t0's phase. For a steady
+    signal that is the same result; on a uniform grid with a whole number of samples a period every edge then falls
+    on a sample, where the trapezoid needs no interpolated sample and a harmonic above K leaks into none of 1 .. K
+    (only true aliasing remains), whatever t0 is.
+
     Same interface and conventions as :class:`PeriodIntegrator` (P multiplies sin, Q cos, period i spans
-    [t0 + (i - 1)/f, t0 + i/f]); a period whose samples cannot resolve the basis (fewer samples than unknowns, a
+    [t0' + (i - 1)/f, t0' + i/f]); a period whose samples cannot resolve the basis (fewer samples than unknowns, a
     condition number of A above ``MAX_CONDITION``) is reported not whole, as a gap would be. The first whole period is
     returned with the second (its drift needs a neighbour).
 
@@ -442,9 +448,13 @@ class ExactPeriodIntegrator:
         """K: the coefficients are exact for a constant, a drift and harmonics 1 .. K."""
         k = self.fit_order
         self._basis_size = 2 * k + 1
-        # columns: the channels, the ramp (t - t0) f, then the basis
-        self._moments = _MomentIntegrator(self.frequency_hz, tuple(range(k + 1)),
-                                          self.n_channels + 1 + self._basis_size, self.t0, self.max_gap)
+        # columns: the channels, the ramp (t - t0') f, then the basis; made once t0' (the first sample at or after
+        # t0) is known, the samples before it held meanwhile
+        self._moments: _MomentIntegrator | None = None
+        self._waiting: list[tuple[np.ndarray, np.ndarray]] = []
+        self.start: float = math.nan
+        """t0': the first sample time at or after t0 (s), where period 1 starts (NaN until one has come)."""
+        self._turn = np.ones(len(self.harmonics), dtype=complex)  # exp(-j 2 pi k f (t0' - t0))
         self._scale = np.ones(self._basis_size)
         self._scale[0] = 2.0  # the constant's moment against the constant: 2 f * integral of 1 over a period
         self._sin_rows = np.asarray(self.harmonics)
@@ -476,9 +486,16 @@ class ExactPeriodIntegrator:
         if t_arr.ndim == 1 and y_arr.shape != (n, self.n_channels):
             expected = f"({n}, {self.n_channels})" + (f" or ({n},)" if self.n_channels == 1 else "")
             raise ValueError(f"y must have shape {expected} to match t of length {n}, got shape {y_arr.shape}")
+        if self._moments is None:
+            t_arr, y_arr = self._until_start(t_arr, y_arr)
+        assert self._moments is not None or t_arr.shape[0] == 0
+        nc = self.n_channels
+        if self._moments is None:
+            self.drift = np.zeros((0, nc))
+            shape = (0, nc, len(self.harmonics))
+            return np.zeros(shape), np.zeros(shape), np.zeros(0, dtype=bool)
         columns = np.concatenate((y_arr, self._ramp_and_basis(t_arr)), axis=1) if t_arr.ndim == 1 else y_arr
         p, q, whole = self._moments.feed_marked(t_arr, columns)
-        nc = self.n_channels
         if p.shape[0] == 0:
             self.drift = np.zeros((0, nc))
             return self._release(np.zeros((0, nc, len(self.harmonics))), np.zeros((0, nc, len(self.harmonics))),
@@ -530,16 +547,42 @@ class ExactPeriodIntegrator:
             self._held = (p[waiting:], q[waiting:], whole[waiting:], means[waiting:])
             p, q, whole, slope = p[:waiting], q[:waiting], whole[:waiting], slope[:waiting]
         self._previous = previous
-        out_p = p[:, :nc] - slope[:, :, None] * p[:, nc:nc + 1]
-        out_q = q[:, :nc] - slope[:, :, None] * q[:, nc:nc + 1]
+        z = (p[:, :nc] - slope[:, :, None] * p[:, nc:nc + 1] + 1j * (q[:, :nc] - slope[:, :, None] * q[:, nc:nc + 1]))
+        if self.start != self.t0:
+            z = z * self._turn
         self.drift = slope
-        self._emitted += out_p.shape[0]
-        return np.ascontiguousarray(out_p), np.ascontiguousarray(out_q), whole
+        self._emitted += z.shape[0]
+        return np.ascontiguousarray(z.real), np.ascontiguousarray(z.imag), whole
+
+    def _until_start(self, t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Before period 1 has a start: hold the samples until one at or after t0 comes, then make the moment
+        integrator from it and return every sample held, this chunk's included, to be fed to it."""
+        if t.ndim != 1:
+            raise ValueError(f"t must be a 1-D array of seconds, got shape {t.shape}")
+        if t.shape[0] == 0:
+            return t, y
+        if not self._waiting and not t[0] <= self.t0:
+            raise ValueError(f"the first sample t[0] = {t[0]!r} s is after t0 = {self.t0!r} s, so period 1 would be "
+                             "incomplete; the stream must start at or before t0")
+        self._waiting.append((t, y))
+        at = np.flatnonzero(t >= self.t0)
+        if not at.size:
+            return t[:0], y[:0]
+        self.start = float(t[at[0]])
+        k = self.fit_order
+        self._moments = _MomentIntegrator(self.frequency_hz, tuple(range(k + 1)),
+                                          self.n_channels + 1 + self._basis_size, self.start, self.max_gap)
+        self._turn = np.exp(-2j * math.pi * self.frequency_hz * (self.start - self.t0) * np.asarray(self.harmonics))
+        held = self._waiting
+        self._waiting = []
+        if len(held) == 1:
+            return held[0]
+        return np.concatenate([h[0] for h in held]), np.concatenate([h[1] for h in held])
 
     def _ramp_and_basis(self, t: np.ndarray) -> np.ndarray:
-        """(n, 2K + 2) at times t: the ramp (t - t0) f, then the basis: 1, sin(2 pi j f (t - t0)) for j = 1 .. K,
+        """(n, 2K + 2) at times t: the ramp (t - t0') f, then the basis: 1, sin(2 pi j f (t - t0')) for j = 1 .. K,
         then the cosines."""
-        u = (t - self.t0) * self.frequency_hz
+        u = (t - self.start) * self.frequency_hz
         phase = np.outer(_TWO_PI * (u - np.floor(u)), np.arange(1, self.fit_order + 1))
         return np.concatenate((u[:, None], np.ones((t.shape[0], 1)), np.sin(phase), np.cos(phase)), axis=1)
 

@@ -18,10 +18,12 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bodebench.core.benchgrid import disturbance_lines, folding_notes, move_off_disturbances
 from bodebench.drivers.canopen_link import STATUSWORD, CanopenSetup, load_od, resolve_object
 from bodebench.drivers.cia402 import TARGET_OBJECTS
-from bodebench.drivers.codec import COUNTER, TIMESTAMP
+from bodebench.drivers.codec import COUNTER, SETPOINT, TIMESTAMP
 from bodebench.drivers.errors import LayoutError
 from bodebench.drivers.layout import Layout, default_layout
 from bodebench.io.document import Override, OverrideError, apply_overrides, names_override
@@ -238,6 +240,8 @@ def _build_case(
     layout, setup = _check_bench(built, frames, key, source)
     if built["bench"] is not None:
         notes += folding_notes(built["bench"].rate_hz, built["excitation"].frequencies_hz, built["analysis"].harmonics)
+        assert layout is not None
+        notes += _check_setpoint_resolution(layout, built["excitation"], key)
     return CaseConfig(
         name=name,
         source=Path(source),
@@ -256,6 +260,39 @@ def _build_case(
         canopen_setup=setup,
         plan_notes=notes,
     )
+
+
+MIN_SETPOINT_COUNTS = 4.0
+"""Fewest steps of the setpoint's frame an amplitude may span: fewer, and the drive is sent a staircase, not a sine."""
+FINE_SETPOINT_COUNTS = 100.0
+"""Below this many steps an amplitude is warned of: the wire's rounding adds harmonics of about one step."""
+
+
+def _check_setpoint_resolution(layout: Layout, excitation: ExcitationConfig, key: Callable[[str, str], str]
+                               ) -> tuple[str, ...]:
+    """The smallest amplitude of the plan against the step of the setpoint as its frame carries it (an integer
+    signal's scale, a CANopen object's setpoint_scale): refused below ``MIN_SETPOINT_COUNTS`` steps, warned below
+    ``FINE_SETPOINT_COUNTS``; raises :class:`_Fault`, returns the warning lines."""
+    amplitude, f = min((excitation.amplitude_at(f), f) for f in excitation.frequencies_hz)
+    rule = next((name for name in ("amplitudes", "amplitude_profile") if getattr(excitation, name) is not None),
+                "amplitude")
+    message = layout.setpoint
+    try:
+        levels = np.unique([message.decode(message.encode({SETPOINT: float(v), COUNTER: 0}))[SETPOINT]
+                            for v in amplitude * np.sin(np.linspace(0.0, np.pi / 2, 257))])
+    except LayoutError as exc:
+        raise _Fault(key("excitation", rule), f"{amplitude:g}: the setpoint's frame cannot carry it: {exc}") from None
+    step = float(np.min(np.diff(levels))) if levels.size > 1 else math.inf
+    counts = amplitude / step
+    if counts < MIN_SETPOINT_COUNTS:
+        raise _Fault(key("excitation", rule),
+                     f"{amplitude:g} at {f:g} Hz is {counts:.3g} steps of the setpoint's frame ({step:g} each): the "
+                     "drive would be sent a staircase, not a sine; raise the amplitude or the setpoint's resolution "
+                     "(its scale)")
+    if counts < FINE_SETPOINT_COUNTS:
+        return (f"{f:g} Hz: the amplitude {amplitude:g} is {counts:.3g} steps of the setpoint's frame ({step:g} "
+                f"each): its rounding adds harmonics of about {100 / counts:.2g} % of the amplitude",)
+    return ()
 
 
 def _check_frequencies(excitation: ExcitationConfig, key: Callable[[str, str], str]) -> None:
