@@ -5,19 +5,29 @@ the same python-can bus the other CAN links use (the ``canopen`` package speaks 
 frame layout of the cyclic PDOs, so the sample assembly, counter checks and bus health of ``Driver`` apply to
 them unchanged. ``CanopenDriver`` adds the drive's life cycle:
 
-- ``enable()``: NMT pre-operational, heartbeat producer time (0x1017), the PDO mapping (RPDO: the setpoint object;
-  TPDO: statusword, actual values, counter; both synchronous), the mode of operation (0x6060, checked in 0x6061),
-  NMT operational, then shutdown, switch on, enable operation, each checked in the statusword;
+- ``enable()``: NMT pre-operational, heartbeat producer time (0x1017); the lost-host protection (below); the PDO
+  mapping (RPDO: the setpoint object; TPDO: statusword, actual values, counter; both synchronous), the mode of
+  operation (0x6060, checked in 0x6061), NMT operational, then shutdown, switch on, enable operation, each checked in
+  the statusword;
 - ``send_setpoint()``: the RPDO, then SYNC (when the host produces it);
 - ``receive()``: TPDO samples; an EMCY, a statusword that leaves "operation enabled", a heartbeat missing for
   ``heartbeat_timeout_s`` or an NMT state other than operational raise ``DriveFaultError``;
-- ``disable()``: quick stop, disable voltage, NMT pre-operational; returns whether the drive was seen disabled,
-  and ``shutdown_account`` says what was done and seen.
+- ``disable()``: quick stop, disable voltage, the drive's 0x1016 and 0x6007 written back, NMT pre-operational;
+  returns whether the drive was seen disabled, and ``shutdown_account`` says what was done and seen.
+
+The lost-host protection: a host that dies (kill -9, a crash, a pulled cable) sends nothing more, so only the drive
+can stop itself. Before enabling, the host becomes a heartbeat producer (node ``host_node_id``, COB-ID 0x700 + it,
+every ``host_heartbeat_ms``, sent by python-can's periodic send, which ends with the process) and, where the drive's
+EDS has them, writes the drive's heartbeat consumer time 0x1016 (the host's node id and
+``drive_heartbeat_timeout_ms``) and its abort connection option code 0x6007 (``abort_connection``), reading the old
+values first. ``disable()`` (or ``close()`` when no disable came) writes the old values back. A drive whose EDS has no
+0x1016 cannot watch the host: that is logged and said in ``shutdown_account``, and the sweep goes on.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import threading
 import time
 from collections.abc import Iterator
@@ -26,7 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .cia402 import CONTROLWORD, MODES, Command, State, decode_statusword
+from .cia402 import ABORT_CONNECTION_OPTIONS, CONTROLWORD, MODES, Command, State, decode_statusword
 from .codec import COUNTER, TIMESTAMP, Message, Signal
 from .driver import Driver, FeedbackSample
 from .errors import DriveFaultError, DriverOperationError, LayoutError
@@ -38,11 +48,19 @@ if TYPE_CHECKING:
 
 __all__ = ["CanopenDriver", "CanopenSetup", "ObjectRef", "load_od", "resolve_object"]
 
+log = logging.getLogger("bodebench.canopen")
+
 STATUSWORD = 0x6041
 CONTROLWORD_OBJECT = 0x6040
 MODES_OF_OPERATION = 0x6060
 MODES_DISPLAY = 0x6061
 HEARTBEAT_PRODUCER = 0x1017
+HEARTBEAT_CONSUMER = 0x1016
+"""Consumer heartbeat time (ARRAY of UNSIGNED32): bits 16-23 the node watched, bits 0-15 the time in ms (0: off)."""
+ABORT_CONNECTION = 0x6007
+"""Abort connection option code (INTEGER16, CiA 402): ``cia402.ABORT_CONNECTION_OPTIONS``."""
+HOST_HEARTBEAT_STATE = 0x05
+"""The NMT state the host's heartbeat reports: operational."""
 SYNC_COB_ID = 0x80
 NMT_OPERATIONAL = 5
 _SYNC_MEMORY = 4096
@@ -143,7 +161,10 @@ class CanopenSetup:
     setpoint) or "consume" (another node produces it); heartbeat_ms: producer heartbeat time written to 0x1017 (0:
     left as the drive has it); heartbeat_timeout_s: a heartbeat missing this long is a fault; state_timeout_s:
     how long each SDO answer and each state change may take; fault_reset: a drive found in fault is reset
-    (controlword bit 7) instead of refused."""
+    (controlword bit 7) instead of refused. The lost-host protection (module docstring): host_node_id: the host's
+    own node id (1..127, not ``node_id``); host_heartbeat_ms: its heartbeat period (0: no heartbeat, no
+    protection); drive_heartbeat_timeout_ms: the consumer time written to the drive's 0x1016 (longer than
+    host_heartbeat_ms); abort_connection: the code written to 0x6007 (1 fault, 2 disable voltage, 3 quick stop)."""
 
     node_id: int
     eds: str
@@ -158,6 +179,20 @@ class CanopenSetup:
     heartbeat_timeout_s: float = 0.5
     state_timeout_s: float = 1.0
     fault_reset: bool = False
+    host_node_id: int = 127
+    host_heartbeat_ms: int = 100
+    drive_heartbeat_timeout_ms: int = 500
+    abort_connection: int = ABORT_CONNECTION_OPTIONS["quick stop"]
+
+    @property
+    def host_heartbeat_cob_id(self) -> int:
+        """COB-ID of the host's heartbeat."""
+        return 0x700 + self.host_node_id
+
+    @property
+    def consumer_value(self) -> int:
+        """The value of the drive's 0x1016 sub-entry that watches the host: node id << 16 | consumer time in ms."""
+        return (self.host_node_id << 16) | self.drive_heartbeat_timeout_ms
 
     @property
     def rpdo_cob_id(self) -> int:
@@ -237,6 +272,13 @@ class CanopenDriver(Driver):
         self._sync_ticks = [0] * _SYNC_MEMORY  # the host tick of each SYNC sent, by SYNC number modulo the memory
         self._syncs_sent = 0
         self._first_counter: int | None = None
+        self.protection = ""
+        """What the start did so that the drive stops itself if the host dies, or why it could not (empty before)."""
+        self._unprotected = ""  # why the drive cannot protect itself (said again in shutdown_account)
+        self._restore: list[tuple[int, int, int, str]] = []  # (index, subindex, old value, what) to write back
+        self._beat_started = False
+        self._beat_stop = threading.Event()
+        self._beat_thread: threading.Thread | None = None
 
     # ----------------------------------------------------------------------------------------------------------
     # frames in
@@ -381,6 +423,8 @@ class CanopenDriver(Driver):
                     raise DriveFaultError(f"{self._where()}: fault reset did not clear the fault (statusword "
                                           f"0x{word:04X}, {state or 'undefined'})")
                 steps.append("fault reset")
+            self._protect()
+            steps.append(self.protection)
             self._map_pdos()
             steps.append(f"RPDO{s.rpdo} {s.setpoint}, TPDO{s.tpdo} statusword"
                          + "".join(f", {ref}" for _, ref, _ in s.actual) + ", synchronous")
@@ -412,6 +456,143 @@ class CanopenDriver(Driver):
         self._first_counter = None
         self._syncs_sent = 0
         self._cyclic = True
+
+    # ----------------------------------------------------------------------------------------------------------
+    # the lost-host protection
+    def _protect(self) -> None:
+        """Start the host's heartbeat, then (where the EDS has them) write the drive's abort connection option code
+        0x6007 and heartbeat consumer time 0x1016, each old value read first and kept for ``_restore_protection``.
+        Sets ``protection``; a drive that cannot watch the host is logged as such. DriveFaultError when the drive
+        refuses a write or does not answer (the exit sequence then writes back what was changed)."""
+        s = self.setup
+        if not s.host_heartbeat_ms:
+            self._unprotected = ("the drive CANNOT protect itself from a lost host: canopen.host_heartbeat_ms = 0, "
+                                 "the host sends no heartbeat for it to watch")
+            self.protection = self._unprotected
+            log.warning("%s: %s", self._where(), self._unprotected)
+            return
+        how = self._start_host_heartbeat()
+        beat = f"host heartbeat node {s.host_node_id} (COB-ID 0x{s.host_heartbeat_cob_id:X}) every " \
+               f"{s.host_heartbeat_ms} ms ({how})"
+        sub = self._consumer_subindex()
+        if sub is None:
+            lacks = "heartbeat consumer time 0x1016" + (
+                "" if self._has_variable(ABORT_CONNECTION, 0) else " nor abort connection option code 0x6007")
+            self._unprotected = (f"the drive CANNOT protect itself from a lost host: its EDS has no {lacks}, so a "
+                                 "host that dies leaves it as it was (configure the drive's own SYNC or RPDO timeout)")
+            self.protection = f"{beat}; {self._unprotected}"
+            log.warning("%s: %s", self._where(), self._unprotected)
+            return
+        parts = [beat]
+        option = s.abort_connection
+        name = next((k for k, v in ABORT_CONNECTION_OPTIONS.items() if v == option), str(option))
+        if self._has_variable(ABORT_CONNECTION, 0):
+            old = int(self._sdo_read(ABORT_CONNECTION, 0, "abort connection option code"))
+            self._restore.append((ABORT_CONNECTION, 0, old, "abort connection option code"))
+            self._sdo_write(ABORT_CONNECTION, 0, option, "abort connection option code")
+            parts.append(f"abort connection option code 0x6007 = {option} ({name}, was {old})")
+        else:
+            parts.append("no abort connection option code 0x6007 in the EDS: the drive's own reaction to a lost "
+                         "host applies")
+            log.warning("%s: its EDS has no abort connection option code 0x6007: what it does when the host's "
+                        "heartbeat stops is its own default", self._where())
+        old = int(self._sdo_read(HEARTBEAT_CONSUMER, sub, "consumer heartbeat time"))
+        back = old
+        if (old >> 16) & 0xFF == s.host_node_id and old & 0xFFFF:
+            # found watching the host already: left so by a session that could not write it back (its host died);
+            # written back as off, or every later session would leave the drive watching a host that is gone
+            back = 0
+            log.warning("%s: its consumer heartbeat time 0x1016:%02X already watched node %d (0x%08X), left by a "
+                        "session that ended without writing it back: it is switched off at the end of this one",
+                        self._where(), sub, s.host_node_id, old)
+        self._restore.append((HEARTBEAT_CONSUMER, sub, back, "consumer heartbeat time"))
+        self._sdo_write(HEARTBEAT_CONSUMER, sub, s.consumer_value, "consumer heartbeat time")
+        # a consumer watches from the first heartbeat after it was set (CiA 301): one now, so that the drive watches
+        # the host before it is enabled, not a period later
+        self.port.send(Frame(s.host_heartbeat_cob_id, bytes([HOST_HEARTBEAT_STATE])))
+        parts.append(f"consumer heartbeat time 0x1016:{sub:02X} = 0x{s.consumer_value:08X} (node "
+                     f"{s.host_node_id}, {s.drive_heartbeat_timeout_ms} ms; was 0x{old:08X})")
+        self.protection = "; ".join(parts)
+
+    def _has_variable(self, index: int, subindex: int) -> bool:
+        """True when the EDS has ``index``:``subindex`` as a number."""
+        from canopen.objectdictionary import ODArray, ODRecord, ODVariable
+
+        if index not in self.od:
+            return False
+        obj: Any = self.od[index]
+        if isinstance(obj, (ODArray, ODRecord)):
+            obj = obj.subindices.get(subindex)
+        elif subindex != 0:
+            return False
+        return isinstance(obj, ODVariable) and obj.data_type in _SIGNAL_TYPES
+
+    def _consumer_subindex(self) -> int | None:
+        """The sub-entry of the drive's 0x1016 to watch the host with: one already watching the host's node id,
+        else the first unused one (node id or time 0), else 1 (another node's watch, given back on exit); None
+        when the EDS has no 0x1016 sub-entry."""
+        from canopen.objectdictionary import ODArray, ODRecord
+
+        obj = self.od[HEARTBEAT_CONSUMER] if HEARTBEAT_CONSUMER in self.od else None
+        if not isinstance(obj, (ODArray, ODRecord)):
+            return None
+        subs = sorted(i for i in obj.subindices if 1 <= i <= 127 and self._has_variable(HEARTBEAT_CONSUMER, i))
+        if not subs:
+            return None
+        free = None
+        for i in subs:
+            value = int(self._sdo_read(HEARTBEAT_CONSUMER, i, "consumer heartbeat time"))
+            if (value >> 16) & 0xFF == self.setup.host_node_id:
+                return i
+            if free is None and (not value & 0xFFFF or not (value >> 16) & 0xFF):
+                free = i
+        return free if free is not None else subs[0]
+
+    def _start_host_heartbeat(self) -> str:
+        """The host's heartbeat, from now until ``close()``: python-can's periodic send where the port has it (its
+        task ends with the process), else a thread of this driver (a bus log must see every frame). How, in words."""
+        s = self.setup
+        if self._beat_started:
+            return "already running"
+        frame = Frame(s.host_heartbeat_cob_id, bytes([HOST_HEARTBEAT_STATE]))
+        period = s.host_heartbeat_ms / 1000
+        self._beat_started = True
+        try:
+            if self.port.send_periodic(frame, period):
+                return "python-can periodic send"
+        except DriverOperationError:
+            pass
+        self._beat_stop.clear()
+        self._beat_thread = threading.Thread(target=self._beat_loop, args=(frame, period), name="canopen-heartbeat",
+                                             daemon=True)
+        self._beat_thread.start()
+        return "sent by a thread of the host"
+
+    def _beat_loop(self, frame: Frame, period: float) -> None:
+        due = time.monotonic()
+        while not self._beat_stop.wait(max(0.0, due - time.monotonic())):
+            try:
+                self.port.send(frame)
+            except DriverOperationError:
+                return  # the port closed: the session is over
+            due += period
+            if due < time.monotonic():  # fell behind (a stall): the next one a period from now
+                due = time.monotonic() + period
+
+    def _restore_protection(self) -> list[str]:
+        """Write back the drive's 0x1016 and 0x6007 as they were before ``enable()`` (each tried once, even when an
+        earlier one failed); what was done, in words."""
+        restore, self._restore = self._restore, []
+        done = []
+        for index, subindex, old, what in reversed(restore):
+            shown = f"0x{old:08X}" if index == HEARTBEAT_CONSUMER else str(old)
+            where = f"0x{index:04X}:{subindex:02X}" if index == HEARTBEAT_CONSUMER else f"0x{index:04X}"
+            try:
+                self._sdo_write(index, subindex, old, what)
+                done.append(f"{what} {where} = {shown} restored")
+            except DriverOperationError as exc:
+                done.append(f"{what} {where} NOT restored to {shown}: {exc}")
+        return done
 
     def _map_pdos(self) -> None:
         """Write the RPDO and TPDO mapping of ``setup`` (synchronous transmission) with SDO."""
@@ -520,7 +701,9 @@ class CanopenDriver(Driver):
         steps: list[str] = []
         seen: State | None = None
         if self.port.closed:
-            self.shutdown_account = "the bus was closed: no quick stop, disable voltage or NMT command sent"
+            self.shutdown_account = "the bus was closed: no quick stop, disable voltage or NMT command sent" + (
+                "; the drive's 0x1016 and 0x6007 NOT restored" if self._restore else "")
+            self._restore = []
             return False
         with self._pumped():
             for command, targets in ((Command.QUICK_STOP, (State.QUICK_STOP_ACTIVE, State.SWITCH_ON_DISABLED,
@@ -533,15 +716,33 @@ class CanopenDriver(Driver):
                 except DriverOperationError as exc:
                     seen = None
                     steps.append(f"{command} (controlword 0x{CONTROLWORD[command]:04X}) not confirmed: {exc}")
+            restored = self._restore_protection()  # before the NMT command, the last word to the drive
             try:
                 self._nmt(0x80)
                 steps.append("NMT pre-operational sent")
             except DriverOperationError as exc:
                 steps.append(f"NMT pre-operational not sent: {exc}")
+            if restored:
+                steps.append("lost-host settings: " + ", ".join(restored))
+        if self._unprotected:
+            steps.append(self._unprotected)
         self.shutdown_account = "; ".join(steps)
         return seen in (State.SWITCH_ON_DISABLED, State.FAULT)
 
     def close(self) -> None:
-        """Close the port."""
-        self._pumping.clear()
-        super().close()
+        """Write back the drive's 0x1016 and 0x6007 if no ``disable()`` did, stop the host's heartbeat, close the
+        port."""
+        try:
+            if self._restore and not self.port.closed:
+                with self._pumped():
+                    steps = self._restore_protection()
+                restored = "lost-host settings: " + ", ".join(steps)
+                self.shutdown_account = "; ".join(part for part in (self.shutdown_account, restored) if part)
+        finally:
+            self._restore = []
+            self._pumping.clear()
+            self._beat_stop.set()
+            if self._beat_thread is not None:
+                self._beat_thread.join(timeout=2.0)
+                self._beat_thread = None
+            super().close()

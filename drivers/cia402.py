@@ -10,6 +10,7 @@ from __future__ import annotations
 from enum import StrEnum
 
 __all__ = [
+    "ABORT_CONNECTION_OPTIONS",
     "MODES",
     "TARGET_OBJECTS",
     "Command",
@@ -88,6 +89,11 @@ MODES: dict[str, int] = {
     "cst": 10,  # cyclic synchronous torque
 }
 """Modes of operation (object 0x6060) the instrument can run a sweep in, by their short names."""
+
+ABORT_CONNECTION_OPTIONS: dict[str, int] = {"fault": 1, "disable voltage": 2, "quick stop": 3}
+"""Abort connection option codes (object 0x6007) by name: what a drive in "operation enabled" does when it loses its
+connection to the host (for the instrument: the host's heartbeat, watched by the drive's heartbeat consumer 0x1016).
+Code 0 (no action) and the manufacturer's negative codes are left out: none of them stops the drive for certain."""
 
 TARGET_OBJECTS: dict[str, int] = {"pv": 0x60FF, "tq": 0x6071, "csp": 0x607A, "csv": 0x60FF, "cst": 0x6071}
 """The standard setpoint object of each mode: target position, target velocity, target torque."""

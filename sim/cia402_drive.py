@@ -11,6 +11,11 @@ What it honours, as a drive does:
   and samples the actual values at its end, so a lockstep host gets the same zero-order-hold record as from the
   other simulated links;
 - the power state machine (``drivers.cia402``): the plant gets a zero setpoint unless "operation enabled";
+- a lost host: the heartbeat consumer times of 0x1016 (node id << 16 | time in ms) and the abort connection option
+  code 0x6007 (where its EDS has them). A watched node's heartbeat, once seen, missing for longer than its consumer
+  time is a heartbeat event: the drive says so, sends an EMCY (0x8130) and takes the 0x6007 reaction (1 fault,
+  2 disable voltage, 3 quick stop, 0 none). ``check_heartbeat`` checks on the wall clock; ``ServingCanopen`` calls it
+  from a thread of its own, as a drive's timer does, so a host that died (and sends no SYNC) is still noticed;
 - faults (``Cia402Faults``): it refuses to enable, sends an EMCY and goes to fault, stops its heartbeat, or falls
   silent altogether, at a given controller time.
 """
@@ -19,12 +24,15 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from bodebench.drivers.canopen_link import (
+    ABORT_CONNECTION,
     CONTROLWORD_OBJECT,
+    HEARTBEAT_CONSUMER,
     MODES_DISPLAY,
     MODES_OF_OPERATION,
     STATUSWORD,
@@ -32,7 +40,15 @@ from bodebench.drivers.canopen_link import (
     CanopenSetup,
     load_od,
 )
-from bodebench.drivers.cia402 import MODES, Command, State, command_of, next_state, statusword
+from bodebench.drivers.cia402 import (
+    ABORT_CONNECTION_OPTIONS,
+    MODES,
+    Command,
+    State,
+    command_of,
+    next_state,
+    statusword,
+)
 from bodebench.drivers.codec import COUNTER
 from bodebench.sim.controller import SimulatedController
 
@@ -44,6 +60,9 @@ __all__ = ["Cia402Faults", "SimulatedCia402Drive", "ServingCanopen", "serve_cano
 SAMPLE_COUNTER = 0x2000
 """The shipped EDS's sample counter (UNSIGNED16): control periods stepped."""
 ERROR_CODE = 0x603F
+HEARTBEAT_ERROR = 0x8130
+"""EMCY error code of a heartbeat event (CiA 301: life guard error or heartbeat error)."""
+_ABORT_NAMES = {0: "no action", **{code: name for name, code in ABORT_CONNECTION_OPTIONS.items()}}
 
 
 @dataclass(frozen=True)
@@ -71,7 +90,11 @@ class Cia402Faults:
 
 class SimulatedCia402Drive:
     """The drive's object dictionary, state machine and SYNC handling around ``controller`` (whose layout is
-    ``setup.layout()``), on a canopen network given to ``attach``. Each change of state goes to ``on_event``."""
+    ``setup.layout()``), on a canopen network given to ``attach``. Each change of state goes to ``on_event``.
+
+    The heartbeat consumer: ``consumers`` (0x1016 sub-entry -> (node id, consumer time s)), ``abort_option`` (0x6007),
+    ``heartbeats_consumed`` (heartbeats of watched nodes taken in), ``heartbeat_events`` (lost heartbeats acted
+    on)."""
 
     def __init__(self, controller: SimulatedController, setup: CanopenSetup, faults: Cia402Faults | None = None,
                  on_event: Callable[[str], None] | None = None) -> None:
@@ -97,6 +120,12 @@ class SimulatedCia402Drive:
         self._lock = threading.Lock()
         self.node: canopen.LocalNode | None = None
         self.network: canopen.Network | None = None
+        self.consumers: dict[int, tuple[int, float]] = {}
+        self.abort_option = 0
+        self.heartbeats_consumed = 0
+        self.heartbeat_events = 0
+        self._heard: dict[int, float] = {}  # watched node id -> time.monotonic() of its latest heartbeat, once seen
+        self._subscribed: set[int] = set()  # node ids whose heartbeat COB-ID is subscribed to
 
     # ----------------------------------------------------------------------------------------------------------
     def attach(self, network: canopen.Network) -> None:
@@ -110,6 +139,13 @@ class SimulatedCia402Drive:
         network.subscribe(0, self._on_nmt)  # after the node's own NMT handler
         network.subscribe(SYNC_COB_ID, self._on_sync)
         self.node, self.network = node, network
+        od: Any = node.object_dictionary  # what the EDS holds before the host writes anything
+        if ABORT_CONNECTION in od:
+            self.abort_option = int(od[ABORT_CONNECTION].default or 0)
+        if HEARTBEAT_CONSUMER in od:
+            for sub, var in od[HEARTBEAT_CONSUMER].subindices.items():
+                if sub >= 1 and var.default:
+                    self._watch(sub, int(var.default))
         node.nmt.send_command(0x81)  # reset node: boot-up message
         node.nmt.send_command(0x80)  # pre-operational (the heartbeat starts here if 0x1017 is set)
 
@@ -146,9 +182,20 @@ class SimulatedCia402Drive:
         return None
 
     def _on_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
+        with self._lock:  # the heartbeat consumer's thread changes the state too
+            self._write(index, subindex, od, data)
+
+    def _write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
         from canopen.sdo import SdoAbortedError
 
-        if index == CONTROLWORD_OBJECT:
+        if index == HEARTBEAT_CONSUMER and subindex >= 1:
+            self._watch(subindex, int.from_bytes(data, "little"))
+        elif index == ABORT_CONNECTION:
+            option = int.from_bytes(data, "little", signed=True)
+            if option not in _ABORT_NAMES:
+                raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
+            self.abort_option = option
+        elif index == CONTROLWORD_OBJECT:
             word = int.from_bytes(data, "little")
             command = command_of(word, self._controlword)
             self._controlword = word
@@ -175,6 +222,10 @@ class SimulatedCia402Drive:
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if self.silent or len(data) < 2 or data[1] not in (0, self.setup.node_id):
             return
+        with self._lock:
+            self._nmt_changed()
+
+    def _nmt_changed(self) -> None:
         if self.nmt_state == "OPERATIONAL":
             self._read_pdos()
             self.on_event("NMT operational")
@@ -183,6 +234,93 @@ class SimulatedCia402Drive:
             if self.state is State.OPERATION_ENABLED:
                 self._go(State.SWITCH_ON_DISABLED, f"left NMT operational: {self.nmt_state.lower()}")
             self.on_event(f"NMT {self.nmt_state.lower()}")
+
+    # ----------------------------------------------------------------------------------------------------------
+    # heartbeat consumer
+    def _watch(self, subindex: int, value: int) -> None:
+        """0x1016 sub ``subindex`` = ``value``: watch node ``value >> 16`` for ``value & 0xFFFF`` ms (either 0: that
+        sub-entry watches nothing). SdoAbortedError for reserved bits, a node id out of range, or a node another
+        sub-entry already watches (CiA 301)."""
+        from canopen.sdo import SdoAbortedError
+
+        node_id, ms = (value >> 16) & 0xFF, value & 0xFFFF
+        if value >> 24 or node_id > 127:
+            raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
+        others = {n for sub, (n, _) in self.consumers.items() if sub != subindex}
+        if node_id and ms and node_id in others:
+            raise SdoAbortedError(0x06040043)  # general parameter incompatibility
+        self.consumers.pop(subindex, None)
+        if node_id and ms:
+            self.consumers[subindex] = (node_id, ms / 1000)
+            self._heard.pop(node_id, None)  # watched from its next heartbeat on
+        watched = {n for n, _ in self.consumers.values()}
+        for n in set(self._heard) - watched:
+            del self._heard[n]
+        if self.network is not None:
+            for n in self._subscribed - watched:
+                self.network.unsubscribe(0x700 + n, self._on_consumed)
+            for n in watched - self._subscribed:
+                self.network.subscribe(0x700 + n, self._on_consumed)
+            self._subscribed = watched
+
+    def _on_consumed(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if self.silent:
+            return
+        node_id = can_id - 0x700
+        with self._lock:
+            if not any(n == node_id for n, _ in self.consumers.values()):
+                return
+            if node_id not in self._heard:
+                limit = min(t for n, t in self.consumers.values() if n == node_id)
+                option = self.abort_option
+                self.on_event(f"watching the heartbeat of node {node_id} (consumer time {limit:g} s; abort "
+                              f"connection option {option}: {_ABORT_NAMES.get(option, 'manufacturer-specific')})")
+            self._heard[node_id] = time.monotonic()
+            self.heartbeats_consumed += 1
+
+    @property
+    def poll_s(self) -> float:
+        """How often ``check_heartbeat`` should run: a twentieth of the shortest consumer time, at most 20 ms."""
+        return min([0.02] + [t / 20 for _, t in self.consumers.values()])
+
+    def check_heartbeat(self) -> bool:
+        """The heartbeat consumer on the wall clock: a watched node heard once and silent for longer than its
+        consumer time is a heartbeat event (said, EMCY 0x8130, the 0x6007 reaction); watched again from its next
+        heartbeat. True when an event happened now."""
+        if self.silent or not self._heard:
+            return False
+        now = time.monotonic()
+        happened = False
+        with self._lock:
+            for node_id, limit in list(self.consumers.values()):
+                seen = self._heard.get(node_id)
+                if seen is None or now - seen <= limit:
+                    continue
+                del self._heard[node_id]
+                self._heartbeat_lost(node_id, now - seen, limit)
+                happened = True
+        return happened
+
+    def _heartbeat_lost(self, node_id: int, silent: float, limit: float) -> None:
+        assert self.node is not None
+        self.heartbeat_events += 1
+        option = self.abort_option
+        name = _ABORT_NAMES.get(option, "manufacturer-specific: no action here")
+        self.on_event(f"heartbeat of node {node_id} lost for {silent:.3f} s (consumer time {limit:g} s): abort "
+                      f"connection option {option} ({name})")
+        self.node.emcy.send(HEARTBEAT_ERROR, 0x11)  # error register: generic error, communication error
+        why = f"heartbeat of node {node_id} lost"
+        was = self.state
+        if option == ABORT_CONNECTION_OPTIONS["fault"]:
+            if self.state not in (State.FAULT, State.SWITCH_ON_DISABLED, State.NOT_READY):
+                self.error_code = HEARTBEAT_ERROR
+                self._go(State.FAULT, why)
+        elif option == ABORT_CONNECTION_OPTIONS["disable voltage"]:
+            self._go(next_state(self.state, Command.DISABLE_VOLTAGE), why)
+        elif option == ABORT_CONNECTION_OPTIONS["quick stop"]:
+            self._go(next_state(self.state, Command.QUICK_STOP), why)
+        if was is State.OPERATION_ENABLED and self.state is not State.OPERATION_ENABLED:
+            self.controller.applied = 0.0  # the output stage holds zero from here on
 
     def _read_pdos(self) -> None:
         """The RPDOs and TPDOs the mapping objects now describe (enabled ones only)."""
@@ -279,10 +417,22 @@ class ServingCanopen:
         self.controller = drive.controller
         self.stop = threading.Event()
         self.error: BaseException | None = None
+        self._consumer_timer = threading.Thread(target=self._watch_heartbeats, name="cia402-heartbeat-consumer",
+                                                daemon=True)
+        self._consumer_timer.start()
+
+    def _watch_heartbeats(self) -> None:
+        """The drive's heartbeat consumer timer: on the wall clock, whether or not SYNCs come."""
+        try:
+            while not self.stop.wait(self.drive.poll_s):
+                self.drive.check_heartbeat()
+        except BaseException as exc:  # noqa: BLE001 - reported to whoever closes us
+            self.error = exc
 
     def close(self) -> None:
-        """Stop the heartbeat, the notifier and the bus."""
+        """Stop the heartbeat consumer, the heartbeat, the notifier and the bus."""
         self.stop.set()
+        self._consumer_timer.join(timeout=2.0)
         if self.drive.node is not None:
             self.drive.node.nmt.stop_heartbeat()
         self.network.disconnect()

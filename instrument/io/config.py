@@ -22,7 +22,7 @@ import numpy as np
 
 from bodebench.core.benchgrid import disturbance_lines, folding_notes, move_off_disturbances
 from bodebench.drivers.canopen_link import STATUSWORD, CanopenSetup, load_od, resolve_object
-from bodebench.drivers.cia402 import TARGET_OBJECTS
+from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS, TARGET_OBJECTS
 from bodebench.drivers.codec import COUNTER, SETPOINT, TIMESTAMP
 from bodebench.drivers.errors import LayoutError
 from bodebench.drivers.layout import Layout, default_layout
@@ -548,7 +548,9 @@ def _canopen_setup(table: CanopenConfig, simulated: bool, key: Callable[[str, st
         raise _Fault(key("canopen", "actual"), f"the statusword and these objects take {size} bytes: a TPDO carries 8")
     return CanopenSetup(table.node_id, str(eds), table.mode, setpoint, table.setpoint_scale, tuple(actual),
                         table.rpdo, table.tpdo, table.sync, table.heartbeat_ms, table.heartbeat_timeout_s,
-                        table.state_timeout_s, table.fault_reset)
+                        table.state_timeout_s, table.fault_reset, host_node_id=table.host_node_id,
+                        host_heartbeat_ms=table.host_heartbeat_ms, drive_heartbeat_timeout_ms=table.consumer_ms,
+                        abort_connection=ABORT_CONNECTION_OPTIONS[table.abort_connection])
 
 
 def parse_config(data: Mapping[str, Any], source: str = "<config>", overrides: Sequence[Override] = ()

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 
 from bodebench.core.rules import CRITERIA
 from bodebench.core.summary import RESPONSE_KINDS
-from bodebench.drivers.cia402 import MODES
+from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS, MODES
 from bodebench.io.schema import FieldError
 from bodebench.sim.cia402_drive import Cia402Faults
 from bodebench.sim.faults import FaultConfig
@@ -502,9 +502,30 @@ class CanopenConfig:
         "min": 0, "min_exclusive": True, "doc": "longest wait for an SDO answer or a state change, s"})
     fault_reset: bool = field(default=False, metadata={
         "doc": "a drive found in fault is reset (controlword bit 7) instead of refused"})
+    host_node_id: int = field(default=127, metadata={
+        "min": 1, "max": 127, "doc": "the host's own node id on the bus, for its heartbeat (COB-ID 0x700 + it); not "
+                                     "node_id nor any other node's"})
+    host_heartbeat_ms: int = field(default=100, metadata={
+        "min": 0, "max": 65535, "doc": "the host's heartbeat period, ms, from enable to the end of the session (0: "
+                                       "none, and the drive cannot tell that the host died)"})
+    drive_heartbeat_timeout_ms: int | None = field(default=None, metadata={
+        "min": 1, "max": 65535, "doc": "consumer heartbeat time written to the drive's 0x1016 for the host's node, "
+                                       "ms: the drive stops itself when the host's heartbeat is missing this long; "
+                                       "longer than host_heartbeat_ms (default: 5 x host_heartbeat_ms)"})
+    abort_connection: str = field(default="quick stop", metadata={
+        "choices": tuple(ABORT_CONNECTION_OPTIONS),
+        "doc": "what the drive does when the host's heartbeat is lost, written to its 0x6007 (abort connection "
+               "option code): quick stop (3), disable voltage (2) or fault (1)"})
+
+    @property
+    def consumer_ms(self) -> int:
+        """The consumer heartbeat time for the drive's 0x1016, ms (``drive_heartbeat_timeout_ms`` or its default)."""
+        if self.drive_heartbeat_timeout_ms is not None:
+            return self.drive_heartbeat_timeout_ms
+        return min(65535, 5 * self.host_heartbeat_ms)
 
     def validate(self, where: Callable[[str], str]) -> None:
-        """The scales and the heartbeat; raises :class:`FieldError`."""
+        """The scales, the heartbeats and the host's node id; raises :class:`FieldError`."""
         for table, name in ((self.actual, "actual"), (self.actual_scale, "actual_scale")):
             for channel, value in table.items():
                 ok = isinstance(value, str) and value.strip() if name == "actual" else (
@@ -520,6 +541,14 @@ class CanopenConfig:
         if self.heartbeat_ms and self.heartbeat_timeout_s <= self.heartbeat_ms / 1000:
             raise FieldError("heartbeat_timeout_s", f"must be longer than the heartbeat period "
                                                     f"({where('heartbeat_ms')} = {self.heartbeat_ms} ms)")
+        if self.host_node_id == self.node_id:
+            raise FieldError("host_node_id", f"{self.host_node_id} is the drive's own node id ({where('node_id')}): "
+                                             "the host needs one of its own")
+        if self.host_heartbeat_ms and self.consumer_ms <= self.host_heartbeat_ms:
+            raise FieldError("drive_heartbeat_timeout_ms",
+                             f"{self.consumer_ms} ms must be longer than the host's heartbeat period "
+                             f"({where('host_heartbeat_ms')} = {self.host_heartbeat_ms} ms), or the drive stops on "
+                             "a heartbeat that is merely on time")
 
 
 @dataclass(frozen=True)
