@@ -511,7 +511,7 @@ class CanopenConfig:
     drive_heartbeat_timeout_ms: int | None = field(default=None, metadata={
         "min": 1, "max": 65535, "doc": "consumer heartbeat time written to the drive's 0x1016 for the host's node, "
                                        "ms: the drive stops itself when the host's heartbeat is missing this long; "
-                                       "longer than host_heartbeat_ms (default: 5 x host_heartbeat_ms)"})
+                                       "longer than host_heartbeat_ms (default: 20 x host_heartbeat_ms)"})
     abort_connection: str = field(default="quick stop", metadata={
         "choices": tuple(ABORT_CONNECTION_OPTIONS),
         "doc": "what the drive does when the host's heartbeat is lost, written to its 0x6007 (abort connection "
@@ -522,7 +522,7 @@ class CanopenConfig:
         """The consumer heartbeat time for the drive's 0x1016, ms (``drive_heartbeat_timeout_ms`` or its default)."""
         if self.drive_heartbeat_timeout_ms is not None:
             return self.drive_heartbeat_timeout_ms
-        return min(65535, 5 * self.host_heartbeat_ms)
+        return min(65535, 20 * self.host_heartbeat_ms)
 
     def validate(self, where: Callable[[str], str]) -> None:
         """The scales, the heartbeats and the host's node id; raises :class:`FieldError`."""
