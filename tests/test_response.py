@@ -508,3 +508,17 @@ def test_a_version_1_results_file_still_loads(tmp_path: Path) -> None:
     loaded = load_response(tmp_path)
     assert [repr((p.p, p.q)) for p in loaded.points] == [repr((p.p, p.q)) for p in response.points]
     assert all(math.isnan(p.uncertainty_1d) and not p.within_eps and p.periods_needed == 0 for p in loaded.points)
+
+
+def test_an_out_that_is_a_dangling_link_or_a_file_is_one_line_naming_it(tmp_path: Path) -> None:
+    from bodebench.io.results import check_output
+
+    link = tmp_path / "out"
+    link.symlink_to(tmp_path / "nowhere")
+    with pytest.raises(ResultsError, match=r"out: a symbolic link to .*nowhere, which does not exist"):
+        check_output(link, 10)
+    assert not (tmp_path / "nowhere").exists()
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    with pytest.raises(ResultsError, match=r"afile: not a directory"):
+        check_output(afile, 10)

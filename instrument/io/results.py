@@ -115,6 +115,11 @@ def check_output(directory: Path, points: int) -> bool:
     room for the results of ``points`` points (each save writes a new file before it replaces the old: twice the
     CSV and sidecar) and the plots. ResultsError naming the directory otherwise; True when it made the
     directory."""
+    if directory.is_symlink() and not directory.exists():
+        raise ResultsError(f"{directory}: a symbolic link to {os.readlink(directory)}, which does not exist; give a "
+                           "directory, or make the link's target first")
+    if directory.exists() and not directory.is_dir():
+        raise ResultsError(f"{directory}: not a directory (a file is there); give a directory for the results")
     made = not directory.exists()
     try:
         directory.mkdir(parents=True, exist_ok=True)
