@@ -144,3 +144,22 @@ def test_a_stop_signal_during_an_append_leaves_every_row_on_disk(tmp_path: Path)
         timer.join()
     assert took > 0.05  # the signal came while the rows were being made, not after
     assert len(load_response(tmp_path).points) == len(points)
+
+
+def test_a_signal_during_start_up_is_one_line_and_the_signals_exit_status(monkeypatch: pytest.MonkeyPatch,
+                                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """A real SIGINT delivered while the command line is still being read (before any bus is opened): one line
+    saying so on stderr, no traceback, exit status 128 + SIGINT, and nothing measured."""
+    from bodebench.apps import cli
+
+    build = cli.build_parser
+
+    def interrupted_build():  # type: ignore[no-untyped-def]
+        os.kill(os.getpid(), signal.SIGINT)
+        return build()
+
+    monkeypatch.setattr(cli, "build_parser", interrupted_build)
+    status = cli.main(["ports"])
+    err = capsys.readouterr().err
+    assert status == 128 + signal.SIGINT
+    assert err.count("\n") == 1 and err.startswith("bodebench: interrupted (SIGINT)") and "Traceback" not in err

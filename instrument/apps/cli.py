@@ -723,22 +723,26 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``bodebench`` command; returns the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    from bodebench.drivers.errors import DriverError
+    """Entry point of the ``bodebench`` command; returns the exit status. A stop signal at any moment, start-up
+    included, ends it with one line saying so."""
     from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
-    from bodebench.io.config import ConfigError
-    from bodebench.io.results import ResultsError
-    from bodebench.sim.serve import SimulatorStartError
 
-    _configure_logging(args.verbose, args.quiet)
-    log.debug("bodebench %s: %s", _version(), " ".join(sys.argv if argv is None else ["bodebench", *argv]))
     try:
-        if args.handler is _tui:  # the terminal UI handles its own keys and signals
-            return int(args.handler(args))
-        with stop_on_signals():
-            return int(args.handler(args))
+        with stop_on_signals():  # from the first moment: a signal during start-up is one line, not a traceback
+            args = build_parser().parse_args(argv)
+            from bodebench.drivers.errors import DriverError
+            from bodebench.io.config import ConfigError
+            from bodebench.io.results import ResultsError
+            from bodebench.sim.serve import SimulatorStartError
+
+            _configure_logging(args.verbose, args.quiet)
+            log.debug("bodebench %s: %s", _version(), " ".join(sys.argv if argv is None else ["bodebench", *argv]))
+            if args.handler is not _tui:
+                return int(args.handler(args))
+        return int(args.handler(args))  # the terminal UI handles its own keys and signals
+    except KeyboardInterrupt as exc:
+        print(f"bodebench: {_cause(exc)}; points already measured are on disk", file=sys.stderr)
+        return 128 + exc.signum if isinstance(exc, StopSignal) else 130
     except _ArgumentError as exc:
         print(f"bodebench {args.command}: {exc} (see --help)", file=sys.stderr)
         return 2
@@ -748,9 +752,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (DriverError, SimulatorStartError) as exc:
         print(f"bodebench: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt as exc:
-        print(f"bodebench: {_cause(exc)}; points already measured are on disk", file=sys.stderr)
-        return 128 + exc.signum if isinstance(exc, StopSignal) else 130
     except BrokenPipeError:  # output piped into a pager or head that closed early
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
