@@ -266,7 +266,10 @@ def _sim_controller(args: argparse.Namespace) -> int:
         print(f"{time.monotonic() - serving_started:10.3f} s  drive {text}", flush=True)
 
     serving.controller.on_event = report
-    watchdog = (f"; watchdog {layout.drive_watchdog_s:g} s" if layout.drive_watchdog_s else "; no watchdog")
+    if bench.transport == "canopen":  # a CiA 402 drive watches the host's heartbeat once the host writes 0x1016
+        watchdog = "; it watches the host's heartbeat where the host sets its 0x1016 (canopen.host_heartbeat_ms)"
+    else:
+        watchdog = f"; watchdog {layout.drive_watchdog_s:g} s" if layout.drive_watchdog_s else "; no watchdog"
     print(f"simulated {case.plant.model} drive, {bench.clock} clock at {bench.rate_hz:g} Hz{watchdog}, "
           f"listening: {where}", flush=True)
     try:
