@@ -125,3 +125,26 @@ def test_bad_input_is_one_line(tmp_path: Path) -> None:
     assert done.returncode == 2 and "results already here" in done.stderr
     sweep(offline(0.5), tmp_path / "none", keep_samples=False)
     assert not (tmp_path / "none" / "samples").exists()
+
+
+def test_analyse_names_every_stored_point_that_its_samples_do_not_give_again(tmp_path: Path) -> None:
+    """One row's p and q scaled by 1.1 (+0.83 dB) in response.csv: analyse names that point, with by how much, and
+    counts the others identical."""
+    import dataclasses
+
+
+    sweep(offline(), tmp_path / "live")
+    stored = load_response(tmp_path / "live")
+    edited = stored.points[3]
+    stored.points[3] = dataclasses.replace(edited, p=1.1 * edited.p, q=1.1 * edited.q,
+                                           uncertainty=1.1 * edited.uncertainty,
+                                           uncertainty_1d=1.1 * edited.uncertainty_1d)
+    save_response(stored, tmp_path / "live")  # every column consistent: only the samples can tell
+    target = (edited.frequency_hz, edited.harmonic)
+    done = cli("analyse", str(tmp_path / "live"), "--quiet")
+    assert done.returncode == 0, done.stderr
+    assert f"{2 * len(FREQS) - 1} identical to the stored points, 1 not:" in done.stdout
+    named = [line for line in done.stdout.splitlines() if line.startswith("  ")]
+    assert len(named) == 1 and named[0].startswith(f"  {target[0]:g} Hz harmonic {target[1]} position:"), named
+    change = float(named[0].rsplit("= ", 1)[1].rstrip(")"))
+    assert change == pytest.approx(0.1 / 1.1, rel=1e-3)  # printed to 3 digits

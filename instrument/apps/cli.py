@@ -499,14 +499,23 @@ def _analyse(args: argparse.Namespace) -> int:
         return 2
     stored = load_response(directory)
     response, analysis = result.response, result.analysis
-    if result.failed:  # frequencies left out: the others compared point by point
-        again = {(p.frequency_hz, p.harmonic, p.channel): p for p in response.points}
-        same = sum(1 for a in stored.points if (b := again.get((a.frequency_hz, a.harmonic, a.channel))) is not None
-                   and _same_point(a, b))
-    else:
-        same = sum(1 for a, b in zip(stored.points, response.points, strict=True) if _same_point(a, b))
+    again = {(p.frequency_hz, p.harmonic, p.channel): p for p in response.points}
+    differ = [(a, again.get((a.frequency_hz, a.harmonic, a.channel))) for a in stored.points
+              if not any(f == a.frequency_hz for f, _ in result.failed)]
+    differ = [(a, b) for a, b in differ if b is None or not _same_point(a, b)]
+    same = len(stored.points) - len(differ) - sum(1 for a in stored.points
+                                                  if any(f == a.frequency_hz for f, _ in result.failed))
     print(f"{directory}: {len(response)} points from their samples, criterion {analysis.criterion}, tolerance "
-          f"{analysis.tolerance_percent:g} %; {same} identical to the stored points")
+          f"{analysis.tolerance_percent:g} %; {same} identical to the stored points"
+          + (f", {len(differ)} not:" if differ else ""))
+    for a, b in differ:  # each one named, with by how much
+        where = f"  {a.frequency_hz:g} Hz harmonic {a.harmonic} {a.channel}"
+        if b is None:
+            print(f"{where}: stored, not found again")
+        else:
+            change = abs(complex(b.p, b.q) - complex(a.p, a.q)) / max(abs(complex(a.p, a.q)), 1e-300)
+            print(f"{where}: stored {a.gain_db:.6g} dB {a.phase_deg:.6g} deg {a.status}, again {b.gain_db:.6g} dB "
+                  f"{b.phase_deg:.6g} deg {b.status} (|dZ|/|Z| = {change:.3g})")
     if not args.quiet:
         print(f"{'f Hz':>10} {'k':>2} {'channel':<14} {'gain dB':>11} {'phase deg':>10} {'periods':>7}  status")
         for p in response.points:

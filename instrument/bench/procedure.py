@@ -37,6 +37,7 @@ from bodebench.io.results import (
     sidecar_runs,
     update_sidecar,
 )
+from bodebench.io.samples import SAMPLES_DIR, samples_path
 
 log = logging.getLogger("bodebench.sweep")
 
@@ -75,6 +76,12 @@ def previous_run(directory: Path, case: CaseConfig, existing: str = "refuse") ->
         raise ResultsError(f"{directory / CSV_NAME}: results already here; --resume continues that sweep, "
                            "or choose another --out")
     previous = load_response(directory, drop_torn_row=True)
+    frequencies = sorted({p.frequency_hz for p in previous.points})
+    missing = [f for f in frequencies if not samples_path(directory, f).exists()]
+    if missing:
+        log.warning("%s: %d of the %d frequencies already measured have no samples file (%s Hz): deleted, or measured "
+                    "without them; analyse cannot recompute those points", directory / SAMPLES_DIR, len(missing),
+                    len(frequencies), ", ".join(f"{f:g}" for f in missing))
     before, wanted = _what_is_measured(previous.config), _what_is_measured(FrequencyResponse(config=case.raw).config)
     if before != wanted:
         changed = sorted(k for k in set(before) | set(wanted) if before.get(k) != wanted.get(k))
