@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 
 import can
 
@@ -52,3 +53,19 @@ class BusRecorder(FrameRecorder):
         disabled = any(m.arbitration_id == dis.id and bytes(m.data) == bytes(dis.data)
                        for m in self.frames[last:])
         return value, disabled
+
+
+def interrupt_after(directory: Path, rows: int) -> None:
+    """Leave a results directory as a sweep stopped after its first ``rows`` rows leaves it: the later rows gone
+    from response.csv, and from the checksums its sidecar records (an interrupted run never wrote them)."""
+    import json
+
+    from bodebench.io.results import CHECKSUMS, CSV_NAME, SIDECAR_NAME
+
+    csv = directory / CSV_NAME
+    lines = csv.read_text().splitlines(keepends=True)
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    csv.write_text("".join(lines[:header + 1 + rows]))
+    sidecar = json.loads((directory / SIDECAR_NAME).read_text())
+    sidecar[CHECKSUMS]["rows"] = sidecar[CHECKSUMS]["rows"][:rows]
+    (directory / SIDECAR_NAME).write_text(json.dumps(sidecar, indent=2) + "\n")

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import interrupt_after
 
 from bodebench.apps.cli import main
 from bodebench.apps.plots import write_plots
@@ -97,10 +98,7 @@ def test_a_resumed_pool_run_measures_only_what_is_missing(tmp_path: Path) -> Non
     with ProcessPoolExecutor(2) as pool:
         full = SweepProcedure(config, tmp_path / "full", executor=pool).run()
         # cut the second case's file after its first frequency's rows, as an interruption would
-        cut = tmp_path / "full" / "heavy" / "response.csv"
-        lines = cut.read_text().splitlines(keepends=True)
-        header = sum(1 for line in lines if not line[:1].isdigit())
-        cut.write_text("".join(lines[:header + 2]))
+        interrupt_after(tmp_path / "full" / "heavy", 2)
         events: list[object] = []
         resumed = SweepProcedure(config, tmp_path / "full", listener=events.append, executor=pool,
                                  existing="resume").run()

@@ -188,23 +188,28 @@ def test_a_sweep_resumes_on_another_port_or_channel_but_not_on_another_drive(tmp
             previous_run(out, case(source, **moved, analysis={"tolerance_percent": 0.02}), "resume")
 
 
-def test_a_resume_says_which_measured_frequencies_lost_their_samples(tmp_path: Path,
-                                                                      caplog: pytest.LogCaptureFixture) -> None:
-    """samples/ deleted between the runs: the resume says so, naming the frequencies, before it goes on."""
+def test_a_resume_refuses_samples_files_gone_since_written_and_names_them(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """samples/ deleted between the runs: the checksums the sidecar recorded say so; the resume is refused naming
+    each file, and goes on with them named as warnings when told to (resume_changed, --accept-changes)."""
     import logging
     import shutil
 
     from bodebench.bench.procedure import SweepProcedure, previous_run
     from bodebench.io.config import parse_config as parse
+    from bodebench.io.results import ResultsError
 
     data = {"plant": {"model": "lag", "time_constant": 0.05, "gain": 1.0},
             "excitation": {"amplitude": 1.0, "frequencies_hz": [1.0, 3.0]},
             "analysis": {"tolerance_percent": 0.1}}
     case = parse(data, "x.toml").cases[0]
-    SweepProcedure(parse(data, "x.toml"), tmp_path).run()
+    SweepProcedure(parse(data, "x.toml"), tmp_path, keep_samples=True).run()
     shutil.rmtree(tmp_path / "samples")
+    with pytest.raises(ResultsError) as refused:
+        previous_run(tmp_path, case, existing="resume")
+    assert "samples/1.0Hz.npz: gone since it was written; samples/3.0Hz.npz: gone since it was written" \
+        in str(refused.value) and "--accept-changes" in str(refused.value)
     with caplog.at_level(logging.WARNING, logger="bodebench.sweep"):
-        previous = previous_run(tmp_path, case, existing="resume")
+        previous = previous_run(tmp_path, case, existing="resume_changed")
     assert previous is not None and len(previous) == 2
-    assert any("2 of the 2 frequencies already measured have no samples file (1, 3 Hz)" in r.getMessage()
-               for r in caplog.records)
+    assert sum("gone since it was written" in r.getMessage() for r in caplog.records) == 2

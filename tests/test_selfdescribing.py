@@ -13,6 +13,7 @@ from importlib import metadata
 from pathlib import Path
 
 import pytest
+from helpers import interrupt_after
 
 from bodebench.apps.cli import main
 from bodebench.core.response import FrequencyResponse, ResponsePoint
@@ -104,9 +105,7 @@ def test_each_run_is_recorded_and_a_resumed_sweep_adds_its_own(tmp_path: Path) -
     assert run["link"] == {"kind": "offline", "plant": "lag"}
     assert run["points"] == 3 and run["resumed"] is False and run["completed"] is True
     # an interrupted sweep: the last frequency's row lost; --resume measures it and adds a record
-    csv_path = out / "response.csv"
-    lines = csv_path.read_text().splitlines()
-    csv_path.write_text("\n".join(lines[:-1]) + "\n")
+    interrupt_after(out, 2)
     assert main(["simulate", str(config), "--out", str(out), "--jobs", "1", "--quiet", "--resume"]) == 0
     first, second = json.loads((out / "response.json").read_text())["runs"]
     assert first == run and second["resumed"] is True and second["points"] == 3

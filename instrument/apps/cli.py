@@ -44,7 +44,14 @@ def _plot_writer(args: argparse.Namespace) -> PlotWriter | None:
     return functools.partial(write_plots, formats=args.plots)
 
 
-def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, resume: bool = False,
+def _existing(args: argparse.Namespace) -> str:
+    """What a sweep does with results already in --out (:data:`bodebench.bench.procedure.EXISTING`)."""
+    if not args.resume:
+        return "refuse"
+    return "resume_changed" if getattr(args, "accept_changes", False) else "resume"
+
+
+def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, existing: str = "refuse",
                   plots: PlotWriter | None = None, log_bus: Path | None = None, keep_samples: bool = True) -> int:
     """Run every case of a bench config (``direct``: the simulated drive without a bus); the exit status."""
     from bodebench.apps.progress import ProgressPrinter
@@ -66,7 +73,7 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
             printer(event)
 
     procedure = SweepProcedure(config, out, listener=listener, direct=direct, plots=plots,
-                               existing="resume" if resume else "refuse", log_bus=log_bus,
+                               existing=existing, log_bus=log_bus,
                                keep_samples=keep_samples)
     try:
         outcomes = procedure.run()
@@ -182,7 +189,7 @@ def _run(args: argparse.Namespace) -> int:
     if not config.on_bench:
         raise ConfigError(f"{args.config}: bench: missing (bodebench run needs a bench config; "
                           "use bodebench simulate for an offline experiment)", "bench")
-    return _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet, resume=args.resume,
+    return _bench_sweeps(config, Path(args.out), direct=False, quiet=args.quiet, existing=_existing(args),
                          plots=_plot_writer(args), log_bus=_log_bus(args.log_bus),
                          keep_samples=not args.no_samples)
 
@@ -354,7 +361,7 @@ def _simulate(args: argparse.Namespace) -> int:
     out = Path(args.out)
     started = time.perf_counter()
     if config.on_bench:
-        return _bench_sweeps(config, out, direct=True, quiet=args.quiet, resume=args.resume,
+        return _bench_sweeps(config, out, direct=True, quiet=args.quiet, existing=_existing(args),
                              plots=_plot_writer(args), keep_samples=args.samples)
     done, total, name = 0, 0, ""
 
@@ -380,7 +387,7 @@ def _simulate(args: argparse.Namespace) -> int:
                 drawer = stack.enter_context(drawing_executor(DRAWING_MODULES))
             executor = stack.enter_context(offline_executor(args.jobs, args.executor, models))
             procedure = SweepProcedure(config, out, listener=listener, executor=executor, plots=_plot_writer(args),
-                                       existing="resume" if args.resume else "refuse",
+                                       existing=_existing(args),
                                        keep_samples=args.samples, drawer=drawer)
             outcomes = procedure.run()
     except ExecutorError as exc:
@@ -479,7 +486,7 @@ def _plot(args: argparse.Namespace) -> int:
 
 def _analyse(args: argparse.Namespace) -> int:
     from bodebench.analysis.reanalyse import reanalyse
-    from bodebench.io.results import CSV_NAME, ResultsError, load_response, save_response
+    from bodebench.io.results import CSV_NAME, ResultsError, load_response, save_response, verify_results
     from bodebench.io.samples import SamplesError
 
     directory = Path(args.results)
@@ -498,6 +505,11 @@ def _analyse(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     stored = load_response(directory)
+    checked, changed = verify_results(directory)
+    for line in changed:  # what changed since it was written, by the checksums recorded then
+        print(f"{directory}: {line}")
+    if not checked:
+        print(f"{directory}: made without checksums: what was edited since cannot be told")
     response, analysis = result.response, result.analysis
     again = {(p.frequency_hz, p.harmonic, p.channel): p for p in response.points}
     differ = [(a, again.get((a.frequency_hz, a.harmonic, a.channel))) for a in stored.points
@@ -534,6 +546,10 @@ def _analyse(args: argparse.Namespace) -> int:
                             formats=args.plots)
         print(f"-> {out / CSV_NAME} (+ {', '.join(f.name for f in files)})")
     return 0
+
+
+class _NotRaised(Exception):
+    """Stands for an error class not yet imported when start-up is interrupted (nothing raises it)."""
 
 
 def _same_point(a: object, b: object) -> bool:
@@ -632,6 +648,8 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
                                       else logging.WARNING)
 EXECUTOR_HELP = ("run the frequencies on a Dask cluster: a scheduler address (tcp://host:8786), or local to start "
                  "one here with --jobs workers (needs the dask extra)")
+ACCEPT_HELP = ("with --resume: continue even where rows or samples files of --out changed, vanished or appeared "
+               "since they were written (each is named; by default the resume is refused)")
 PLOTS_HELP = "plot files per case: comma-separated png, svg, pdf, or none (default: png)"
 SET_HELP = ("set a key of the configuration before it is validated, as if the file said so (repeatable): "
             "a TOML value, or a bare word taken as a string; for example analysis.tolerance_percent=0.1, "
@@ -658,6 +676,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="worker processes (default: all cores; 1 runs in this process)")
     sim.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
+    sim.add_argument("--accept-changes", action="store_true", help=ACCEPT_HELP)
     sim.add_argument("--executor", default=None, metavar="SCHEDULER", help=EXECUTOR_HELP)
     sim.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)
     sim.add_argument("--samples", action="store_true",
@@ -671,6 +690,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", required=True, help="results directory")
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted sweep in --out: measured points are kept, the rest measured")
+    run.add_argument("--accept-changes", action="store_true", help=ACCEPT_HELP)
     run.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)
     run.add_argument("--log-bus", metavar="FILE", default=None, help=LOG_BUS_HELP)
     run.add_argument("--no-samples", action="store_true",
@@ -739,6 +759,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     included, ends it with one line saying so."""
     from bodebench.drivers.stop_signals import StopSignal, stop_on_signals
 
+    # bound before the imports below, so that an exception during start-up finds every except clause defined
+    ConfigError: type[Exception] = _NotRaised
+    ResultsError: type[Exception] = _NotRaised
+    DriverError: type[Exception] = _NotRaised
+    SimulatorStartError: type[Exception] = _NotRaised
     try:
         with stop_on_signals():  # from the first moment: a signal during start-up is one line, not a traceback
             args = build_parser().parse_args(argv)

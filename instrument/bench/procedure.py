@@ -36,6 +36,7 @@ from bodebench.io.results import (
     save_response,
     sidecar_runs,
     update_sidecar,
+    verify_results,
 )
 from bodebench.io.samples import SAMPLES_DIR, samples_path
 
@@ -57,7 +58,7 @@ def bus_log_path(path: Path, config: ExperimentConfig, case: CaseConfig) -> Path
     return path.with_name(f"{path.stem}.{case.name}{path.suffix}") if config.has_cases else path
 
 
-EXISTING = ("refuse", "resume", "replace")
+EXISTING = ("refuse", "resume", "resume_changed", "replace")
 """What to do with results already in a case's directory: refuse to start, continue that sweep, or replace it
 (the user said so)."""
 
@@ -67,7 +68,9 @@ def previous_run(directory: Path, case: CaseConfig, existing: str = "refuse") ->
     ``existing`` is "replace").
 
     Raises ResultsError when the directory holds results and ``existing`` is "refuse" (nothing is overwritten),
-    or when they are to be resumed but were made with another configuration."""
+    when they are to be resumed but were made with another configuration, or when a row or samples file changed,
+    vanished or appeared since it was written (its checksum in the sidecar) and ``existing`` is not
+    "resume_changed"."""
     if existing not in EXISTING:
         raise ValueError(f"existing must be one of {', '.join(EXISTING)}, got {existing!r}")
     if existing == "replace" or not (directory / CSV_NAME).exists():
@@ -75,10 +78,18 @@ def previous_run(directory: Path, case: CaseConfig, existing: str = "refuse") ->
     if existing == "refuse":
         raise ResultsError(f"{directory / CSV_NAME}: results already here; --resume continues that sweep, "
                            "or choose another --out")
+    checked, changed = verify_results(directory)
+    if changed and existing != "resume_changed":
+        raise ResultsError(f"{directory}: changed since it was written: {'; '.join(changed)}; cannot resume "
+                           "(--accept-changes resumes with the files as they are)")
+    for line in changed:
+        log.warning("%s: %s (resumed as it is, --accept-changes)", directory, line)
+    if not checked:
+        log.warning("%s: made without checksums: what was edited since cannot be told", directory / SIDECAR_NAME)
     previous = load_response(directory, drop_torn_row=True)
     frequencies = sorted({p.frequency_hz for p in previous.points})
     missing = [f for f in frequencies if not samples_path(directory, f).exists()]
-    if missing:
+    if missing and not checked and (directory / SAMPLES_DIR).exists():  # with checksums, a vanished file is above
         log.warning("%s: %d of the %d frequencies already measured have no samples file (%s Hz): deleted, or measured "
                     "without them; analyse cannot recompute those points", directory / SAMPLES_DIR, len(missing),
                     len(frequencies), ", ".join(f"{f:g}" for f in missing))

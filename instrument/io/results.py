@@ -10,6 +10,7 @@ derived column against ``p``, ``q`` and ``amplitude``.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -28,6 +29,7 @@ from bodebench.io.csvstyle import CsvStyle, preamble, style_of_config, style_of_
 __all__ = [
     "CSV_COLUMNS",
     "CSV_NAME",
+    "CHECKSUMS",
     "FORMAT_NAME",
     "FORMAT_VERSION",
     "ResultsError",
@@ -38,6 +40,7 @@ __all__ = [
     "save_response",
     "sidecar_runs",
     "update_sidecar",
+    "verify_results",
     "write_summary",
 ]
 
@@ -394,13 +397,88 @@ def _sidecar_text(case: str, config: Mapping[str, Any]) -> str:
 
 
 def save_response(response: FrequencyResponse, directory: str | Path) -> None:
-    """Write ``directory/response.csv`` and ``directory/response.json`` atomically (creates the directory)."""
+    """Write ``directory/response.csv`` and ``directory/response.json`` atomically (creates the directory), the
+    sidecar with the checksums of the rows and of the samples files present."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     style = style_of_config(response.config)
-    csv_text = _file_head(style) + "".join(_point_row(point, style) + "\n" for point in response.points)
-    atomic_write_text(directory / SIDECAR_NAME, _sidecar_text(response.case, response.config))
-    atomic_write_text(directory / CSV_NAME, csv_text)
+    rows = [_point_row(point, style) for point in response.points]
+    sidecar = json.loads(_sidecar_text(response.case, response.config))
+    sidecar[CHECKSUMS] = {"rows": [_digest(row.encode()) for row in rows],
+                          "samples": _samples_digests(directory, {p.frequency_hz for p in response.points})}
+    atomic_write_text(directory / SIDECAR_NAME, json.dumps(sidecar, indent=2) + "\n")
+    atomic_write_text(directory / CSV_NAME, _file_head(style) + "".join(row + "\n" for row in rows))
+
+
+CHECKSUMS = "checksums"
+"""The sidecar's key holding a SHA-256 of every row of response.csv, in order (``rows``), and of every samples file
+(``samples``, by file name), recorded as each is written: what was edited, added or deleted afterwards shows."""
+
+
+def _digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _samples_digests(directory: Path, frequencies: set[float] | list[float]) -> dict[str, str]:
+    """The SHA-256 of each samples file of ``frequencies`` present in ``directory``, by file name."""
+    from bodebench.io.samples import samples_path  # samples imports this module
+
+    out = {}
+    for f in sorted(frequencies):
+        path = samples_path(directory, f)
+        if path.is_file():
+            out[path.name] = _digest(path.read_bytes())
+    return out
+
+
+def verify_results(directory: str | Path) -> tuple[bool, list[str]]:
+    """Check a results directory against the checksums its sidecar recorded as it was written: (whether it had
+    checksums to check, one line for each row or samples file changed, missing or added since). A row after the last
+    one recorded, of the frequency written last, is the append a stopped run left without its checksum: not a
+    problem. ResultsError when the directory's files cannot be read."""
+    directory = Path(directory)
+    data = read_json_file(directory / SIDECAR_NAME, ResultsError, "sidecar file")
+    sums = data.get(CHECKSUMS) if isinstance(data, dict) else None
+    if not isinstance(sums, dict) or not isinstance(sums.get("rows"), list):
+        return False, []
+    path = directory / CSV_NAME
+    try:
+        lines = path.read_text(encoding="utf-8").split("\n")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ResultsError(f"{path}: cannot read results file: {exc}") from None
+    h = _header_index(lines)
+    delimiter = style_of_header(lines[h] if h < len(lines) else "").delimiter
+    rows = [line for line in lines[h + 1:] if line]
+    recorded = sums["rows"]
+    problems = []
+
+    def where(i: int) -> str:
+        cells = rows[i].split(delimiter)
+        return f"{path.name} line {h + 2 + i} ({' '.join(cells[:3])})"
+
+    for i, row in enumerate(rows[: len(recorded)]):
+        if _digest(row.encode()) != recorded[i]:
+            problems.append(f"{where(i)}: changed since it was written")
+    if len(rows) < len(recorded):
+        problems.append(f"{path.name}: {len(recorded) - len(rows)} of the {len(recorded)} rows written are gone")
+    extra = rows[len(recorded):]
+    if extra:
+        last = {row.split(delimiter)[0] for row in extra}
+        before = rows[len(recorded) - 1].split(delimiter)[0] if recorded and len(rows) >= len(recorded) else None
+        if len(last) > 1 or (before is not None and before in last):
+            problems += [f"{where(i)}: added since the rows were written" for i in range(len(recorded), len(rows))]
+    samples = sums.get("samples")
+    if not isinstance(samples, dict):
+        samples = {}
+    from bodebench.io.samples import SAMPLES_DIR
+
+    for name, digest in sorted(samples.items()):
+        file = directory / SAMPLES_DIR / name
+        if not file.is_file():
+            problems.append(f"{SAMPLES_DIR}/{name}: gone since it was written")
+        elif _digest(file.read_bytes()) != digest:
+            problems.append(f"{SAMPLES_DIR}/{name}: changed since it was written")
+    return True, problems
 
 
 def update_sidecar(directory: str | Path, values: Mapping[str, Any]) -> None:
@@ -455,7 +533,8 @@ class ResultsWriter:
         self.directory.mkdir(parents=True, exist_ok=True)
         self.path = self.directory / CSV_NAME
         self.style = style_of_config(config)
-        atomic_write_text(self.directory / SIDECAR_NAME, _sidecar_text(case, config))
+        self._sidecar = json.loads(_sidecar_text(case, config))
+        atomic_write_text(self.directory / SIDECAR_NAME, json.dumps(self._sidecar, indent=2) + "\n")
         if resume and self.path.exists():
             _end_last_row(self.path)
             with open(self.path, encoding="utf-8") as handle:
@@ -469,6 +548,17 @@ class ResultsWriter:
                                   + "".join(_point_row(p, self.style) + "\n" for p in points))
         else:
             atomic_write_text(self.path, _file_head(self.style))
+        # the checksums of what is on disk now (a resumed file was checked against its own before it was continued)
+        lines = self.path.read_text(encoding="utf-8").split("\n")
+        rows = [line for line in lines[_header_index(lines) + 1:] if line]
+        self._rows = [_digest(row.encode()) for row in rows]
+        frequencies = {float(row.split(self.style.delimiter)[0].replace(",", ".")) for row in rows}
+        self._samples = _samples_digests(self.directory, frequencies)
+        self._record()
+
+    def _record(self) -> None:
+        """The checksums into the sidecar (its other keys as they are on disk)."""
+        update_sidecar(self.directory, {CHECKSUMS: {"rows": self._rows, "samples": self._samples}})
 
     def append(self, points: list[ResponsePoint] | tuple[ResponsePoint, ...]) -> None:
         """Append ``points`` (one frequency's, typically) and sync them to disk. A write that fails (a full disk,
@@ -477,7 +567,8 @@ class ResultsWriter:
         if not points:
             return
         with signals_held():
-            data = "".join(_point_row(point, self.style) + "\n" for point in points).encode("utf-8")
+            rows = [_point_row(point, self.style) for point in points]
+            data = "".join(row + "\n" for row in rows).encode("utf-8")
             fd = os.open(self.path, os.O_WRONLY | os.O_APPEND)
             try:
                 start = os.lseek(fd, 0, os.SEEK_END)
@@ -491,6 +582,11 @@ class ResultsWriter:
                     raise
             finally:
                 os.close(fd)
+            # then their checksums, and those of their samples files (saved before the rows): a stop between the
+            # two leaves rows of one frequency after the last checksum, which verify_results takes as that
+            self._rows += [_digest(row.encode()) for row in rows]
+            self._samples.update(_samples_digests(self.directory, {p.frequency_hz for p in points}))
+            self._record()
 
 
 def _end_last_row(path: Path) -> None:
