@@ -65,3 +65,17 @@ def test_coefficients_beyond_any_sensor_are_discarded_not_overflowed() -> None:
             assert sampler.done and "30 of 30 periods discarded" in sampler.failure
         else:
             assert sampler.done and not sampler.failure
+
+
+def test_a_host_that_stalled_is_not_a_drive_that_stopped() -> None:
+    """The host's setpoint held still for 3 periods (its process stalled, nothing went out), the drive's output held
+    still with it: not the drive's fault, no verdict; the same output while the host's sine moved is one."""
+    f = 10.0
+    t = np.arange(0, 50) / 100.0  # 5 periods
+    frozen = np.zeros((t.size, 1))
+    stalled = FlatWatch(("position",), f)
+    stalled.add(t, frozen, driven=np.zeros(t.size, dtype=bool))
+    assert stalled.stuck() == ""
+    moving = FlatWatch(("position",), f)
+    moving.add(t, frozen, driven=np.ones(t.size, dtype=bool))
+    assert moving.stuck().startswith("position held 0 for")

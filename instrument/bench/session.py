@@ -332,6 +332,7 @@ class BenchSession:
         watched = columns + [self.channels.index(SETPOINT_ECHO)] \
             if SETPOINT_ECHO in self.channels and reference != SETPOINT_ECHO else columns
         watch = FlatWatch([self.channels[i] for i in watched], f)
+        last_sent = math.nan  # the setpoint the host sent at the sample before this batch
         self._tell(StartSine(f, amplitude, bench.ramp_in_periods, bench.ramp_out_periods))
         self.listener(PointStarted(index, f, analysis.tolerance_percent, analysis.criterion))
         started = self._expect(SineStarted, timeout=60.0)
@@ -364,6 +365,13 @@ class BenchSession:
             if not isinstance(message, Samples):
                 continue
             t, values = message.t, message.values[:, watched]
+            if t.size:  # every sample, the ramp included, each with whether the host's setpoint moved at its tick
+                sent = np.asarray(message.setpoint, dtype=np.float64)
+                watch.add(t, values, np.diff(sent, prepend=last_sent) != 0)
+                last_sent = float(sent[-1])
+                stopped = watch.stuck()
+                if stopped:
+                    self._no_response(f, stopped)
             scope.add(t, message.setpoint, values[:, 0])
             stale.extend((a, b) for a, b in message.held if b - a > longest_gap_s)
             if stale and t.size:
@@ -391,10 +399,6 @@ class BenchSession:
                 t = np.concatenate([[held[0]], t])
                 values = np.vstack([held[1][None, :], values])
                 held = (math.inf, held[1])
-            watch.add(t, values)
-            stopped = watch.stuck()
-            if stopped:
-                self._no_response(f, stopped)
             values = values[:, :len(columns)]
             record.add(t, values)
             with np.errstate(all="ignore"):  # garbage that got this far is refused below, not warned about

@@ -39,12 +39,16 @@ class FlatWatch:
         self._since = np.full(len(self.channels), math.nan)  # time (s) of the first sample of the held value
         self._last_t = math.nan
 
-    def add(self, t: np.ndarray, values: np.ndarray) -> None:
-        """Samples: times (n,) in s, increasing, and values (n, channels)."""
+    def add(self, t: np.ndarray, values: np.ndarray, driven: np.ndarray | None = None) -> None:
+        """Samples: times (n,) in s, increasing, and values (n, channels); driven: (n,) False where the host's
+        setpoint did not move (a host that stalled, a sine not yet started): no drive is blamed for holding still
+        then, so those samples count as changed."""
         if t.size == 0:
             return
         v = np.asarray(values, dtype=np.float64)
         changed = np.vstack((v[:1] != self._value, v[1:] != v[:-1]))  # (n, channels): differs from the sample before
+        if driven is not None:
+            changed |= ~np.asarray(driven, dtype=bool)[:, None]
         for c in range(v.shape[1]):
             moves = np.flatnonzero(changed[:, c])
             if moves.size:

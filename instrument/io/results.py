@@ -421,9 +421,11 @@ def _digest(data: bytes) -> str:
 
 def _samples_digests(directory: Path, frequencies: set[float] | list[float]) -> dict[str, str]:
     """The SHA-256 of each samples file of ``frequencies`` present in ``directory``, by file name."""
-    from bodebench.io.samples import samples_path  # samples imports this module
+    from bodebench.io.samples import SAMPLES_DIR, samples_path  # samples imports this module
 
-    out = {}
+    out: dict[str, str] = {}
+    if not (directory / SAMPLES_DIR).is_dir():
+        return out
     for f in sorted(frequencies):
         path = samples_path(directory, f)
         if path.is_file():
