@@ -365,9 +365,10 @@ class BenchSession:
             if not isinstance(message, Samples):
                 continue
             t, values = message.t, message.values[:, watched]
-            if t.size:  # every sample, the ramp included, each with whether the host's setpoint moved at its tick
+            if t.size:  # the samples of the analysed periods (a friction link may stick through the ramp), each
+                # with whether the host's setpoint moved at its tick
                 sent = np.asarray(message.setpoint, dtype=np.float64)
-                watch.add(t, values, np.diff(sent, prepend=last_sent) != 0)
+                watch.add(t, values, (np.diff(sent, prepend=last_sent) != 0) & (t > t0))
                 last_sent = float(sent[-1])
                 stopped = watch.stuck()
                 if stopped:
