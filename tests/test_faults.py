@@ -125,7 +125,9 @@ def test_faults_that_end_the_sweep_leave_the_drive_safe(name: str, faults: dict[
     session, _, error = run(can_config(channel, faults, safety={"watchdog_s": 0.3,
                                                                  "feedback_limits": {"position": [-1.0, 1.0]}}))
     value, disabled = recorder.close()
-    assert error is not None and error.kind == kind, name
+    # a drive disabled unreported is caught by its flat feedback, or, on a machine so busy that 0.3 s passes without a
+    # valid frame first, by the host's watchdog: either way the sweep ends and the drive is left safe
+    assert error is not None and (error.kind == kind or kind == "no_response" and error.kind == "watchdog"), name
     assert value == 0.0 and disabled
     # what was measured before the fault is kept, whole
     assert all(p.converged for p in session.response.points)
