@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import cmath
+import dataclasses
 import json
 import math
 import os
@@ -29,12 +30,16 @@ from bodebench.apps.tui.braille import Axis, BrailleCanvas, HLine, PlotError, Tr
 from bodebench.apps.tui.bridge import SessionBridge
 from bodebench.apps.tui.dialogs import ChoiceDialog, ConfirmDialog, InputDialog, MessageDialog
 from bodebench.apps.tui.model import (
+    CAPPED,
     CONVERGED,
+    DISTURBED,
     FAILED,
     INTEGRATING,
+    NOISE_LIMITED,
     PENDING,
     SETTLING,
     SKIPPED,
+    UNTIED,
     BusRates,
     SweepModel,
     format_duration,
@@ -684,6 +689,27 @@ def test_a_finished_sweep_is_loaded_from_its_results_directory(tmp_path: Path) -
             await pilot.press("q")  # quits from the dialog: nothing runs
             await wait_for(pilot, lambda: not app.is_running, "the app to exit")
         assert app.return_value == 0 and app.control is None and app.exit_line == ""
+
+    asyncio.run(check())
+
+
+def test_a_point_not_converged_for_a_stated_reason_shows_that_reason(tmp_path: Path) -> None:
+    """Each way a point ends unconverged is shown as itself: a disturbed or untied point is not a failure of the
+    sweep, and the engineer needs to know which remedy applies (move the frequency, tie the phase)."""
+    config = write_bench_config(tmp_path, "tui-status", freqs=SNAP_FREQS)
+    reasons = ("capped", "noise_limited", "disturbed", "untied", "below_resolution", "converged")
+    shown = {"capped": CAPPED, "noise_limited": NOISE_LIMITED, "disturbed": DISTURBED, "untied": UNTIED,
+             "below_resolution": CONVERGED, "converged": CONVERGED}
+    points = [dataclasses.replace(point, status=reasons[i % len(reasons)],
+                                  converged=reasons[i % len(reasons)] in ("converged", "below_resolution"))
+              for i, point in enumerate(lag_response(tmp_path, SNAP_FREQS).points)]
+    save_response(FrequencyResponse(points, config={"title": "lag"}, case="bench"), tmp_path / "out")
+
+    async def check() -> None:
+        app = BodeBenchApp(config, tmp_path / "out")
+        async with app.run_test(size=(80, 24)) as pilot:
+            await pilot.pause(0.1)
+            assert table_states(app) == [shown[point.status] for point in points]
 
     asyncio.run(check())
 

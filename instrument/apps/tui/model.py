@@ -16,9 +16,10 @@ from bodebench.core.response import ResponsePoint
 from bodebench.status import PointStatus
 
 #: states of a row in the sweep table
-PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, NOISE_LIMITED, FAILED, SKIPPED = (
-    "pending", "settling", "integrating", "converged", "capped", "noise-limited", "failed", "skipped")
-ROW_STATES = (PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, NOISE_LIMITED, FAILED, SKIPPED)
+PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, NOISE_LIMITED, DISTURBED, UNTIED, FAILED, SKIPPED = (
+    "pending", "settling", "integrating", "converged", "capped", "noise-limited", "disturbed", "untied", "failed",
+    "skipped")
+ROW_STATES = (PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, NOISE_LIMITED, DISTURBED, UNTIED, FAILED, SKIPPED)
 ACTIVE_STATES = (SETTLING, INTEGRATING)
 
 
@@ -45,17 +46,20 @@ def row_key(position: int, harmonic: int, channel: str) -> str:
     return f"{position}:{harmonic}:{channel}"
 
 
+_UNCONVERGED_STATES = {PointStatus.CAPPED: CAPPED, PointStatus.NOISE_LIMITED: NOISE_LIMITED,
+                       PointStatus.DISTURBED: DISTURBED, PointStatus.UNTIED: UNTIED}
+
+
 def finished_state(converged: bool, status: str) -> str:
-    """converged / capped / noise-limited / failed for a finished point or series."""
+    """The row state of a finished point or series: converged, or why not (capped, noise-limited, disturbed: a
+    disturbance line on its harmonic, untied: its phase has the host's latency in it), failed otherwise."""
     if converged:
         return CONVERGED
-    if status == PointStatus.CAPPED:
-        return CAPPED
-    return NOISE_LIMITED if status == PointStatus.NOISE_LIMITED else FAILED
+    return _UNCONVERGED_STATES.get(status, FAILED)  # a status is its own string
 
 
 def point_state(point: ResponsePoint) -> str:
-    """converged / capped / noise-limited / failed for a finished point."""
+    """:func:`finished_state` of a finished point."""
     return finished_state(point.converged, point.status)
 
 

@@ -22,12 +22,14 @@ from bodebench.apps.tui.braille import Axis, HLine, PlotError, Trace, auto_axis,
 from bodebench.apps.tui.model import (
     CAPPED,
     CONVERGED,
+    DISTURBED,
     FAILED,
     INTEGRATING,
     NOISE_LIMITED,
     PENDING,
     SETTLING,
     SKIPPED,
+    UNTIED,
     Row,
     SeriesTrace,
 )
@@ -39,7 +41,8 @@ from bodebench.core.summary import ResponseSummary, summarize_response
 PALETTE = ("cyan", "yellow", "magenta", "green", "bright_blue", "bright_red", "white", "bright_green")
 
 STATE_STYLES = {PENDING: "bright_black", SETTLING: "yellow", INTEGRATING: "bold cyan", CONVERGED: "green",
-                CAPPED: "magenta", NOISE_LIMITED: "yellow", FAILED: "bold red", SKIPPED: "bright_black"}
+                CAPPED: "magenta", NOISE_LIMITED: "yellow", DISTURBED: "yellow", UNTIED: "yellow", FAILED: "bold red",
+                SKIPPED: "bright_black"}
 
 #: sweep table columns: (key, label, width in cells)
 COLUMNS = (("f", "f Hz", 7), ("k", "k", 2), ("ch", "channel", 9), ("state", "state", 11), ("gain", "gain dB", 8),
