@@ -46,8 +46,8 @@ def row_key(position: int, harmonic: int, channel: str) -> str:
     return f"{position}:{harmonic}:{channel}"
 
 
-_UNCONVERGED_STATES = {PointStatus.CAPPED: CAPPED, PointStatus.NOISE_LIMITED: NOISE_LIMITED,
-                       PointStatus.DISTURBED: DISTURBED, PointStatus.UNTIED: UNTIED}
+_UNCONVERGED_STATES: dict[str, str] = {PointStatus.CAPPED: CAPPED, PointStatus.NOISE_LIMITED: NOISE_LIMITED,
+                                       PointStatus.DISTURBED: DISTURBED, PointStatus.UNTIED: UNTIED}
 
 
 def finished_state(converged: bool, status: str) -> str:
