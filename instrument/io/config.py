@@ -230,6 +230,12 @@ def _build_case(
         what = "an offline experiment" if built["bench"] is None else "a simulated drive ([simulator])"
         raise _Fault(_key_path("plant"), f"missing: {what} needs a [plant] table (only a real drive needs none)")
     _check_frequencies(built["excitation"], key)
+    analysis = built["analysis"]
+    if built["bench"] is None and max(analysis.harmonics) * MIN_SAMPLES_PER_PERIOD > analysis.steps_per_period:
+        raise _Fault(key("analysis", "harmonics"),
+                     f"harmonic {max(analysis.harmonics)} needs at least {MIN_SAMPLES_PER_PERIOD} steps a period of "
+                     f"its own: analysis.steps_per_period = {analysis.steps_per_period} allows harmonics up to "
+                     f"{analysis.steps_per_period // MIN_SAMPLES_PER_PERIOD}")
     notes: tuple[str, ...] = ()
     if built["bench"] is not None and built["analysis"].disturbance_policy == "move":
         excitation = built["excitation"]
