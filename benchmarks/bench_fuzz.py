@@ -44,7 +44,7 @@ def main(argv: list[str]) -> int:
             pass
     took = time.perf_counter() - start
     nonsense_accepted = []
-    for key, mutant in nonsense_mutants():
+    for _, mutant in nonsense_mutants():
         try:
             parse_config(mutant.data, mutant.source)
             nonsense_accepted.append(f"{mutant.source}: {mutant.edits[0]}")

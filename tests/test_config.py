@@ -640,7 +640,8 @@ def valid_tables(draw: st.DrawFn, model: str | None = None) -> dict[str, Any]:
         analysis["max_periods"] = draw(st.integers(101, 30000))
     for key in ("window", "steps_per_period", "settle_periods", "average_periods"):
         if draw(st.booleans()):
-            analysis[key] = draw(st.integers(INT_MIN[key], INT_MIN[key] + 500))
+            least = 8 * 9 if key == "steps_per_period" else INT_MIN[key]  # 8 steps a period of harmonic 9
+            analysis[key] = draw(st.integers(least, least + 500))
     return {"plant": plant, "excitation": excitation, "analysis": analysis}
 
 
