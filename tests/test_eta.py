@@ -136,7 +136,7 @@ def test_the_adaptive_rule_predicts_its_own_stop(seed: int) -> None:
     """A noisy sine through the real sampler: a quarter of the way, the periods to go the rule's progress predicts
     put the stop within a factor 1.6 of where the rule actually stops."""
     f, rate = 5.0, 1000.0
-    settings = AnalysisConfig(harmonics=(1,), tolerance_percent=0.2, max_periods=100_000)
+    settings = AnalysisConfig(harmonics=(1,), tolerance_percent=0.2, max_periods=100_000, max_point_s=1e6)
     sampler = Autointegrator(f, 1.0, ["y"], settings)
     timer = SweepTimer((f,), max_periods=settings.max_periods, seconds_per_period=1.0)
     timer.point_started(f, 0.0)
@@ -183,3 +183,14 @@ def test_any_progress_gives_a_finite_time_or_none() -> None:
                 assert left is None or (math.isfinite(left) and left >= 0.0), left
             timer.point_finished(f, None if rng.random() < 0.2 else n, now)
         assert timer.remaining(now) == 0.0
+
+
+def test_each_point_is_predicted_within_its_own_budget() -> None:
+    """With a budget per frequency (a time budget leaves a low frequency fewer periods), a prediction from the
+    measured points never exceeds the budget of the frequency predicted."""
+    timer = SweepTimer((1.0, 10.0, 100.0), max_periods=(600, 6000, 20000), seconds_per_period=1.0)
+    timer.already_measured({100.0: 5000})
+    assert timer.predicted_periods(10.0) == pytest.approx(5000)
+    assert timer.predicted_periods(1.0) == pytest.approx(600)  # the measured 5000 periods do not fit 1 Hz's budget
+    with pytest.raises(ValueError, match="one per frequency"):
+        SweepTimer((1.0, 10.0), max_periods=(600,))

@@ -26,8 +26,8 @@ class SessionStarted:
 
     measured: frequencies already on disk from an interrupted sweep, with the periods their slowest series
     took (not measured again); extra_periods: per frequency, the periods a point spends besides those
-    integrated (ramp in, settle, ramp out); max_periods: the cap on integrated periods; realtime: the bench
-    paces periods in real time (a period lasts 1/f s).
+    integrated (ramp in, settle, ramp out); max_periods: the cap on integrated periods (per frequency: each
+    point's budget); realtime: the bench paces periods in real time (a period lasts 1/f s).
     """
 
     frequencies_hz: tuple[float, ...]
@@ -35,7 +35,7 @@ class SessionStarted:
     where: str
     measured: tuple[tuple[float, int], ...] = ()
     extra_periods: tuple[float, ...] = ()
-    max_periods: int | None = None
+    max_periods: int | tuple[int, ...] | None = None
     realtime: bool = False
 
     def timer(self) -> SweepTimer:

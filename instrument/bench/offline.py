@@ -74,7 +74,7 @@ def measure_point(case: CaseConfig, frequency_hz: float, samples_dir: str = "") 
     step = 0
     batch = FIRST_BATCH_PERIODS
     while not sampler.done:
-        periods = min(batch, analysis.max_periods - sampler.periods)
+        periods = min(batch, sampler.max_periods - sampler.periods)
         n = periods * steps
         y = plant.run_sine(state, step * h, h, n, amplitude, frequency_hz)
         t = (step + 1 + np.arange(n)) * h

@@ -44,7 +44,7 @@ from bodebench.bench.worker import (
     WorkerSpec,
     start_worker,
 )
-from bodebench.core.autointegration import Autointegrator
+from bodebench.core.autointegration import Autointegrator, period_budget
 from bodebench.core.benchgrid import flag_disturbed, mark_untied
 from bodebench.core.liveness import FlatWatch, no_fundamental
 from bodebench.core.response import FrequencyResponse, ResponsePoint
@@ -218,8 +218,9 @@ class BenchSession:
                 measured[p.frequency_hz] = max(measured.get(p.frequency_hz, 0), p.periods)
         extra = tuple(bench.ramp_in_periods + excitation.settle_at(f) + bench.ramp_out_periods
                       for f in excitation.frequencies_hz)
+        budgets = tuple(period_budget(self.analysis, f, on_bench=True) for f in excitation.frequencies_hz)
         return SessionStarted(excitation.frequencies_hz, channels, self.plan.where, tuple(measured.items()), extra,
-                              self.analysis.max_periods, bench.clock == "realtime")
+                              budgets, bench.clock == "realtime")
 
     def _shutdown(self, reason: str, abort: bool) -> Stopped | None:
         try:

@@ -23,7 +23,7 @@ import numpy as np
 from bodebench.core.fourier import ExactPeriodIntegrator, GridPeriodIntegrator
 from bodebench.core.quality import coherence, coherence_periods, total_harmonic_distortion
 from bodebench.core.response import ResponsePoint
-from bodebench.core.rules import RESOLUTION, SeriesHistory, StoppingRule, Verdict, make_rule
+from bodebench.core.rules import MIN_NOISE_EVIDENCE, RESOLUTION, SeriesHistory, StoppingRule, Verdict, make_rule
 
 
 class AnalysisSettings(Protocol):
@@ -47,6 +47,8 @@ class AnalysisSettings(Protocol):
     @property
     def max_periods(self) -> int: ...
     @property
+    def max_point_s(self) -> float | None: ...
+    @property
     def max_gap_cycles(self) -> float: ...
     @property
     def max_discarded_percent(self) -> float: ...
@@ -56,6 +58,26 @@ class GapsError(ValueError):
 
 
 _FEW_PERIODS = 4  # periods up to which feed() works on Python scalars (cheaper than numpy's per-call cost)
+
+DEFAULT_BENCH_POINT_S = 600.0
+"""A bench point's time budget (s of the drive's clock) where ``max_point_s`` is not given: ten minutes."""
+MIN_BUDGET_PERIODS = 2 * MIN_NOISE_EVIDENCE
+"""Fewest periods a time budget leaves a point: twice the noise evidence the stopping rule judges a hopeless
+point on, so a low frequency is still measured, and ended noise-limited early where eps is out of reach."""
+
+
+def period_budget(analysis: AnalysisSettings, frequency_hz: float, on_bench: bool) -> int:
+    """The periods a point at ``frequency_hz`` (Hz) may integrate: ``max_periods``, and at most ``max_point_s``
+    seconds of them (on a bench, :data:`DEFAULT_BENCH_POINT_S` when not given; offline, no time limit then), but
+    never fewer than :data:`MIN_BUDGET_PERIODS`. A series whose noise needs more than twice the budget for eps
+    ends ``noise_limited`` as soon as the noise is known (the rule's ``max_periods`` is this budget)."""
+    seconds = analysis.max_point_s if analysis.max_point_s is not None else (
+        DEFAULT_BENCH_POINT_S if on_bench else None)
+    if seconds is None:
+        return analysis.max_periods
+    return min(analysis.max_periods, max(MIN_BUDGET_PERIODS, analysis.skip_periods + 1,
+                                         math.ceil(seconds * frequency_hz)))
+
 
 MAX_COEFFICIENT = 1e100
 """Largest coefficient a period may have (output units): beyond any sensor's range in any unit, and far enough below
@@ -117,7 +139,8 @@ class Autointegrator:
         self.amplitude = amplitude
         self.channels = tuple(channels)
         self.harmonics = tuple(analysis.harmonics)
-        self.max_periods = analysis.max_periods
+        self.max_periods = period_budget(analysis, frequency_hz, on_bench=not grid_steps_per_period)
+        """The periods this point may integrate (:func:`period_budget`)."""
         self.skip_periods = analysis.skip_periods
         self.reference = reference
         self.reference_phase = reference_phase
@@ -138,7 +161,7 @@ class Autointegrator:
             [make_rule(analysis.criterion, tolerance_percent=analysis.tolerance_percent,
                        skip_periods=analysis.skip_periods, window=analysis.window,
                        settle_periods=analysis.settle_periods, average_periods=analysis.average_periods,
-                       max_periods=analysis.max_periods)
+                       max_periods=self.max_periods)
              for _ in self.harmonics] for _ in self.channels]
         self._verdicts: list[list[Verdict | None]] = [[None] * len(self.harmonics) for _ in self.channels]
         self._pending = len(self.channels) * len(self.harmonics)  # series still without a verdict

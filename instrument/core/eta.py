@@ -88,19 +88,24 @@ class SweepTimer:
     """The time a sweep of ``frequencies_hz`` (Hz) still takes.
 
     extra_periods: periods each point spends besides those integrated (ramp in, settle, ramp out), aligned with
-    ``frequencies_hz``; max_periods: the cap on integrated periods; seconds_per_period: the bench's wall seconds
+    ``frequencies_hz``; max_periods: the cap on integrated periods, one for all or one per frequency (a point's
+    budget, :func:`~bodebench.core.autointegration.period_budget`); seconds_per_period: the bench's wall seconds
     per nominal period before any is measured (1 for a real-time clock, None: unknown until measured).
     """
 
     def __init__(self, frequencies_hz: Sequence[float], extra_periods: Sequence[float] | float = 0.0,
-                 max_periods: int | None = None, seconds_per_period: float | None = None) -> None:
+                 max_periods: int | Sequence[int] | None = None, seconds_per_period: float | None = None) -> None:
         self.frequencies_hz = tuple(float(f) for f in frequencies_hz)
         extra = [float(extra_periods)] * len(self.frequencies_hz) if isinstance(extra_periods, (int, float)) \
             else [float(e) for e in extra_periods]
         if len(extra) != len(self.frequencies_hz):
             raise ValueError("extra_periods must give one value per frequency")
         self._extra = dict(zip(self.frequencies_hz, extra, strict=True))
-        self.max_periods = max_periods
+        caps: list[int | None] = ([max_periods] * len(self.frequencies_hz)
+                                  if max_periods is None or isinstance(max_periods, int) else list(max_periods))
+        if len(caps) != len(self.frequencies_hz):
+            raise ValueError("max_periods must give one value, or one per frequency")
+        self._caps = dict(zip(self.frequencies_hz, caps, strict=True))
         self.prior_ratio = seconds_per_period
         self.finished: set[float] = set()
         self._periods: dict[float, float] = {}      # periods integrated at a measured frequency (its slowest series)
@@ -191,8 +196,9 @@ class SweepTimer:
             left = max([predicted - done, *known])
         else:
             return None
-        if self.max_periods is not None:
-            left = min(left, self.max_periods - done)
+        cap = self._caps.get(self._current)
+        if cap is not None:
+            left = min(left, cap - done)
         return max(0.0, left)
 
     def predicted_periods(self, frequency_hz: float) -> float | None:
@@ -208,7 +214,8 @@ class SweepTimer:
         else:
             nearest = sorted(fs, key=lambda f: abs(math.log(f) - x))[:NEAREST]
             value = float(np.median([self._periods[f] for f in nearest]))
-        return min(value, self.max_periods) if self.max_periods is not None else value
+        cap = self._caps.get(frequency_hz)
+        return min(value, cap) if cap is not None else value
 
     def seconds_model(self) -> tuple[float, float] | None:
         """(overhead s per point, wall s per nominal s) fitted on this session's points and the current one's

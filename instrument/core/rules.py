@@ -273,7 +273,7 @@ _MAX_RATIO = 0.5     # a visible drift must shrink at least this fast from block
 _DRIFT_SIGMAS = 3.72  # |d| / sigma_d of a 2-D normal exceeds this with probability 0.1 %
 _ROUND_OFF = 1e-12    # relative size of a change that round-off of the running sums can make
 _HOPELESS = 2.0       # a point whose projected periods exceed this many budgets ends noise-limited at once
-_MIN_NOISE_EVIDENCE = 128  # analysed periods before the noise is judged hopeless
+MIN_NOISE_EVIDENCE = 128  # analysed periods before the noise is judged hopeless
 _WHITE_RATIO = 2.0    # batch-mean variance over per-period variance still taken for independent periods
 _WHITE_LAG = 0.2      # |lag-1 autocorrelation| still taken for independent periods
 _SLACK = 1.0 + 1e-9   # margin of a screen's inequalities over the round-off of the bounds they compare
@@ -999,7 +999,7 @@ class _ScreenTable:
             still = (d3 * d3 <= _DRIFT_SIGMAS ** 2 * 2.0 * _WHITE_RATIO * var / size * _SLACK2) \
                 | (d3 <= _ROUND_OFF * np.abs(means).max(axis=0) * _SLACK)
             below = np.where(still & (e * a3 < top3), top3 / scale, -np.inf)
-        white = (n - skip >= _MIN_NOISE_EVIDENCE) & (lag <= _WHITE_LAG)
+        white = (n - skip >= MIN_NOISE_EVIDENCE) & (lag <= _WHITE_LAG)
         low2[~white] = np.inf
         high2[~white] = -np.inf
         below[~white] = -np.inf
@@ -1231,7 +1231,7 @@ class AdaptiveRule(StoppingRule):
         if settled.uncertainty <= tol:
             return self._finish(n, settled.estimate(), self.tolerance(0.0, reference), "settled mean")
         needed = self._periods_needed(n, settled.statistical, settled.uncertainty - settled.statistical, tol)
-        if settled.white and needed > _HOPELESS * self.max_periods and n - self.skip >= _MIN_NOISE_EVIDENCE:
+        if settled.white and needed > _HOPELESS * self.max_periods and n - self.skip >= MIN_NOISE_EVIDENCE:
             # the noise alone keeps eps out of reach within the budget: say so now, not at max_periods
             return self._noise_limited(n, settled.estimate(), needed)
         return None
@@ -1270,7 +1270,7 @@ class AdaptiveRule(StoppingRule):
                 low *= (1.0 + r) / (1.0 - r)
             if low <= 3.0 * tol3 * tol3 * _SLACK2 or (room >= 0.0 and low <= 2.0 * room * room):
                 return True, lag
-        if n - self.skip < _MIN_NOISE_EVIDENCE:
+        if n - self.skip < MIN_NOISE_EVIDENCE:
             return False, None
         white_var = _WHITE_RATIO * var  # the largest noise variance white periods allow
         high = _DISC_BATCHES ** 2 * white_var / length

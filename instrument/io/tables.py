@@ -12,7 +12,8 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
-from bodebench.core.rules import CRITERIA
+from bodebench.core.autointegration import DEFAULT_BENCH_POINT_S, MIN_BUDGET_PERIODS
+from bodebench.core.rules import CRITERIA, MIN_NOISE_EVIDENCE
 from bodebench.core.summary import RESPONSE_KINDS
 from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS, MODES
 from bodebench.io.schema import FieldError
@@ -349,6 +350,12 @@ class AnalysisConfig:
     criterion: str = field(default="adaptive", metadata={"choices": CRITERIA, "doc": "stopping rule"})
     window: int = field(default=5, metadata={"min": 2, "doc": "window length l, periods"})
     max_periods: int = field(default=20000, metadata={"min": 1, "doc": "period limit per frequency"})
+    max_point_s: float | None = field(default=None, metadata={
+        "min": 0, "min_exclusive": True,
+        "doc": "time budget per point, s: at most this many seconds of periods are integrated (never fewer than "
+               f"{MIN_BUDGET_PERIODS} periods, never more than max_periods), and a series whose noise needs more "
+               f"than twice that ends noise_limited after {MIN_NOISE_EVIDENCE} periods (default: "
+               f"{DEFAULT_BENCH_POINT_S:g} on a bench, none offline)"})
     steps_per_period: int = field(default=200, metadata={"min": 8, "doc": "integration steps per period K_f"})
     settle_periods: int = field(
         default=50, metadata={"min": 0, "doc": 'periods discarded (criterion "fixed" only)'}
