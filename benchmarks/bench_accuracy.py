@@ -1,6 +1,6 @@
 """Does a point that says `converged` hold its eps, and does its interval mean 95 %? A battery against exact answers.
 
-Run: python benchmarks/bench_accuracy.py [--quick] [--bench]
+Run: python benchmarks/bench_accuracy.py [--quick] [--bench [--folds move]]
 
 Battery (noise-free), every case simulated from rest exactly as the offline experiment does (step 1/(K_f f),
 K_f = 200), harmonics 1 to 3, the default rule replayed period by period through the Autointegrator's own order
@@ -75,11 +75,12 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bodebench.core.autointegration import Autointegrator, GapsError  # noqa: E402
-from bodebench.core.benchgrid import disturbance_lines, flag_disturbed  # noqa: E402
+from bodebench.core.benchgrid import disturbance_lines, flag_disturbed, move_off_folds  # noqa: E402
 from bodebench.core.fourier import PeriodIntegrator  # noqa: E402
 from bodebench.core.liveness import FlatWatch, no_fundamental  # noqa: E402
 from bodebench.core.rules import RESOLUTION, AdaptiveRule, SeriesHistory, Verdict  # noqa: E402
 from bodebench.io.config import AnalysisConfig  # noqa: E402
+from bodebench.io.tables import FOLD_POLICIES  # noqa: E402
 from bodebench.sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, LinearPlant, Plant  # noqa: E402
 
 CACHE = Path(__file__).resolve().parent / "out" / "accuracy_cache"
@@ -439,14 +440,17 @@ def _folds(size: np.ndarray, samples: float) -> tuple[float, ...]:
                            {round(j * samples - k), round(j * samples + k)} if 3 < m <= top)) for k in HARMONICS)
 
 
-def scenario(kind: str, index: int) -> Scenario:
-    """The seeded bench case ``index`` of ``kind`` (the same for both tolerances)."""
+def scenario(kind: str, index: int, folds: str = "keep") -> Scenario:
+    """The seeded bench case ``index`` of ``kind`` (the same for both tolerances); ``folds = "move"``: its frequency
+    moved off folds as a plan with ``[analysis] folds = "move"`` moves it."""
     rng = np.random.default_rng((BENCH_SEED, BENCH_KINDS.index(kind), index))
     hum_f: float | None = None
     mains, k_hum = float(rng.choice([50.0, 60.0])), int(rng.integers(1, 4))
     if kind == "hum on harmonic":
         hum_f = mains / k_hum
     f, rate = _timing(rng, hum_f)
+    if folds == "move":
+        f = move_off_folds(rate, [f], HARMONICS)[0][0]
     t0 = rng.uniform(0, 100)
     first = t0 - rng.uniform(1, 2) / rate
     whole = " (whole)" if abs(rate / (3 * f) - round(rate / (3 * f))) < 1e-9 else ""
@@ -505,13 +509,13 @@ def scenario(kind: str, index: int) -> Scenario:
     return sc
 
 
-def run_bench(task: tuple[str, int, float]) -> list[BenchRow]:
+def run_bench(task: tuple[str, int, float, str]) -> list[BenchRow]:
     """The point through the bench's sampler (grid_steps_per_period=0: ExactPeriodIntegrator) and the default rule,
     samples fed as a bench delivers them, until it is done, judged as the bench session judges it (a channel held
     for two periods or a fundamental below resolution is no point: "no_response"; a harmonic on the bench's mains
     lines, disturbance_hz = [mains], is "disturbed"); its rows scored against the truth."""
-    kind, index, eps = task
-    sc = scenario(kind, index)
+    kind, index, eps, folds = task
+    sc = scenario(kind, index, folds)
     rng = np.random.default_rng((BENCH_SEED, BENCH_KINDS.index(kind), index, int(round(eps * 1e4))))
     analysis = AnalysisConfig(harmonics=HARMONICS, tolerance_percent=eps, max_periods=BENCH_MAX_PERIODS)
     sampler = Autointegrator(sc.frequency_hz, sc.amplitude, ("y",), analysis, t0=sc.t0, grid_steps_per_period=0)
@@ -650,9 +654,9 @@ def report_causes(rows: list[BenchRow]) -> None:
                   f"before: {len(conv) - len(after)}, > 2 eps {before_failed}; statuses of the failures {statuses}")
 
 
-def main_bench(quick: bool, jobs: int) -> None:
+def main_bench(quick: bool, jobs: int, folds: str) -> None:
     plain, noisy = BENCH_CASES[quick]
-    tasks = [(kind, i, eps) for kind in BENCH_KINDS for i in range(noisy if kind in NOISY_KINDS else plain)
+    tasks = [(kind, i, eps, folds) for kind in BENCH_KINDS for i in range(noisy if kind in NOISY_KINDS else plain)
              for eps in BENCH_EPS]
     started = time.perf_counter()
     with ProcessPoolExecutor(jobs) as pool:
@@ -668,9 +672,11 @@ def main() -> None:
     parser.add_argument("--noise-only", action="store_true", help="only the coverage of the intervals under noise")
     parser.add_argument("--bench", action="store_true",
                         help="the bench battery instead: samples at any times through the bench's sampler")
+    parser.add_argument("--folds", choices=FOLD_POLICIES, default=FOLD_POLICIES[0],
+                        help="bench battery: each frequency kept, or moved off folds as [analysis] folds says")
     args = parser.parse_args()
     if args.bench:
-        main_bench(args.quick, args.jobs)
+        main_bench(args.quick, args.jobs, args.folds)
         return
     cases = battery()
     if args.quick:

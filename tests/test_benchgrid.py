@@ -13,11 +13,15 @@ import pytest
 
 from bodebench.core.autointegration import Autointegrator
 from bodebench.core.benchgrid import (
+    FOLD_IMAGES,
+    FOLD_TURN,
     MIN_BEAT_PERIODS,
     disturbance_lines,
     flag_disturbed,
+    fold_beat,
     folding_harmonic,
     move_off_disturbances,
+    move_off_folds,
 )
 from bodebench.io.config import AnalysisConfig, parse_config
 from bodebench.status import PointStatus
@@ -122,3 +126,97 @@ def test_a_simulated_drive_with_hum_on_the_virtual_bus_flags_the_point_on_the_li
     third = points[3]
     assert not third.converged or abs(complex(third.p, third.q)) <= third.uncertainty + 1e-3 * 0.1 / 100 * 0.01
     assert math.isfinite(third.uncertainty)
+
+
+def aliased_frequency(frequency_hz: float, rate_hz: float) -> float:
+    """Where a component at ``frequency_hz`` appears when sampled at ``rate_hz``: folded into [0, rate / 2]."""
+    return abs((frequency_hz + rate_hz / 2) % rate_hz - rate_hz / 2)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_plan_moved_off_folds_folds_no_harmonic_onto_a_measured_one_and_moves_little(seed: int) -> None:
+    """Drawn rates and frequencies, many with a whole number of samples a period: after the move, every harmonic j
+    up to FOLD_IMAGES x N, sampled, lands at least FOLD_TURN / m harmonics (m its image) from every measured harmonic
+    (checked by folding each one, not by the mover's own arithmetic); a frequency moves by under half a sample a
+    period."""
+    rng = np.random.default_rng(seed)
+    harmonics = (1, 2, 3)
+    rates = 10 ** rng.uniform(2, 4, 20)
+    samples = np.where(rng.random(20) < 0.5, rng.integers(24, 400, 20), rng.uniform(24, 400, 20))
+    frequencies = rates / samples
+    for rate, f in zip(rates, frequencies, strict=True):
+        (g,), _ = move_off_folds(rate, [f], harmonics)
+        n = rate / g
+        assert abs(n - rate / f) <= 0.5 and g <= f * (1 + 1e-12) or g != f
+        for j in range(max(harmonics) + 1, int(FOLD_IMAGES * n)):
+            alias = aliased_frequency(j * g, rate)
+            image = max(1, round(j * g / rate))
+            for k in harmonics:
+                assert abs(alias - k * g) >= g * FOLD_TURN / image * (1 - 1e-6), (rate, f, g, j, k)
+    f = 1000.0 / 97.382  # a fraction of a sample a period far from every small denominator: nothing to move
+    (g,), notes = move_off_folds(1000.0, [f], harmonics)
+    assert g == f and notes == ()
+
+
+def clipped_sine_coefficient(k: int, clip: float) -> complex:
+    """Harmonic k (P + jQ, P with sin) of min(max(sin, -clip), clip) over one period, by an independent route:
+    the trapezoid on 2**16 points a period of the exact waveform (error far below 1e-9 for its kinks' harmonics)."""
+    t = np.arange(2**16) / 2**16
+    y = np.clip(np.sin(2 * np.pi * t), -clip, clip)
+    return complex(2 * np.mean(y * np.sin(2 * np.pi * k * t)), 2 * np.mean(y * np.cos(2 * np.pi * k * t)))
+
+
+def test_a_saturated_drive_on_a_whole_grid_is_wrong_and_converged_and_moved_off_the_fold_it_is_right() -> None:
+    """A drive saturating at 60 % of its swing, sampled at 69 samples a period: harmonics 67 and 71 fold exactly
+    onto harmonic 2 (zero by symmetry), every period alike, and harmonic 2 converges to the folded value. At the
+    frequency the plan moves it to, the folds turn and every converged claim holds."""
+    rate, clip = 297.6, 0.6
+    f = rate / 69
+    analysis = AnalysisConfig(harmonics=(1, 2, 3), tolerance_percent=0.01)
+
+    def measure(g: float) -> list:
+        sampler = Autointegrator(g, 1.0, ("y",), analysis, t0=0.0)
+        chunk, start = int(100 / g * rate), 0
+        while not sampler.done:
+            t = (start + np.arange(chunk)) / rate
+            sampler.feed(t, np.clip(np.sin(2 * np.pi * g * t), -clip, clip)[:, None])
+            start += chunk
+        return sampler.points()
+
+    truth = {k: clipped_sine_coefficient(k, clip) for k in (1, 2, 3)}
+    floor = 1e-3 * abs(truth[1])  # the rule's absolute floor: the channel's largest coefficient
+
+    def error_in_eps(point) -> float:
+        tolerance = analysis.tolerance_percent / 100 * max(abs(truth[point.harmonic]), floor)
+        return abs(complex(point.p, point.q) - truth[point.harmonic]) / tolerance
+
+    second = measure(f)[1]
+    assert second.converged and error_in_eps(second) > 100  # folded content taken for the response
+    (g,), notes = move_off_folds(rate, [f], analysis.harmonics)
+    assert g != f and len(notes) == 1 and abs(g / f - 1) < 0.5 / 69
+    for point in measure(g):
+        assert not point.converged or error_in_eps(point) <= 2.0, (point.harmonic, point.status, error_in_eps(point))
+
+
+def test_the_loader_moves_a_bench_plan_off_folds_only_when_asked() -> None:
+    def config(folds: str | None) -> dict:
+        analysis = {"harmonics": [1, 3]} | ({"folds": folds} if folds else {})
+        return {
+            "plant": {"model": "lag", "time_constant": 0.01, "gain": 1.0},
+            "excitation": {"amplitude": 0.01, "frequencies_hz": [5.0, 1000.0 / 97.382, 40.0]},
+            "analysis": analysis,
+            "bench": {"transport": "can", "rate_hz": 1000, "clock": "lockstep", "timebase": "counter"},
+            "can": {"interface": "virtual", "channel": "folds"},
+            "safety": {"max_amplitude": 0.02},
+            "simulator": {},
+        }
+
+    kept = parse_config(config(None), "folds.toml").cases[0]
+    assert kept.excitation.frequencies_hz == (5.0, 1000.0 / 97.382, 40.0)
+    # warned, not moved: 25 samples a period fold harmonic 22 onto 3
+    assert any("folds exactly onto measured harmonic" in note for note in kept.plan_notes)
+    moved = parse_config(config("move"), "folds.toml").cases[0]
+    new = moved.excitation.frequencies_hz
+    assert new[1] == 1000.0 / 97.382 and new[0] != 5.0 and new[2] != 40.0  # 200 and 25 samples a period moved
+    assert all(fold_beat(1000.0, f) >= FOLD_TURN for f in new)
+    assert any("2 of 3 frequencies moved" in note for note in moved.plan_notes)

@@ -13,6 +13,9 @@ the stated interval shrinks while the value is off:
   harmonic ``|j - m N|``. When N is a whole number (or a fraction with a small denominator) some harmonic
   ``j = m N +- k`` folds exactly onto a measured harmonic k, every period alike. :func:`folding_harmonic` names the
   lowest such j; below ``FOLD_ORDER`` the loader warns, since a strongly nonlinear response still has content there.
+  :func:`move_off_folds` (``[analysis] folds = "move"``) moves such a frequency by the least that makes every fold
+  through the first ``FOLD_IMAGES`` images of the rate turn against its harmonic: the folded content then differs
+  from period to period, the average thins it, and the spread and the stated interval see what is left.
 
 Pure numerics: no I/O.
 """
@@ -26,8 +29,9 @@ from dataclasses import replace
 from bodebench.core.response import ResponsePoint
 from bodebench.status import PointStatus
 
-__all__ = ["DISTURBANCE_HARMONICS", "FOLD_ORDER", "MIN_BEAT_PERIODS", "disturbance_lines", "flag_disturbed",
-           "folding_harmonic", "folding_notes", "mark_untied", "move_off_disturbances", "nearest_line"]
+__all__ = ["DISTURBANCE_HARMONICS", "FOLD_IMAGES", "FOLD_ORDER", "FOLD_TURN", "MIN_BEAT_PERIODS", "disturbance_lines",
+           "flag_disturbed", "fold_beat", "folding_harmonic", "folding_notes", "mark_untied", "move_off_disturbances",
+           "move_off_folds", "nearest_line"]
 
 DISTURBANCE_HARMONICS = 3
 """Each listed disturbance frequency counts with its harmonics up to this one (mains: 50, 100, 150 Hz)."""
@@ -69,6 +73,60 @@ def mark_untied(points: Sequence[ResponsePoint]) -> list[ResponsePoint]:
     """``points`` marked ``untied`` and not converged: measured on the realtime clock by a drive that gives no way to
     date the sine on its own clock, so the host's latency is in their phase."""
     return [replace(p, converged=False, within_eps=False, status=PointStatus.UNTIED) for p in points]
+
+
+FOLD_IMAGES = 8
+"""Images m fs of the sample rate, m = 1 .. this, whose folds :func:`move_off_folds` keeps turning: harmonics up to
+about this many times the samples a period (a fold through a higher image comes from a harmonic of a response too
+high to matter, and keeping every image turning is impossible at few samples a period)."""
+
+FOLD_TURN = 0.1
+"""A fold through image m must turn at least ``FOLD_TURN / m`` cycles a period against the harmonic it lands on
+(once in 10 periods for the first image, whose harmonics are the strongest): fast enough that the average of a
+few dozen periods thins it and their spread shows it."""
+
+
+def fold_beat(rate_hz: float, frequency_hz: float) -> float:
+    """How fast the folds of a grid turn, against :data:`FOLD_TURN`: min over images m = 1 .. ``FOLD_IMAGES`` of m
+    times the distance of m N (N = rate / f samples a period) from a whole number. Harmonic j folded through image m
+    lands at ``|j - m N|`` harmonics, off a whole one by that distance (cycles a period), whatever j is."""
+    n = rate_hz / frequency_hz
+    return min(m * abs(m * n - round(m * n)) for m in range(1, FOLD_IMAGES + 1))
+
+
+def move_off_folds(rate_hz: float, frequencies_hz: Sequence[float], harmonics: Sequence[int],
+                   lines: Sequence[float] = ()) -> tuple[tuple[float, ...], tuple[str, ...]]:
+    """The plan moved so that every frequency's folds turn (:func:`fold_beat` at least :data:`FOLD_TURN`): each
+    frequency whose samples a period N lie too near a fraction with a denominator up to ``FOLD_IMAGES`` moves to
+    the nearest N that does not (the larger first: a lower frequency, never fewer samples a period) and keeps its
+    harmonics off the disturbance ``lines`` as :func:`move_off_disturbances` does. Returns the frequencies and one
+    line saying how many moved and by how much."""
+    step = FOLD_TURN / (4 * FOLD_IMAGES * FOLD_IMAGES)
+
+    def free(g: float) -> bool:
+        return fold_beat(rate_hz, g) >= FOLD_TURN and not any(
+            abs(d - k * g) * MIN_BEAT_PERIODS < g for k in harmonics for d in lines)
+
+    moved: list[float] = []
+    largest = 0.0
+    for f in frequencies_hz:
+        g = f
+        if not free(f):
+            n = rate_hz / f
+            for i in range(1, int(0.5 / step) + 1):  # the nearest free N, more samples a period first
+                candidates = [rate_hz / (n + side * i * step) for side in (1, -1)]
+                g = next((c for c in candidates if free(c)), f)
+                if g != f:
+                    break
+            largest = max(largest, abs(g - f) / f)
+        moved.append(g)
+    count = sum(g != f for g, f in zip(moved, frequencies_hz, strict=True))
+    if not count:
+        return tuple(moved), ()
+    return tuple(moved), (f"{count} of {len(moved)} frequencies moved, by at most {100 * largest:.2g} %, off sample "
+                          f"counts at which the rate ({rate_hz:g} Hz) folds high harmonics of a nonlinear response "
+                          "exactly onto measured ones: each fold now turns within the periods averaged, where their "
+                          "spread sees it",)
 
 
 def move_off_disturbances(frequencies_hz: Sequence[float], harmonics: Sequence[int], lines: Sequence[float]

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from bodebench.core.benchgrid import disturbance_lines, folding_notes, move_off_disturbances
+from bodebench.core.benchgrid import disturbance_lines, folding_notes, move_off_disturbances, move_off_folds
 from bodebench.drivers.canopen_link import STATUSWORD, CanopenSetup, load_od, resolve_object
 from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS, TARGET_OBJECTS
 from bodebench.drivers.codec import COUNTER, SETPOINT, TIMESTAMP
@@ -244,6 +244,15 @@ def _build_case(
         if notes:
             built["excitation"] = replace(excitation, frequencies_hz=frequencies, frequencies=None)
     layout, setup = _check_bench(built, frames, key, source)
+    if built["bench"] is not None and built["analysis"].fold_policy == "move":
+        # after the checks, which name the frequencies as given: a move lowers one by a fraction of a percent
+        excitation, analysis = built["excitation"], built["analysis"]
+        lines = disturbance_lines_of(raw, analysis) if analysis.disturbance_policy == "move" else ()
+        frequencies, moves = move_off_folds(built["bench"].rate_hz, excitation.frequencies_hz, analysis.harmonics,
+                                            lines)
+        if moves:
+            built["excitation"] = replace(excitation, frequencies_hz=frequencies, frequencies=None)
+            notes += moves
     if built["bench"] is not None:
         notes += folding_notes(built["bench"].rate_hz, built["excitation"].frequencies_hz, built["analysis"].harmonics)
         assert layout is not None

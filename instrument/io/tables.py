@@ -24,6 +24,9 @@ DEFAULT_DISTURBANCE_HZ = (50.0,)
 """[analysis] disturbance_hz on a real drive when the configuration gives none: mains."""
 DISTURBANCE_POLICIES = ("flag", "move")
 """What a bench does with a frequency whose measured harmonic lies on a disturbance line ([analysis] disturbances)."""
+FOLD_POLICIES = ("keep", "move")
+"""What a bench does with a frequency at which its sample rate folds harmonics exactly onto measured ones
+([analysis] folds)."""
 
 __all__ = [
     "AmplitudeProfile",
@@ -379,6 +382,13 @@ class AnalysisConfig:
         "choices": DISTURBANCE_POLICIES,
         "doc": "flag (default): such points are measured and flagged disturbed; move: the plan moves each frequency "
                "whose harmonic lies within 2 % of a disturbance line off it, saying so"})
+    folds: str | None = field(default=None, metadata={
+        "choices": FOLD_POLICIES,
+        "doc": "bench: keep (default): the frequencies as given, the loader warning where the sample rate folds "
+               "harmonics up to 32 exactly onto measured ones; move: each frequency at which the rate would fold "
+               "high harmonics of a nonlinear response onto measured ones, every period alike, is moved by the "
+               "least that makes each fold turn (a fraction of a percent), saying so: such content then shows in "
+               "the spread of the periods and the point ends capped or noise-limited instead of converged to it"})
     response: str | None = field(default=None, metadata={
         "choices": RESPONSE_KINDS,
         "doc": "what the measured response is, for its summary: system (default), closed_loop, or open_loop "
@@ -388,6 +398,12 @@ class AnalysisConfig:
     def disturbance_policy(self) -> str:
         """What the plan does with a frequency on a disturbance line (:data:`DISTURBANCE_POLICIES`)."""
         return self.disturbances or DISTURBANCE_POLICIES[0]
+
+    @property
+    def fold_policy(self) -> str:
+        """What the plan does with a frequency whose sample count folds harmonics onto measured ones
+        (:data:`FOLD_POLICIES`)."""
+        return self.folds or FOLD_POLICIES[0]
 
     @property
     def response_kind(self) -> str:
