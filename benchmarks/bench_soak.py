@@ -1,10 +1,12 @@
 """Soak: a long realtime run of the simulated drive at 5 kHz feedback with the terminal UI open.
 
 Prints memory (RSS of every process of the chain: the UI/session process, the bus worker, the simulated
-drive) over time, samples lost, and the pacing error. Targets: memory flat, no lost samples, pacing p99 within
-target. No asserts.
+drive) over time and its growth per minute, samples lost, the pacing error, the points the UI counted finished
+against the rows of response.csv, and how the run record says the run ended. Targets: memory flat, no lost
+samples, pacing p99 within target, the UI's count equal to the CSV's. No asserts.
 
     python benchmarks/bench_soak.py                 # 10 minutes, 5 kHz, UI open (headless Textual app)
+    python benchmarks/bench_soak.py --seconds 3600  # an hour
     python benchmarks/bench_soak.py --seconds 60 --no-ui
 """
 
@@ -113,10 +115,26 @@ def patch_sessions(probe: Probe) -> None:
 
     original = session_module.BenchSession.__init__
 
-    def init(self, case, plan, out_dir=None, listener=None, worker_mode=None, resume=None):  # type: ignore[no-untyped-def]
-        original(self, case, plan, out_dir, probe.listener(listener or (lambda e: None)), worker_mode, resume)
+    def init(self, case, plan, out_dir=None, listener=None, **options):  # type: ignore[no-untyped-def]
+        original(self, case, plan, out_dir, probe.listener(listener or (lambda e: None)), **options)
 
     session_module.BenchSession.__init__ = init  # type: ignore[method-assign]
+
+
+def report_results(out: Path, ui_finished: int | None) -> None:
+    """The points on disk against those the UI counted finished, and how the run record says the run ended."""
+    from bodebench.io.results import ResultsError, load_response, sidecar_runs
+
+    try:
+        points = load_response(out).points
+    except ResultsError as exc:
+        print(f"results: {exc}")
+        return
+    frequencies = len({p.frequency_hz for p in points})
+    shown = "" if ui_finished is None else f"; the UI counted {ui_finished} finished rows (target: the same)"
+    print(f"response.csv: {len(points)} rows at {frequencies} frequencies{shown}")
+    runs = sidecar_runs(out)
+    print(f"run record: ended_by {runs[-1].get('ended_by', '(missing)')!r}" if runs else "run record: (none)")
 
 
 def report(probe: Probe, seconds: float, rate: float, ui: bool) -> None:
@@ -183,9 +201,11 @@ def main(argv: list[str] | None = None) -> int:
             time.sleep(5.0)
         session.request_abort()
         runner.join(30)
-    else:
-        asyncio.run(_with_ui(config, tmp / "out", probe, args.seconds))
+    ui_finished = None
+    if not args.no_ui:
+        ui_finished = asyncio.run(_with_ui(config, tmp / "out", probe, args.seconds))
     report(probe, args.seconds, args.rate, not args.no_ui)
+    report_results(tmp / "out", ui_finished)
     return 0
 
 
@@ -198,8 +218,10 @@ def _run_quietly(session) -> None:  # type: ignore[no-untyped-def]
         pass
 
 
-async def _with_ui(config, out: Path, probe: Probe, seconds: float) -> None:  # type: ignore[no-untyped-def]
+async def _with_ui(config, out: Path, probe: Probe, seconds: float) -> int:  # type: ignore[no-untyped-def]
+    """Runs the sweep in the UI for ``seconds``, then aborts it; the rows the UI's table shows measured."""
     from bodebench.apps.tui.app import BodeBenchApp
+    from bodebench.apps.tui.model import ACTIVE_STATES, FAILED, PENDING, SKIPPED
 
     app = BodeBenchApp(config, out)
     async with app.run_test(size=(120, 40)) as pilot:
@@ -210,6 +232,8 @@ async def _with_ui(config, out: Path, probe: Probe, seconds: float) -> None:  # 
             await asyncio.sleep(5.0)
         await pilot.press("a")
         await asyncio.sleep(2.0)
+        unwritten = (PENDING, SKIPPED, FAILED, *ACTIVE_STATES)  # a failed row is the point the abort cut short
+        return sum(row.state not in unwritten for row in app.model.rows.values())
 
 
 if __name__ == "__main__":
