@@ -104,6 +104,21 @@ def test_a_simulated_bench_sweep_analysed_again_is_bit_identical(tmp_path: Path)
     other = cli("analyse", str(tmp_path / "live"), "--criterion", "full", "--tolerance", "1")
     assert other.returncode == 0, other.stderr
     assert "criterion full, tolerance 1 %" in other.stdout
+    # the bench's delays taken off: every phase turned forward by k w (h / 2 + d), the gain as measured
+    delay = 0.0015
+    done = cli("analyse", str(tmp_path / "live"), "--without-chain", "--delay", str(delay), "--delay-uncertainty",
+               "1e-4", "--out", str(tmp_path / "unchained"), "--plots", "none")
+    assert done.returncode == 0, done.stderr
+    assert "taken off every phase" in done.stdout
+    measured = {(p.frequency_hz, p.harmonic): p for p in load_response(tmp_path / "live").points}
+    for p in load_response(tmp_path / "unchained").points:
+        q = measured[(p.frequency_hz, p.harmonic)]
+        turn = 360.0 * p.harmonic * p.frequency_hz * (0.5 / 1000.0 + delay)
+        assert p.gain_db == pytest.approx(q.gain_db, abs=1e-12)
+        assert (p.phase_deg - q.phase_deg - turn + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=1e-9)
+        assert p.uncertainty > q.uncertainty  # the delay's uncertainty widens it
+    wrong = cli("analyse", str(tmp_path / "live"), "--delay", "0.001")
+    assert wrong.returncode == 2 and len(wrong.stderr.splitlines()) == 1 and "--without-chain" in wrong.stderr
 
 
 def test_bad_input_is_one_line(tmp_path: Path) -> None:
@@ -125,6 +140,9 @@ def test_bad_input_is_one_line(tmp_path: Path) -> None:
     assert done.returncode == 2 and "results already here" in done.stderr
     sweep(offline(0.5), tmp_path / "none", keep_samples=False)
     assert not (tmp_path / "none" / "samples").exists()
+    offline_sweep = cli("identify", str(tmp_path / "none"), "--without-chain", "--no-plot")
+    assert offline_sweep.returncode == 2 and len(offline_sweep.stderr.splitlines()) == 1
+    assert "not a bench sweep" in offline_sweep.stderr
 
 
 def test_analyse_names_every_stored_point_that_its_samples_do_not_give_again(tmp_path: Path) -> None:

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, NoReturn, Sequence
 # imports what it uses.
 if TYPE_CHECKING:
     from bodebench.bench.procedure import PlotWriter
+    from bodebench.core.response import FrequencyResponse
     from bodebench.core.summary import ResponseSummary
     from bodebench.io.config import ExperimentConfig
     from bodebench.io.document import Override
@@ -436,7 +437,7 @@ def _identify(args: argparse.Namespace) -> int:
     from bodebench.io.results import load_response
 
     directory = Path(args.results)
-    response = load_response(directory)
+    response = _chain_taken_off(load_response(directory), args, directory)
     try:
         report = identify(response, args.stiffness, args.amplitude, harmonic=args.harmonic, channel=args.channel,
                           fit_stiffness=args.fit_stiffness, fit_damping=args.fit_damping,
@@ -510,7 +511,9 @@ def _analyse(args: argparse.Namespace) -> int:
         print(f"{directory}: {line}")
     if not checked:
         print(f"{directory}: made without checksums: what was edited since cannot be told")
-    response, analysis = result.response, result.analysis
+    response, analysis = _chain_taken_off(result.response, args, directory), result.analysis
+    if args.without_chain:
+        stored = _chain_taken_off(stored, args, directory)
     again = {(p.frequency_hz, p.harmonic, p.channel): p for p in response.points}
     differ = [(a, again.get((a.frequency_hz, a.harmonic, a.channel))) for a in stored.points
               if not any(f == a.frequency_hz for f, _ in result.failed)]
@@ -533,6 +536,13 @@ def _analyse(args: argparse.Namespace) -> int:
         for p in response.points:
             print(f"{p.frequency_hz:10g} {p.harmonic:2d} {p.channel:<14} {p.gain_db:11.5f} {p.phase_deg:10.4f} "
                   f"{p.periods:7d}  {p.status}")
+    if not args.quiet:
+        from bodebench.core.summary import summarize_response
+
+        if args.without_chain:
+            print(f"the bench's hold and a delay of {args.delay:g} s taken off every phase (--without-chain):")
+        print(f"{response.case}:")
+        _print_summary(summarize_response(response, analysis.response_kind))
     for f, why in result.failed:
         print(f"{f:g} Hz left out, too many periods with gaps: {why}")
     if result.record_ended:
@@ -655,6 +665,40 @@ SET_HELP = ("set a key of the configuration before it is validated, as if the fi
             "a TOML value, or a bare word taken as a string; for example analysis.tolerance_percent=0.1, "
             "serial.port=/dev/ttyUSB0, excitation.frequencies_hz=[1,2,5], 'cases.\"fbar_0.8\".plant.friction=0.009'. "
             "The results record the configuration with these values")
+CHAIN_HELP = ("take the bench's own delays out of every point's phase first: the setpoint's hold (half a sample "
+              "period at the sweep's bench.rate_hz) and --delay; the gain is left as measured (docs/METHOD.md, "
+              "\"Taking the bench's delays off\")")
+
+
+def _chain_options(parser: argparse.ArgumentParser) -> None:
+    """--without-chain and the delay it takes off, for the commands that read a measured response."""
+    parser.add_argument("--without-chain", action="store_true", help=CHAIN_HELP)
+    parser.add_argument("--delay", type=float, default=0.0, metavar="SECONDS",
+                        help="with --without-chain: a further delay of the bench (transport, filters) to take off")
+    parser.add_argument("--delay-uncertainty", type=float, default=0.0, metavar="SECONDS",
+                        help="with --without-chain: the delay's 95 %% half-width, carried into each point's intervals")
+
+
+def _chain_taken_off(response: FrequencyResponse, args: argparse.Namespace, directory: Path) -> FrequencyResponse:
+    """``response`` with the bench's delays taken off when ``--without-chain`` asks (ResultsError in one line when
+    the sweep was no bench sweep or a delay is not a time)."""
+    from bodebench.core.chain import without_chain
+    from bodebench.io.results import ResultsError
+
+    if not args.without_chain:
+        if args.delay or args.delay_uncertainty:
+            raise ResultsError("--delay and --delay-uncertainty take effect with --without-chain only")
+        return response
+    bench = response.config.get("bench") if isinstance(response.config, dict) else None
+    rate = bench.get("rate_hz") if isinstance(bench, dict) else None
+    if not isinstance(rate, (int, float)) or isinstance(rate, bool):
+        raise ResultsError(f"{directory}: --without-chain: not a bench sweep (its configuration has no bench.rate_hz)")
+    try:
+        return without_chain(response, float(rate), args.delay, args.delay_uncertainty)
+    except ValueError as exc:
+        raise ResultsError(f"--without-chain: {exc}") from None
+
+
 PORT_HELP = ("the serial port of the drive: --set serial.port=PORT for every case (on a CAN bus, "
              "--set can.channel=... instead)")
 
@@ -719,6 +763,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="tolerance eps in percent (default: the sweep's own)")
     ana.add_argument("--out", default=None, help="write the new response and its plots here (default: print only)")
     ana.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)
+    _chain_options(ana)
     ana.set_defaults(handler=_analyse)
     ports = add("ports", help="list the serial ports and the CAN interfaces and channels found here")
     ports.add_argument("--can", action="append", metavar="INTERFACE", default=None,
@@ -744,6 +789,7 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument("--fit-damping", action="store_true", help="fit a viscous damping ratio as well")
     ident.add_argument("--calibration", default=None, help="calibration file (default: the shipped table)")
     ident.add_argument("--no-plot", action="store_true", help="do not write identify.png/svg")
+    _chain_options(ident)
     ident.set_defaults(handler=_identify)
     plot = add("plot", help="one Bode diagram comparing several results directories")
     plot.add_argument("results", metavar="DIR", nargs="+",

@@ -394,11 +394,14 @@ def write_plots(response: FrequencyResponse, directory: Path, title: str,
                 figures: Sequence[str] = PLOT_FIGURES) -> list[Path]:
     """The plots of a finished case in ``directory``, each in ``formats``: of ``figures``, "bode" (the Bode plot
     with the summary's figures marked; ``summary`` None: read off ``response`` as its configuration's
-    ``analysis.response`` says) and "periods" (the periods each point took)."""
+    ``analysis.response`` says) and "periods" (the periods each point took); none for no formats (``--plots
+    none``)."""
     unknown = [f for f in figures if f not in PLOT_FIGURES]
     if unknown:
         raise ValueError(f"unknown figure {unknown[0]!r}; one of {', '.join(PLOT_FIGURES)}")
     files: list[Path] = []
+    if not formats:
+        return files
     if "bode" in figures:
         if summary is None:
             kind = response.config.get("analysis", {}).get("response") or "system"
