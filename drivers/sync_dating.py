@@ -13,8 +13,9 @@ The rules, for a TPDO received at time t, where L is the latest SYNC sent at or 
 - when L - 1 has an answer already (or L is the first SYNC), it answers L;
 - when neither L - 1 nor L has one, it is late for L - 1 or L - 1's TPDO was lost: it is held until the next
   TPDO tells. A next TPDO that also follows L (no SYNC between them) means the held one was L - 1's (late) and
-  the next one L's; a next TPDO after a later SYNC leaves the held one undecided: it is dropped and counted
-  (``ambiguous``), and L - 1 and L are gaps. A sample is never given a SYNC it might not answer;
+  the next one L's, provided L - 2 has an answer (else the two may be L - 2's and L - 1's, from a drive that fell
+  behind: both are dropped); a next TPDO after a later SYNC leaves the held one undecided: it is dropped and
+  counted (``ambiguous``), and L - 1 and L are gaps. A sample is never given a SYNC it might not answer;
 - a TPDO with no SYNC left to answer (received before any SYNC, or a second answer to L) is dropped and counted
   (``unmatched``).
 
@@ -69,9 +70,16 @@ class SyncMatcher(Generic[T]):
         held, self._held = self._held, None
         if held is not None:
             at, _, earlier = held
-            if latest == at:  # two TPDOs after the same SYNC: the first was the one before's, sent late
-                out.append(self._give(at - 1, earlier))
-                out.append(self._give(at, item))
+            if latest == at:
+                if at - 2 <= self._done or at - 2 < self._oldest:
+                    # two TPDOs after the same SYNC: the first was the one before's, sent late
+                    out.append(self._give(at - 1, earlier))
+                    out.append(self._give(at, item))
+                    return out
+                # the SYNC before those is unanswered too: the two may answer it and the next (a drive that fell
+                # two SYNCs behind), so neither is dated
+                self.ambiguous += 2
+                self._give_up(at)
                 return out
             self.ambiguous += 1
             self._give_up(at)

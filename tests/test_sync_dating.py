@@ -12,8 +12,13 @@ import pytest
 
 from bodebench.bench.connection import plan_link
 from bodebench.bench.session import BenchSession
+from bodebench.drivers.canopen_link import CanopenDriver
+from bodebench.drivers.ports import CanPort
 from bodebench.drivers.sync_dating import SyncMatcher
 from bodebench.io.config import ConfigError, parse_config
+from bodebench.sim.cia402_drive import Cia402Faults, serve_canopen
+from bodebench.sim.controller import ControllerTiming, SimulatedController
+from bodebench.sim.models import plant_from_config
 
 PERIOD = 1e-3
 ANSWER = 0.3e-3  # the drive's TPDO follows its SYNC by this long
@@ -78,6 +83,23 @@ def test_a_late_tpdo_whose_next_one_is_lost_is_dropped_not_shifted() -> None:
     out, m = run(events)
     assert out == [(100 + k, k) for k in (0, 1, 2, 5, 6, 7)]
     assert (m.lost, m.ambiguous) == (2, 1)
+
+
+def test_two_tpdos_of_a_drive_two_syncs_behind_are_dropped_not_shifted() -> None:
+    # the drive stalled: SYNCs 3, 4 and 5 go out before it answers 3 and 4 (late by two); 5's answer then comes
+    events = steady(range(3)) + [("sync", 3), ("sync", 4), ("sync", 5)]
+    m: SyncMatcher[int] = SyncMatcher(64)
+    out: list[tuple[int, int]] = []
+    for kind, k in events:
+        if kind == "sync":
+            m.sent(100 + k, k * PERIOD)
+        else:
+            out += m.received(k * PERIOD + ANSWER, k)
+    for k in (3, 4, 5):
+        out += m.received(5 * PERIOD + 0.1 * PERIOD * (k - 2), k)
+    out += m.received(6 * PERIOD, 6)  # an answer with no SYNC of its own (none sent after 5)
+    assert out == [(100 + k, k) for k in range(3)]
+    assert (m.ambiguous, m.unmatched) == (2, 2)
 
 
 def test_a_duplicate_tpdo_is_dropped_and_counted() -> None:
@@ -187,6 +209,42 @@ def test_a_sweep_dated_by_sync_agrees_with_one_dated_by_the_drives_counter() -> 
     by_sync = sweep(canopen_case("sync", {"position": "0x6064"}))
     assert_agree(by_sync, by_counter)
     assert by_sync.health.bus.lost_samples == 0 and by_sync.health.bus.undated == 0
+
+
+def test_every_sample_dated_by_sync_is_dated_by_the_drives_own_tick_through_lost_late_and_missed() -> None:
+    """The drive's own tick (its sample counter 0x2000, mapped as an ordinary channel the host does not date by)
+    against the tick the host gives each TPDO by its SYNC: one offset for every sample, however many TPDOs were
+    lost or late and SYNCs missed. The host waits for each answer as lockstep does, generously."""
+    case = canopen_case("sync", {"position": "0x6064", "drive_tick": "0x2000"})
+    setup, layout = case.canopen_setup, case.layout
+    name = case.can.channel
+    # the drive's own view: position only; it sends its counter wherever the host's mapping puts 0x2000
+    plain = canopen_case("sync", {"position": "0x6064"})
+    faults = Cia402Faults(tpdo_drop=0.05, tpdo_late=0.05, sync_miss=0.03, seed=5)
+    controller = SimulatedController(plant_from_config(**PLANT), plain.layout, ControllerTiming(RATE_HZ))
+    serving = serve_canopen(controller, plain.canopen_setup, {"interface": "virtual", "channel": name}, faults)
+    host = CanopenDriver(CanPort.open("virtual", name), setup, layout)
+    samples = []
+    try:
+        host.enable()
+        for k in range(400):
+            host.send_setpoint(0.0, k)
+            samples += host.receive(0.1)
+        host.send_setpoint(0.0, 400)  # the answer to SYNC 399, if late, goes out now
+        samples += host.receive(0.1)
+        host.disable()
+    finally:
+        host.close()
+        serving.close()
+    drive = serving.drive
+    assert drive.dropped_tpdos > 5 and drive.late_tpdos > 5 and drive.missed_syncs > 3
+    tick = layout.channels.index("drive_tick")
+    offsets = {s.counter - int(s.values[tick]) for s in samples}
+    assert len(offsets) == 1, sorted(offsets)
+    answered = 401 - drive.dropped_tpdos - drive.missed_syncs
+    assert len(samples) + host.health.undated <= answered
+    assert len(samples) >= answered - 2 * (drive.dropped_tpdos + drive.missed_syncs)
+    assert host.health.lost_samples + len(samples) <= 401
 
 
 def test_lost_and_late_tpdos_leave_gaps_not_shifts() -> None:
