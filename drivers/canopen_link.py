@@ -10,8 +10,10 @@ them unchanged. ``CanopenDriver`` adds the drive's life cycle:
   operation (0x6060, checked in 0x6061), NMT operational, then shutdown, switch on, enable operation, each checked in
   the statusword;
 - ``send_setpoint()``: the RPDO, then SYNC (when the host produces it);
-- ``receive()``: TPDO samples; an EMCY, a statusword that leaves "operation enabled", a heartbeat missing for
-  ``heartbeat_timeout_s`` or an NMT state other than operational raise ``DriveFaultError``;
+- ``receive()``: TPDO samples, dated by the host tick of the SYNC they answer when the host produces SYNC: by the
+  drive's sample counter (``timebase`` "counter") or, without one, by the order and receive times of the frames
+  (``timebase`` "sync", ``drivers.sync_dating``); an EMCY, a statusword that leaves "operation enabled", a
+  heartbeat missing for ``heartbeat_timeout_s`` or an NMT state other than operational raise ``DriveFaultError``;
 - ``disable()``: quick stop, disable voltage, the drive's 0x1016 and 0x6007 written back, NMT pre-operational;
   returns whether the drive was seen disabled, and ``shutdown_account`` says what was done and seen.
 
@@ -42,6 +44,7 @@ from .driver import Driver, FeedbackSample
 from .errors import DriveFaultError, DriverOperationError, LayoutError
 from .layout import Layout
 from .ports import Frame, FramePort
+from .sync_dating import SyncMatcher
 
 if TYPE_CHECKING:
     import canopen
@@ -183,6 +186,7 @@ class CanopenSetup:
     host_heartbeat_ms: int = 100
     drive_heartbeat_timeout_ms: int = 500
     abort_connection: int = ABORT_CONNECTION_OPTIONS["quick stop"]
+    timebase: str = "counter"
 
     @property
     def host_heartbeat_cob_id(self) -> int:
@@ -272,6 +276,7 @@ class CanopenDriver(Driver):
         self._sync_ticks = [0] * _SYNC_MEMORY  # the host tick of each SYNC sent, by SYNC number modulo the memory
         self._syncs_sent = 0
         self._first_counter: int | None = None
+        self._matcher: SyncMatcher[FeedbackSample] = SyncMatcher(_SYNC_MEMORY)
         self.protection = ""
         """What the start did so that the drive stops itself if the host dies, or why it could not (empty before)."""
         self._unprotected = ""  # why the drive cannot protect itself (said again in shutdown_account)
@@ -455,6 +460,7 @@ class CanopenDriver(Driver):
         self._left = None
         self._first_counter = None
         self._syncs_sent = 0
+        self._matcher = SyncMatcher(_SYNC_MEMORY)
         self._cyclic = True
 
     # ----------------------------------------------------------------------------------------------------------
@@ -621,10 +627,18 @@ class CanopenDriver(Driver):
         ``counter``: the host's tick of this setpoint; a sample is dated by the SYNC it answers (below)."""
         super().send_setpoint(value, counter)
         if self.setup.sync == "produce":
+            sent = time.time()  # before the send: the clock python-can stamps received frames with
             self.port.send(Frame(SYNC_COB_ID, b""))
             self._sync_ticks[self._syncs_sent % _SYNC_MEMORY] = counter
             self._syncs_sent += 1
+            if self._by_sync:
+                self._matcher.sent(counter, sent)
             self._update_health()
+
+    @property
+    def _by_sync(self) -> bool:
+        """Whether samples are dated by the order and times of the frames (``timebase`` "sync")."""
+        return self.setup.sync == "produce" and self.setup.timebase == "sync"
 
     @property
     def counts_host_ticks(self) -> bool:  # type: ignore[override]
@@ -632,11 +646,20 @@ class CanopenDriver(Driver):
         return self.setup.sync == "produce"
 
     def _dated(self, samples: list[FeedbackSample]) -> list[FeedbackSample]:
-        """With host-produced SYNC, each sample's counter becomes the host tick that follows the SYNC it answers:
-        the drive's counter advances once a SYNC, so its step from the first sample counts SYNCs. Ticks the host
-        skipped (a stalled pacing loop) then do not shift the time base, as the drive's cycle is the SYNC."""
+        """With host-produced SYNC, each sample's counter becomes the host tick that follows the SYNC it answers.
+        By the order and receive times of the frames (``timebase`` "sync", ``SyncMatcher``): samples that cannot
+        be told which SYNC they answer are dropped (``BusHealth.undated``), SYNCs left unanswered are lost samples.
+        Else by the drive's counter: it advances once a SYNC, so its step from the first sample counts SYNCs. Ticks
+        the host skipped (a stalled pacing loop) then do not shift the time base, as the drive's cycle is the SYNC."""
         if self.setup.sync != "produce":
             return samples
+        if self._by_sync:
+            m = self._matcher
+            dated = [dataclasses.replace(s, counter=tick + 1) for sample in samples
+                     for tick, s in m.received(sample.receive_time, sample)]
+            self.health.undated = m.ambiguous + m.unmatched
+            self.health.lost_samples = m.lost
+            return dated
         out = []
         for sample in samples:
             if sample.counter is None:

@@ -101,7 +101,8 @@ class BusHealth:
     samples (assembly restarted there); ``resyncs``: serial lines only, runs of bytes discarded between frames (line
     noise, garbage); ``rejected``: feedback frames refused before assembly, by cause (``REJECT_CAUSES``): never part
     of a sample; ``broken_frames``: serial lines only, frames cut short (the line went quiet inside one), dropped at
-    once."""
+    once; ``undated``: CANopen with ``timebase = "sync"``, TPDOs dropped because the SYNC they answer cannot be
+    told (``drivers.sync_dating``; the SYNCs left without an answer count in ``lost_samples``)."""
 
     frames_in: int = 0
     frames_out: int = 0
@@ -114,6 +115,7 @@ class BusHealth:
     counter_restarts: int = 0
     resyncs: int = 0
     broken_frames: int = 0
+    undated: int = 0
     rejected: dict[str, int] = dataclasses.field(default_factory=lambda: dict.fromkeys(REJECT_CAUSES, 0))
 
     @property

@@ -17,12 +17,14 @@ What it honours, as a drive does:
   2 disable voltage, 3 quick stop, 0 none). ``check_heartbeat`` checks on the wall clock; ``ServingCanopen`` calls it
   from a thread of its own, as a drive's timer does, so a host that died (and sends no SYNC) is still noticed;
 - faults (``Cia402Faults``): it refuses to enable, sends an EMCY and goes to fault, stops its heartbeat, or falls
-  silent altogether, at a given controller time.
+  silent altogether, at a given controller time; at random, it misses a SYNC (the plant holds the setpoint it had
+  over that period, no TPDO), drops a TPDO, or sends one late: after the next SYNC, just before that SYNC's own.
 """
 
 from __future__ import annotations
 
 import math
+import random
 import threading
 import time
 from collections.abc import Callable
@@ -71,7 +73,10 @@ class Cia402Faults:
 
     refuse_enable: the drive stays "switched on" when told to enable operation. emcy_at_s, emcy_code: from then on
     the drive is in fault, having sent an EMCY with this error code. heartbeat_stops_at_s: its heartbeat stops (the
-    PDOs go on). silent_at_s: it answers nothing more (no heartbeat, PDO or SDO).
+    PDOs go on). silent_at_s: it answers nothing more (no heartbeat, PDO or SDO). sync_miss, tpdo_drop, tpdo_late:
+    probabilities per SYNC that the drive misses it (no new setpoint taken, no TPDO; the plant goes on), that its
+    TPDOs are not sent, that they are sent late (after the next SYNC arrived, before that SYNC's own); seed: of
+    these draws.
     """
 
     refuse_enable: bool = field(default=False, metadata={"doc": "never reach operation enabled"})
@@ -81,11 +86,19 @@ class Cia402Faults:
                                                             "overcurrent)"})
     heartbeat_stops_at_s: float = field(default=0.0, metadata={"min": 0, "doc": "heartbeat stops, s"})
     silent_at_s: float = field(default=0.0, metadata={"min": 0, "doc": "the drive falls silent, s"})
+    sync_miss: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per SYNC that the "
+                                                                               "drive misses it"})
+    tpdo_drop: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per SYNC that its "
+                                                                               "TPDOs are not sent"})
+    tpdo_late: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per SYNC that its "
+                                                                               "TPDOs go out after the next SYNC"})
+    seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of sync_miss, tpdo_drop and tpdo_late"})
 
     @property
     def any(self) -> bool:
         """True when any fault is configured."""
-        return self.refuse_enable or bool(self.emcy_at_s or self.heartbeat_stops_at_s or self.silent_at_s)
+        return self.refuse_enable or bool(self.emcy_at_s or self.heartbeat_stops_at_s or self.silent_at_s
+                                          or self.sync_miss or self.tpdo_drop or self.tpdo_late)
 
 
 class SimulatedCia402Drive:
@@ -126,6 +139,11 @@ class SimulatedCia402Drive:
         self.heartbeat_events = 0
         self._heard: dict[int, float] = {}  # watched node id -> time.monotonic() of its latest heartbeat, once seen
         self._subscribed: set[int] = set()  # node ids whose heartbeat COB-ID is subscribed to
+        self._draws = random.Random(self.faults.seed if self.faults is not None else 0)
+        self._late: list[tuple[int, bytes]] = []  # (COB-ID, data) of TPDOs held back to the next SYNC
+        self.missed_syncs = 0
+        self.dropped_tpdos = 0
+        self.late_tpdos = 0
 
     # ----------------------------------------------------------------------------------------------------------
     def attach(self, network: canopen.Network) -> None:
@@ -351,6 +369,16 @@ class SimulatedCia402Drive:
             self._heartbeat_stopped = True
             self.node.nmt.stop_heartbeat()
             self.on_event("heartbeat stopped")
+        late, self._late = self._late, []
+        for cob_id, data in late:  # the answers to the previous SYNC, held back
+            assert self.network is not None
+            self.network.send_message(cob_id, data)
+        missed = f is not None and f.sync_miss > 0 and self._draws.random() < f.sync_miss
+        if missed:  # the setpoint of this SYNC is never taken in; the plant goes on with the one it had
+            self.missed_syncs += 1
+            c.advance()
+            self.syncs += 1
+            return
         for rpdo in self._rpdos:
             for var in rpdo.map:
                 if (var.index, var.subindex) == self._setpoint_key and rpdo.is_received:
@@ -366,12 +394,20 @@ class SimulatedCia402Drive:
             self.node.emcy.send(f.emcy_code, 0x03)  # error register: generic error, current
             self.on_event(f"EMCY 0x{f.emcy_code:04X}")
             self._go(State.FAULT, f"error 0x{f.emcy_code:04X}")
+        drop = f is not None and f.tpdo_drop > 0 and self._draws.random() < f.tpdo_drop
+        hold = f is not None and f.tpdo_late > 0 and self._draws.random() < f.tpdo_late
         for tpdo in self._tpdos:
             if self.syncs % tpdo.trans_type:
                 continue
             for var in tpdo.map:
                 var.raw = self._value(var, y)
-            tpdo.transmit()
+            if drop:
+                self.dropped_tpdos += 1
+            elif hold:
+                self.late_tpdos += 1
+                self._late.append((tpdo.cob_id, bytes(tpdo.data)))
+            else:
+                tpdo.transmit()
 
     def _due(self, at_s: float) -> bool:
         return bool(at_s) and self.controller.time >= at_s

@@ -458,9 +458,10 @@ class BusWorker:
 
     # --- feedback
     def _time_of(self, s: FeedbackSample, answered_tick: int | None) -> float:
-        """Session time of a sample: its counter, timestamp or receive time, aligned once on the first sample."""
+        """Session time of a sample: its counter (time base "sync": the host tick the driver dated it by), timestamp
+        or receive time, aligned once on the first sample."""
         base = self.spec.timebase
-        if base == "counter" and s.counter is not None:
+        if base in ("counter", "sync") and s.counter is not None:
             raw = s.counter * self.h
         elif base == "timestamp" and s.timestamp is not None:
             raw = s.timestamp
@@ -469,7 +470,7 @@ class BusWorker:
             if base != "receive":
                 raise _Trip("bus", f"feedback without the {base} the time base needs")
         if self.offset is None:
-            if base == "counter" and self.driver is not None and self.driver.counts_host_ticks:
+            if base in ("counter", "sync") and self.driver is not None and self.driver.counts_host_ticks:
                 self.offset = 0.0  # the driver dates each sample by the host tick it answers (CANopen SYNC)
             elif answered_tick is not None:
                 # lockstep: the controller's clock runs a whole number of periods ahead of the session's,

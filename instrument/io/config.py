@@ -226,6 +226,11 @@ def _build_case(
     if built["bench"] is not None and built["bench"].transport in ("can", "canopen") and built["can"] is not None:
         built["can"] = _resolve_can(built["can"], built["simulator"] is not None, key)
         raw["can"] = _to_raw(built["can"])
+    bench = built["bench"]
+    if bench is not None and not bench.timebase:
+        canopen = built["canopen"]
+        built["bench"] = replace(bench, timebase=bench.default_timebase(canopen.sync if canopen is not None else None))
+        raw["bench"] = _to_raw(built["bench"])
     if built["plant"] is None and (built["bench"] is None or built["simulator"] is not None):
         what = "an offline experiment" if built["bench"] is None else "a simulated drive ([simulator])"
         raise _Fault(_key_path("plant"), f"missing: {what} needs a [plant] table (only a real drive needs none)")
@@ -435,7 +440,8 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
             raise _Fault(key("bench", "transport"), '"canopen" needs a [can] table (the bus the drive is on)')
         if frames is not None:
             raise _Fault(FRAMES, "not used on transport canopen: the PDOs come from [canopen]")
-        setup = _canopen_setup(tables["canopen"], tables.get("simulator") is not None, key, source)
+        setup = replace(_canopen_setup(tables["canopen"], tables.get("simulator") is not None, key, source),
+                        timebase=bench.timebase)
     elif tables.get("canopen") is not None:
         raise _Fault("canopen", f'only used with bench.transport = "canopen" (not "{bench.transport}")')
     simulated = tables.get("simulator") is not None
@@ -448,6 +454,9 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
     if bench.clock == "realtime" and bench.pacing_cpu is not None and bench.pacing_cpu >= cpus:
         raise _Fault(key("bench", "pacing_cpu"),
                              f"CPU {bench.pacing_cpu} does not exist on this machine ({cpus} CPUs, numbered from 0)")
+    if bench.timebase == "sync" and (setup is None or setup.sync != "produce"):
+        raise _Fault(key("bench", "timebase"), 'sync: only on transport "canopen" with canopen.sync = "produce" '
+                                               "(samples are dated by the host's own SYNCs)")
     if bench.clock == "lockstep" and bench.timebase == "receive":
         raise _Fault(key("bench", "timebase"), "receive times mean nothing on the lockstep clock")
     safety: SafetyConfig | None = tables.get("safety")
@@ -511,7 +520,8 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
                                                            "harmonic 1")
     if bench.timebase == "counter" and not layout.has_counter:
         raise _Fault(key("bench", "timebase"), "counter: the feedback frames carry no counter"
-                     + (" (map a sample counter object as canopen.actual.counter)" if setup is not None else ""))
+                     + (' (map a sample counter object as canopen.actual.counter, or use timebase = "sync")'
+                        if setup is not None else ""))
     if bench.timebase == "timestamp" and not layout.has_timestamp:
         raise _Fault(key("bench", "timebase"), "timestamp: the feedback frames carry no timestamp_us")
     return layout, setup

@@ -45,7 +45,7 @@ __all__ = [
 
 TRANSPORTS = ("can", "serial", "canopen")
 CLOCKS = ("lockstep", "realtime")
-TIMEBASES = ("counter", "timestamp", "receive")
+TIMEBASES = ("counter", "sync", "timestamp", "receive")
 MIN_SAMPLES_PER_PERIOD = 8  # of the highest harmonic measured
 MIN_FREQUENCY_HZ = 1e-3
 """Lowest frequency swept: a period of 1000 s, so that a point (a ramp of whole periods, then the periods the
@@ -428,9 +428,11 @@ class BenchConfig:
                                      "doc": "setpoint and feedback sample rate of the drive controller, Hz"})
     clock: str = field(default="lockstep", metadata={
         "choices": CLOCKS, "doc": "lockstep: one controller period per setpoint (simulated drives); realtime"})
-    timebase: str = field(default="counter", metadata={
+    timebase: str = field(default="", metadata={
         "choices": TIMEBASES,
-        "doc": "sample times from the feedback counter, the controller's timestamp, or the host's receive time"})
+        "doc": "sample times from the feedback counter, the SYNC each CANopen TPDO answers (sync: no counter "
+               "needed), the controller's timestamp, or the host's receive time; default: sync on transport canopen "
+               "with canopen.sync = \"produce\", else counter"})
     output_channels: tuple[str, ...] = field(default=("position",), metadata={
         "non_empty": True, "unique": True, "doc": "feedback channels measured"})
     reference_channel: str = field(default="", metadata={
@@ -450,6 +452,11 @@ class BenchConfig:
     pacing_cpu: int | None = field(default=None, metadata={
         "min": 0, "doc": "realtime: the CPU the bus worker keeps to itself (e.g. one isolated with isolcpus); "
                          "default: the last CPU the process may use"})
+
+    def default_timebase(self, canopen_sync: str | None) -> str:
+        """The time base when [bench] gives none: "sync" on transport canopen where the host produces the SYNC
+        (``canopen_sync``: [canopen] sync; a CiA 402 drive has no sample counter), else "counter"."""
+        return "sync" if self.transport == "canopen" and canopen_sync == "produce" else "counter"
 
     def worker_mode(self, beside_a_ui: bool = False, in_process_setpoints: int = 0) -> str:
         """Where the bus worker runs: ``worker`` as given; for "auto" its own process on the realtime clock (its

@@ -1,0 +1,258 @@
+"""Dating TPDOs by the SYNC they answer without a counter (``timebase = "sync"``): the pure matcher against built
+sequences of SYNCs and TPDOs with the ticks worked out by hand, then sweeps of the simulated CiA 402 drive on
+python-can's virtual bus with canopen's stack, "sync" against its own sample counter ("counter")."""
+
+from __future__ import annotations
+
+import uuid
+from typing import Any
+
+import numpy as np
+import pytest
+
+from bodebench.bench.connection import plan_link
+from bodebench.bench.session import BenchSession
+from bodebench.drivers.canopen_link import CanopenDriver
+from bodebench.drivers.ports import CanPort
+from bodebench.drivers.sync_dating import SyncMatcher
+from bodebench.io.config import ConfigError, parse_config
+from bodebench.sim.cia402_drive import Cia402Faults, serve_canopen
+from bodebench.sim.controller import ControllerTiming, SimulatedController
+from bodebench.sim.models import plant_from_config
+
+PERIOD = 1e-3
+ANSWER = 0.3e-3  # the drive's TPDO follows its SYNC by this long
+
+
+def run(events: list[tuple[str, int]], memory: int = 64) -> tuple[list[tuple[int, int]], SyncMatcher[int]]:
+    """Play ``events``: ("sync", k) sends SYNC k (host tick 100 + k) at k periods; ("tpdo", k) receives a TPDO
+    sampled at SYNC k, ``ANSWER`` after SYNC k, or ("late", k) half a period after SYNC k + 1. The (tick, k) pairs
+    the matcher gives, in order."""
+    m: SyncMatcher[int] = SyncMatcher(memory)
+    out: list[tuple[int, int]] = []
+    for kind, k in events:
+        if kind == "sync":
+            m.sent(100 + k, k * PERIOD)
+        else:
+            at = k * PERIOD + (ANSWER if kind == "tpdo" else PERIOD + 0.5 * PERIOD)
+            out += m.received(at, k)
+    return out, m
+
+
+def steady(ks: range, skip_tpdo: tuple[int, ...] = ()) -> list[tuple[str, int]]:
+    events: list[tuple[str, int]] = []
+    for k in ks:
+        events.append(("sync", k))
+        if k not in skip_tpdo:
+            events.append(("tpdo", k))
+    return events
+
+
+def test_each_tpdo_gets_the_tick_of_the_sync_before_it() -> None:
+    out, m = run(steady(range(10)))
+    assert out == [(100 + k, k) for k in range(10)]
+    assert (m.matched, m.lost, m.ambiguous, m.unmatched) == (10, 0, 0, 0)
+
+
+def test_a_lost_tpdo_is_a_gap_and_later_samples_keep_their_ticks() -> None:
+    # TPDO 4 lost: TPDO 5 follows SYNCs 4 and 5, both unanswered: held, then undecided when TPDO 6 comes after
+    # SYNC 6 (5 may have been 4's, late): dropped. Nothing after is shifted.
+    out, m = run(steady(range(10), skip_tpdo=(4,)))
+    assert out == [(100 + k, k) for k in range(10) if k not in (4, 5)]
+    assert (m.lost, m.ambiguous, m.unmatched) == (2, 1, 0)
+
+
+def test_a_sync_the_drive_missed_is_a_gap_like_a_lost_tpdo() -> None:
+    # the drive missed SYNC 3 (no TPDO 3) and sampled SYNC 4 on time: the host sees the same as a lost TPDO
+    out, m = run(steady(range(8), skip_tpdo=(3,)))
+    assert [k for _, k in out] == [0, 1, 2, 5, 6, 7]
+    assert all(tick == 100 + k for tick, k in out)
+    assert m.lost == 2 and m.ambiguous == 1
+
+
+def test_a_late_tpdo_keeps_its_own_sync_and_the_next_keeps_its_own() -> None:
+    events = steady(range(3)) + [("sync", 3), ("sync", 4), ("late", 3), ("tpdo", 4)] + steady(range(5, 8))
+    out, m = run(events)
+    assert out == [(100 + k, k) for k in range(8)]
+    assert (m.lost, m.ambiguous, m.unmatched) == (0, 0, 0)
+
+
+def test_a_late_tpdo_whose_next_one_is_lost_is_dropped_not_shifted() -> None:
+    # TPDO 3 late, TPDO 4 lost: after SYNC 4 one TPDO only, then SYNC 5: it answers 3 or 4, nothing tells
+    events = steady(range(3)) + [("sync", 3), ("sync", 4), ("late", 3)] + steady(range(5, 8))
+    out, m = run(events)
+    assert out == [(100 + k, k) for k in (0, 1, 2, 5, 6, 7)]
+    assert (m.lost, m.ambiguous) == (2, 1)
+
+
+def test_two_tpdos_of_a_drive_two_syncs_behind_are_dropped_not_shifted() -> None:
+    # the drive stalled: SYNCs 3, 4 and 5 go out before it answers 3 and 4 (late by two); 5's answer then comes
+    events = steady(range(3)) + [("sync", 3), ("sync", 4), ("sync", 5)]
+    m: SyncMatcher[int] = SyncMatcher(64)
+    out: list[tuple[int, int]] = []
+    for kind, k in events:
+        if kind == "sync":
+            m.sent(100 + k, k * PERIOD)
+        else:
+            out += m.received(k * PERIOD + ANSWER, k)
+    for k in (3, 4, 5):
+        out += m.received(5 * PERIOD + 0.1 * PERIOD * (k - 2), k)
+    out += m.received(6 * PERIOD, 6)  # an answer with no SYNC of its own (none sent after 5)
+    assert out == [(100 + k, k) for k in range(3)]
+    assert (m.ambiguous, m.unmatched) == (2, 2)
+
+
+def test_a_duplicate_tpdo_is_dropped_and_counted() -> None:
+    events = steady(range(4))
+    events.insert(events.index(("tpdo", 2)) + 1, ("tpdo", 2))
+    out, m = run(events)
+    assert out == [(100 + k, k) for k in range(4)]
+    assert m.unmatched == 1
+
+
+def test_a_tpdo_before_any_sync_is_unmatched() -> None:
+    m: SyncMatcher[str] = SyncMatcher(8)
+    assert m.received(0.5, "early") == []
+    m.sent(7, 1.0)
+    assert m.received(1.0003, "first") == [(7, "first")]
+    assert m.unmatched == 1
+
+
+def test_the_memory_wraps_without_shifting_and_a_tpdo_older_than_it_is_unmatched() -> None:
+    out, m = run(steady(range(50)), memory=4)
+    assert out == [(100 + k, k) for k in range(50)]
+    # one more SYNC than the memory holds, then a TPDO stamped before all of them
+    m.received(45 * PERIOD + ANSWER, -1)
+    assert m.unmatched == 1
+
+
+def test_a_lost_run_of_tpdos_resumes_on_the_right_ticks() -> None:
+    out, m = run(steady(range(20), skip_tpdo=tuple(range(5, 12))))
+    assert out == [(100 + k, k) for k in range(20) if not 5 <= k <= 12]
+    assert m.lost == 8 and m.ambiguous == 1
+
+
+def test_a_tpdo_held_waits_and_the_matcher_says_so() -> None:
+    m: SyncMatcher[int] = SyncMatcher(8)
+    m.sent(0, 0.0)
+    m.sent(1, 0.001)
+    assert m.received(0.0012, 0) == [] and m.held  # 0 late, or 0 lost and this 1's: the next TPDO tells
+    assert m.received(0.0013, 1) == [(0, 0), (1, 1)] and not m.held
+
+
+# ------------------------------------------------------------------------------------------- on the virtual bus
+
+RATE_HZ = 1000.0
+PLANT = {"model": "lag", "gain": 1.0, "time_constant": 0.01}
+BASE: dict[str, Any] = {
+    "plant": PLANT,
+    "excitation": {"amplitude": 0.01, "frequencies_hz": [10.0, 25.0]},
+    "analysis": {"harmonics": [1], "tolerance_percent": 0.1, "max_periods": 40},
+}
+
+
+def canopen_case(timebase: str | None, actual: dict[str, str], cia402: dict[str, Any] | None = None) -> Any:
+    bench: dict[str, Any] = {"transport": "canopen", "rate_hz": RATE_HZ, "clock": "lockstep", "worker": "thread"}
+    if timebase is not None:
+        bench["timebase"] = timebase
+    data = {**BASE, "bench": bench,
+            "can": {"interface": "virtual", "channel": f"sync-{uuid.uuid4().hex[:8]}"},
+            "canopen": {"node_id": 9, "setpoint_scale": 1e-9, "actual": actual, "actual_scale": {"position": 1e-9},
+                        "heartbeat_timeout_s": 1.0},
+            "safety": {"max_amplitude": 0.02, "watchdog_s": 3.0},
+            "simulator": {"noise": 2e-5, "seed": 1, **({"cia402": cia402} if cia402 else {})}}
+    return parse_config(data, "sync.toml").cases[0]
+
+
+def sweep(case: Any) -> Any:
+    result = BenchSession(case, plan_link(case)).run()
+    assert result.completed, result
+    return result
+
+
+def assert_agree(a: Any, b: Any) -> None:
+    """Each point of ``a`` within the stated 95 % discs of both from the same point of ``b``."""
+    for pa, pb in zip(a.response.points, b.response.points, strict=True):
+        assert pa.frequency_hz == pb.frequency_hz
+        bound = pa.uncertainty + pb.uncertainty
+        assert np.hypot(pa.p - pb.p, pa.q - pb.q) <= bound, (pa.frequency_hz, pa.p, pa.q, pb.p, pb.q, bound)
+
+
+def test_the_default_canopen_timebase_is_sync_and_needs_no_counter() -> None:
+    case = canopen_case(None, {"position": "0x6064"})
+    assert case.bench.timebase == "sync" and case.raw["bench"]["timebase"] == "sync"
+    assert case.canopen_setup.timebase == "sync"
+    assert [name for name, _, _ in case.canopen_setup.actual] == ["position"]
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"transport": "can"}, r'bench\.timebase: sync: only on transport "canopen"'),
+    ({"sync": "consume"}, r'bench\.timebase: sync: only on transport "canopen" with canopen\.sync = "produce"'),
+])
+def test_the_sync_timebase_is_refused_where_the_host_makes_no_sync(change: dict[str, str], message: str) -> None:
+    data: dict[str, Any] = {**BASE, "bench": {"transport": "canopen", "rate_hz": RATE_HZ, "timebase": "sync"},
+                            "can": {"interface": "virtual", "channel": "x"},
+                            "canopen": {"node_id": 9, "setpoint_scale": 1e-9}, "safety": {"max_amplitude": 0.02},
+                            "simulator": {}}
+    if "transport" in change:
+        data["bench"]["transport"] = change["transport"]
+        del data["canopen"]
+    else:
+        data["canopen"]["sync"] = change["sync"]
+    with pytest.raises(ConfigError, match=message) as info:
+        parse_config(data, "sync.toml")
+    assert "\n" not in str(info.value)
+
+
+def test_a_sweep_dated_by_sync_agrees_with_one_dated_by_the_drives_counter() -> None:
+    by_counter = sweep(canopen_case("counter", {"position": "0x6064", "counter": "0x2000"}))
+    by_sync = sweep(canopen_case("sync", {"position": "0x6064"}))
+    assert_agree(by_sync, by_counter)
+    assert by_sync.health.bus.lost_samples == 0 and by_sync.health.bus.undated == 0
+
+
+def test_every_sample_dated_by_sync_is_dated_by_the_drives_own_tick_through_lost_late_and_missed() -> None:
+    """The drive's own tick (its sample counter 0x2000, mapped as an ordinary channel the host does not date by)
+    against the tick the host gives each TPDO by its SYNC: one offset for every sample, however many TPDOs were
+    lost or late and SYNCs missed. The host waits for each answer as lockstep does, generously."""
+    case = canopen_case("sync", {"position": "0x6064", "drive_tick": "0x2000"})
+    setup, layout = case.canopen_setup, case.layout
+    name = case.can.channel
+    # the drive's own view: position only; it sends its counter wherever the host's mapping puts 0x2000
+    plain = canopen_case("sync", {"position": "0x6064"})
+    faults = Cia402Faults(tpdo_drop=0.05, tpdo_late=0.05, sync_miss=0.03, seed=5)
+    controller = SimulatedController(plant_from_config(**PLANT), plain.layout, ControllerTiming(RATE_HZ))
+    serving = serve_canopen(controller, plain.canopen_setup, {"interface": "virtual", "channel": name}, faults)
+    host = CanopenDriver(CanPort.open("virtual", name), setup, layout)
+    samples = []
+    try:
+        host.enable()
+        for k in range(400):
+            host.send_setpoint(0.0, k)
+            samples += host.receive(0.1)
+        host.send_setpoint(0.0, 400)  # the answer to SYNC 399, if late, goes out now
+        samples += host.receive(0.1)
+        host.disable()
+    finally:
+        host.close()
+        serving.close()
+    drive = serving.drive
+    assert drive.dropped_tpdos > 5 and drive.late_tpdos > 5 and drive.missed_syncs > 3
+    tick = layout.channels.index("drive_tick")
+    offsets = {s.counter - int(s.values[tick]) for s in samples}
+    assert len(offsets) == 1, sorted(offsets)
+    answered = 401 - drive.dropped_tpdos - drive.missed_syncs
+    assert len(samples) + host.health.undated <= answered
+    assert len(samples) >= answered - 2 * (drive.dropped_tpdos + drive.missed_syncs)
+    assert host.health.lost_samples + len(samples) <= 401
+
+
+def test_lost_and_late_tpdos_leave_gaps_not_shifts() -> None:
+    faults = {"tpdo_drop": 0.01, "tpdo_late": 0.01, "sync_miss": 0.005, "seed": 3}
+    clean = sweep(canopen_case("sync", {"position": "0x6064"}))
+    faulty = sweep(canopen_case("sync", {"position": "0x6064"}, faults))
+    assert_agree(faulty, clean)
+    bus = faulty.health.bus
+    assert bus.lost_samples > 0 and bus.undated > 0
+    # at 25 Hz a sample dated one period off is 9 degrees off: gaps leave the phase where the clean sweep has it
+    assert np.max(np.abs(faulty.response.phase_deg - clean.response.phase_deg)) < 0.5
