@@ -595,6 +595,41 @@ def _ports(args: argparse.Namespace) -> int:
     return 0
 
 
+def _write_new(text: str, out: str | None, what: str) -> None:
+    """``text`` to stdout, or to the new file ``out`` (--out): an existing file is never overwritten
+    (ResultsError, one line)."""
+    from bodebench.io.results import ResultsError
+
+    if out is None:
+        sys.stdout.write(text)
+        return
+    try:
+        with open(out, "x", encoding="utf-8", newline="") as handle:
+            handle.write(text)
+    except FileExistsError:
+        raise ResultsError(f"--out {out}: a file is there already; bodebench does not overwrite it") from None
+    except OSError as exc:
+        raise ResultsError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
+    print(f"{what} -> {out}", file=sys.stderr)
+
+
+def _example(args: argparse.Namespace) -> int:
+    from bodebench.io.examples import ExampleError, example, examples
+
+    if args.name is None:
+        every = examples()
+        width = max(len(e.name) for e in every)
+        for item in every:
+            print(f"{item.name:<{width}}  {item.line}")
+        return 0
+    try:
+        item = example(args.name)
+    except ExampleError as exc:
+        raise _ArgumentError(str(exc)) from None
+    _write_new(item.text(), args.out, f"example {item.name}")
+    return 0
+
+
 LOG_BUS_HELP = ("write the session's traffic to FILE: on CAN through python-can's Logger, the suffix picks the "
                  "format (.asc, .blf, .log, .csv, ...); on a serial line a raw timestamped byte log")
 
@@ -726,6 +761,12 @@ def build_parser() -> argparse.ArgumentParser:
     ports.add_argument("--no-can", action="store_true", help="list the serial ports only")
     ports.add_argument("--json", action="store_true", help="print JSON")
     ports.set_defaults(handler=_ports)
+    exa = add("example", help="list the example configurations shipped with bodebench, or write one out")
+    exa.add_argument("name", nargs="?", default=None, metavar="NAME",
+                     help="the example to write (default: list them, one line each)")
+    exa.add_argument("--out", default=None, metavar="FILE",
+                     help="write it to FILE, which must not exist yet (default: standard output)")
+    exa.set_defaults(handler=_example)
     cal = add("calibrate", help="compute the friction link's calibration curves (identify's procedure)")
     cal.add_argument("--out", default=None, help="output file (default: the table shipped in the package)")
     cal.add_argument("--jobs", type=_jobs, default=None,
