@@ -595,6 +595,14 @@ def _ports(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check(args: argparse.Namespace) -> int:
+    from bodebench.apps.check import check_lines
+
+    for line in check_lines(_load(args)):
+        print(line)
+    return 0
+
+
 def _write_new(text: str, out: str | None, what: str) -> None:
     """``text`` to stdout, or to the new file ``out`` (--out): an existing file is never overwritten
     (ResultsError, one line)."""
@@ -761,6 +769,12 @@ def build_parser() -> argparse.ArgumentParser:
     ports.add_argument("--no-can", action="store_true", help="list the serial ports only")
     ports.add_argument("--json", action="store_true", help="print JSON")
     ports.set_defaults(handler=_ports)
+    chk = add("check", help="validate a configuration and print its plan, what is sent to the drive and the "
+                            "safety limits, opening no bus")
+    chk.add_argument("config", help="TOML experiment or bench file")
+    chk.add_argument("--set", action="append", type=_override, metavar="KEY=VALUE", help=SET_HELP)
+    chk.add_argument("--port", default=None, metavar="PORT", help=PORT_HELP)
+    chk.set_defaults(handler=_check)
     exa = add("example", help="list the example configurations shipped with bodebench, or write one out")
     exa.add_argument("name", nargs="?", default=None, metavar="NAME",
                      help="the example to write (default: list them, one line each)")
