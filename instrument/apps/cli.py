@@ -603,6 +603,26 @@ def _check(args: argparse.Namespace) -> int:
     return 0
 
 
+def _dbc(args: argparse.Namespace) -> int:
+    from bodebench.drivers.dbc import layout_database
+    from bodebench.io.config import ConfigError
+
+    config = _load(args)
+    if not config.on_bench:
+        raise ConfigError(f"{args.config}: bench: missing (an offline experiment has no frames to describe)", "bench")
+    texts: dict[str, list[str]] = {}
+    for case in config.cases:
+        layout = case.on_bench.layout
+        texts.setdefault(layout_database(layout, f"bodebench frame layout of {args.config}").as_dbc_string(),
+                         []).append(case.name)
+    if len(texts) > 1:
+        groups = "; ".join(", ".join(names) for names in texts.values())
+        raise ConfigError(f"{args.config}: frames: the cases have different frame layouts ({groups}): write each "
+                          "from a configuration of its own", "frames")
+    _write_new(next(iter(texts)), args.out, "frame layout")
+    return 0
+
+
 def _write_new(text: str, out: str | None, what: str) -> None:
     """``text`` to stdout, or to the new file ``out`` (--out): an existing file is never overwritten
     (ResultsError, one line)."""
@@ -775,6 +795,12 @@ def build_parser() -> argparse.ArgumentParser:
     chk.add_argument("--set", action="append", type=_override, metavar="KEY=VALUE", help=SET_HELP)
     chk.add_argument("--port", default=None, metavar="PORT", help=PORT_HELP)
     chk.set_defaults(handler=_check)
+    dbc = add("dbc", help="write a bench configuration's frame layout (setpoint and feedback frames) as a DBC file")
+    dbc.add_argument("config", help="TOML bench file")
+    dbc.add_argument("--set", action="append", type=_override, metavar="KEY=VALUE", help=SET_HELP)
+    dbc.add_argument("--out", default=None, metavar="FILE",
+                     help="write it to FILE, which must not exist yet (default: standard output)")
+    dbc.set_defaults(handler=_dbc)
     exa = add("example", help="list the example configurations shipped with bodebench, or write one out")
     exa.add_argument("name", nargs="?", default=None, metavar="NAME",
                      help="the example to write (default: list them, one line each)")
