@@ -574,14 +574,19 @@ def _ports(args: argparse.Namespace) -> int:
     serial_ports = [{"port": p.device, "description": p.description or "", "hwid": p.hwid or ""}
                     for p in sorted(serial.tools.list_ports.comports(), key=lambda p: p.device)]
     can_configs: list[dict[str, object]] = []
+    unusable: list[dict[str, str]] = []
     if not args.no_can:
-        import can
+        from bodebench.drivers.ports import detect_can
 
-        found = can.detect_available_configs(interfaces=args.can or None)
+        try:
+            found = detect_can(args.can)
+        except ValueError as exc:
+            raise _ArgumentError(f"--can: {exc}") from None
         can_configs = [{k: v if isinstance(v, (str, int, float, bool)) or v is None else str(v)
-                        for k, v in dict(c).items()} for c in found]
+                        for k, v in c.items()} for c in found.configs]
+        unusable = [{"interface": name, "why": why} for name, why in found.unusable]
     if args.json:
-        print(json.dumps({"serial": serial_ports, "can": can_configs}, indent=2))
+        print(json.dumps({"serial": serial_ports, "can": can_configs, "can_unusable": unusable}, indent=2))
         return 0
     print(f"serial ports (pyserial): {len(serial_ports)}")
     for p in serial_ports:
@@ -592,6 +597,10 @@ def _ports(args: argparse.Namespace) -> int:
     print(f"CAN configurations (python-can, {where}): {len(can_configs)}")
     for c in can_configs:
         print("  " + ", ".join(f"{k} = {json.dumps(v)}" for k, v in c.items()))
+    if unusable:
+        print(f"CAN interfaces that cannot be used here: {len(unusable)}")
+        for item in unusable:
+            print(f"  {item['interface']}: {item['why']}")
     return 0
 
 
@@ -845,10 +854,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ResultsError: type[Exception] = _NotRaised
     DriverError: type[Exception] = _NotRaised
     SimulatorStartError: type[Exception] = _NotRaised
+    MissingDependency: type[Exception] = _NotRaised
     try:
         with stop_on_signals():  # from the first moment: a signal during start-up is one line, not a traceback
             args = build_parser().parse_args(argv)
             from bodebench.drivers.errors import DriverError
+            from bodebench.drivers.extras import MissingDependency
             from bodebench.io.config import ConfigError
             from bodebench.io.results import ResultsError
             from bodebench.sim.serve import SimulatorStartError
@@ -864,7 +875,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except _ArgumentError as exc:
         print(f"bodebench {args.command}: {exc} (see --help)", file=sys.stderr)
         return 2
-    except (ConfigError, ResultsError) as exc:
+    except (ConfigError, ResultsError, MissingDependency) as exc:
         print(f"bodebench: {exc}", file=sys.stderr)
         return 2
     except (DriverError, SimulatorStartError) as exc:
