@@ -133,3 +133,52 @@ def test_the_frames_check_lists_are_those_a_session_sends(tmp_path: Path, capsys
     tail = rest[-1 - int(zeros):-1]  # before it, that many zero setpoints (the counter bytes aside)
     assert [(frame_id, payload[:4]) for frame_id, payload in tail] == \
         [(int(zero_id, 16), bytes.fromhex(zero_data)[:4])] * int(zeros)
+
+
+def sdo_writes(frames: list[tuple[int, bytes]], node: int) -> list[tuple[int, int, int]]:
+    """(index, subindex, value) of each expedited SDO download the host sent to ``node``, in order, PDO
+    communication and mapping objects (0x1400 to 0x1BFF) left out."""
+    writes = []
+    for frame_id, data in frames:
+        if frame_id == 0x600 + node and len(data) == 8 and data[0] & 0xE3 == 0x23:  # ccs 1, expedited, size given
+            index, sub = data[1] | data[2] << 8, data[3]
+            if not 0x1400 <= index <= 0x1BFF:
+                writes.append((index, sub, int.from_bytes(data[4:8 - (data[0] >> 2 & 3)], "little")))
+    return writes
+
+
+@pytest.mark.slow
+def test_the_canopen_sequence_check_lists_is_what_a_session_sends(tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    config = ROOT / "configs" / "sim_canopen.toml"
+    channel = f"checked-{uuid.uuid4().hex[:8]}"
+    out = checked(config, capsys, "--set", f"can.channel={channel}")
+    start, _, leave = out.partition("sent to the drive on every way out")
+    said_writes = [[(int(i, 16), int(s, 16) if s else None, int(v, 0))
+                    for i, s, v in re.findall(r"SDO write 0x([0-9A-F]{4})(?::([0-9A-F]{2}))? = (\S+) ", part)]
+                   for part in (start, leave)]
+    said_nmt = [bytes.fromhex(d) for d in re.findall(rf"NMT [a-z-]+: id 0x000 data ({HEX})", out)]
+    back = re.search(r"SDO write back 0x([0-9A-F]{4}) and 0x([0-9A-F]{4})", leave)
+    assert back is not None
+    data = json.loads(json.dumps(load_config(config).cases[0].raw))
+    data["can"] = {"interface": "virtual", "channel": channel}
+    data["excitation"]["frequencies_hz"] = [20.0]
+    data["analysis"].update(harmonics=[1], tolerance_percent=0.1)
+    case = parse_config(data, str(config)).cases[0]
+    log = tmp_path / "bus.asc"
+    SweepProcedure(parse_config(data, str(config)), tmp_path / "out", log_bus=log).run()
+    sent = [(m.arbitration_id, bytes(m.data)) for m in can.LogReader(log) if not m.is_rx]
+    assert case.canopen is not None
+    node = case.canopen.node_id
+    writes = sdo_writes(sent, node)
+    first_stop = next(i for i, w in enumerate(writes) if w[0] == 0x6040 and w[2] == 0x0002)  # quick stop
+    on_start, on_exit = writes[:first_stop], writes[first_stop:]
+
+    def same(said: list[tuple[int, int | None, int]], done: list[tuple[int, int, int]]) -> bool:
+        return len(said) == len(done) and all(
+            i == j and (s is None or s == t) and v == w for (i, s, v), (j, t, w) in zip(said, done, strict=True))
+
+    assert same(said_writes[0], on_start), (said_writes[0], on_start)
+    assert same(said_writes[1], on_exit[:len(said_writes[1])]), (said_writes[1], on_exit)
+    assert [w[0] for w in on_exit[len(said_writes[1]):]] == [int(back[1], 16), int(back[2], 16)]
+    assert [d for i, d in sent if i == 0x000] == said_nmt
