@@ -10,10 +10,11 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Literal
 
-from .codec import Message, is_number, show
+from .codec import Codec, Message, Signal, is_number, show
 from .errors import LayoutError
 from .tables import FRAMES_KEYS, Roles, TableReader
 
@@ -21,7 +22,9 @@ if TYPE_CHECKING:  # cantools is imported where a DBC file is read
     from cantools.database.can import Message as DbcDefinition
     from cantools.database.can import Signal as DbcSignal
 
-__all__ = ["DbcMessage", "read_dbc_frames"]
+    from .layout import Layout
+
+__all__ = ["DbcMessage", "SignalSpec", "layout_database", "read_dbc_frames", "signal_specs"]
 
 _SIGNAL_LINE = re.compile(r"\s*SG_\s+(?P<name>\w+)\s*[^:]*:\s*\d+\|\d+@(?P<order>.)(?P<sign>.)")
 """A DBC signal line up to its byte order and sign (``SG_ Name : start|length@1-``)."""
@@ -133,6 +136,12 @@ class DbcMessage:
                 raise LayoutError(f"message {show(self.name)} signal {show(ours)}: {value!r} is not a number")
             values[ours] = float(value)
         return values
+
+    def dbc_signal(self, name: str) -> DbcSignal:
+        """The DBC signal (``cantools.database.can.Signal``) that carries our signal ``name``."""
+        if name not in self._sig:
+            raise LayoutError(f"message {show(self.name)} has no signal {show(name)}")
+        return self._sig[name]
 
     def integer_modulus(self, name: str) -> int | None:
         """``2**bits`` when our signal ``name`` is an unsigned integer with unit scale and zero offset, else None."""
@@ -252,3 +261,85 @@ def read_dbc_frames(reader: TableReader, path: Path, mapping: Mapping[str, objec
                 period = p
     return Roles(setpoint, feedback, optional["enable"], optional["disable"], optional["heartbeat"], period,
                  watchdog)
+
+
+@dataclass(frozen=True)
+class SignalSpec:
+    """Where one signal of a message lies, in a DBC file's terms: ``start`` bit (DBC numbering: the least
+    significant bit of a little-endian signal, the most significant of a big-endian one, bit b of byte n being 8 n +
+    b), ``length`` in bits, ``byte_order`` ("little_endian" or "big_endian"), ``signed``, ``is_float`` (IEEE),
+    ``scale`` and ``offset`` (physical = raw * scale + offset)."""
+
+    name: str
+    start: int
+    length: int
+    byte_order: Literal["little_endian", "big_endian"]
+    signed: bool
+    is_float: bool
+    scale: float
+    offset: float
+
+
+def _spec_of_signal(sig: Signal) -> SignalSpec:
+    bits = 8 * sig.size
+    little = sig.endian == "little"
+    start = 8 * sig.byte if little else 8 * sig.byte + 7  # a big-endian signal starts at its first byte's bit 7
+    signed = sig.raw_range is None or sig.raw_range[0] < 0  # an IEEE float is signed
+    return SignalSpec(sig.name, start, bits, "little_endian" if little else "big_endian", signed,
+                      not sig.is_integer, float(sig.scale), float(sig.offset))
+
+
+def signal_specs(message: Codec) -> tuple[SignalSpec, ...]:
+    """The signals of a signal message (a ``Message`` of a [frames] table, or a ``DbcMessage``) under our names, in
+    the message's order; () for a fixed-data message."""
+    if isinstance(message, DbcMessage):
+        specs = []
+        for ours in message.signal_names:
+            sig = message.dbc_signal(ours)
+            order: Literal["little_endian", "big_endian"] = \
+                "big_endian" if sig.byte_order == "big_endian" else "little_endian"
+            specs.append(SignalSpec(ours, int(sig.start), int(sig.length), order, bool(sig.is_signed),
+                                    bool(sig.is_float), float(sig.scale), float(sig.offset)))
+        return tuple(specs)
+    if isinstance(message, Message):
+        return tuple(_spec_of_signal(sig) for sig in message.signals)
+    raise LayoutError(f"message {show(message.name)}: not a message of signals bodebench knows")
+
+
+def _identifier(text: str) -> str:
+    """``text`` as a DBC (C) identifier."""
+    name = re.sub(r"\W", "_", text)
+    return name if name and not name[0].isdigit() else f"_{name}"
+
+
+def layout_database(layout: Layout, comment: str = "") -> Any:
+    """The setpoint and feedback messages of ``layout`` as a ``cantools.database.can.Database`` (our signal names,
+    each with its bit position, length, byte order, sign, scale and offset; the host sends the setpoint, the drive the
+    feedback). The fixed-data enable, disable and heartbeat frames have no signals to describe and may share an id:
+    they are listed in the database comment after ``comment``."""
+    from cantools.database.can import Bus, Database, Node
+    from cantools.database.can import Message as DbcDefinition
+    from cantools.database.can import Signal as DbcSignal
+    from cantools.database.conversion import BaseConversion
+
+    def definition(message: Codec, name: str, sender: str, receiver: str, role: str) -> DbcDefinition:
+        signals = [DbcSignal(spec.name, spec.start, spec.length, byte_order=spec.byte_order, is_signed=spec.signed,
+                             conversion=BaseConversion.factory(spec.scale, spec.offset, is_float=spec.is_float),
+                             receivers=[receiver])
+                   for spec in signal_specs(message)]
+        return DbcDefinition(message.id, _identifier(name), message.length, signals, senders=[sender],
+                             is_extended_frame=message.extended, comment=role)
+
+    several = len(layout.feedback) > 1
+    messages = [definition(layout.setpoint, "setpoint", "HOST", "DRIVE", "bodebench setpoint, sent at bench.rate_hz")]
+    messages += [definition(m, f"feedback_{i + 1}" if several else "feedback", "DRIVE", "HOST",
+                            f"bodebench feedback{f' {i + 1} of {len(layout.feedback)}' if several else ''}, "
+                            "once a sample")
+                 for i, m in enumerate(layout.feedback)]
+    fixed = [f"{role} id 0x{m.id:X}{' (29-bit)' if m.extended else ''} data {bytes(m.data or b'').hex(' ') or 'none'}"
+             + (f" every {layout.heartbeat_period_s:g} s" if role == "heartbeat" else "")
+             for role, m in (("enable", layout.enable), ("disable", layout.disable), ("heartbeat", layout.heartbeat))
+             if m is not None]
+    text = "; ".join(filter(None, [comment, *fixed])).replace('"', "'")
+    buses = [Bus("bench", comment=text)] if text else []
+    return Database(messages, [Node("HOST"), Node("DRIVE")], buses, version="")

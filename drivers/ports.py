@@ -7,6 +7,7 @@ subclasses, batching received frames); a backend fills ``_send``, ``_recv`` and 
 
 from __future__ import annotations
 
+import importlib
 import io
 import os
 import select
@@ -15,7 +16,7 @@ import threading
 import time
 from abc import ABC, abstractmethod
 from collections import deque
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from types import TracebackType
@@ -23,6 +24,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from .codec import Codec
 from .errors import DriverError, DriverInitError, DriverOperationError, DriverTimeoutError, LayoutError
+from .extras import MissingDependency, missing
 from .layout import Layout
 from .serial_framing import (
     AsciiDeframer,
@@ -45,7 +47,8 @@ if TYPE_CHECKING:  # python-can is imported where a CAN port is made
     import can
     from can.typechecking import Channel
 
-__all__ = ["MAX_BATCH", "ByteLog", "CanPort", "Frame", "FramePort", "SerialLine", "SerialPort", "resolve_can_config"]
+__all__ = ["INTERFACE_NEEDS", "MAX_BATCH", "ByteLog", "CanPort", "CanSearch", "Frame", "FramePort", "SerialLine",
+           "SerialPort", "detect_can", "interface_missing", "resolve_can_config"]
 
 ErrorTypes = tuple[type[BaseException], ...]
 
@@ -253,6 +256,120 @@ def resolve_can_config(interface: str = "", channel: str = "", bitrate: int | No
         raise ValueError(f"{exc} (python-can knows: {', '.join(sorted(can.VALID_INTERFACES))})") from None
 
 
+INTERFACE_NEEDS: dict[str, str] = {"udp_multicast": "msgpack"}
+"""python-can interfaces that need a package python-can does not install with itself -> that module
+(:data:`bodebench.drivers.extras.EXTRAS` names the extra of bodebench that installs it)."""
+
+
+def interface_missing(interface: str) -> MissingDependency | None:
+    """Why python-can's ``interface`` cannot open here for want of a package (None when nothing is missing)."""
+    module = INTERFACE_NEEDS.get(interface)
+    if module is None:
+        return None
+    try:
+        importlib.import_module(module)
+    except ImportError:
+        return missing(module, f"python-can's {interface} interface")
+    return None
+
+
+@dataclass(frozen=True)
+class CanSearch:
+    """What ``bodebench ports`` found: ``configs``, the bus configurations python-can detects on interfaces that can
+    open here (dicts as ``can.detect_available_configs`` gives them), and ``unusable``: (interface, why) for each
+    interface that cannot (a package missing, a vendor library absent) or, when it was asked for by name, found
+    nothing."""
+
+    configs: tuple[dict[str, Any], ...]
+    unusable: tuple[tuple[str, str], ...]
+
+
+def detect_can(interfaces: Sequence[str] | None = None) -> CanSearch:
+    """The CAN configurations python-can detects on ``interfaces`` (None: every interface python-can knows), each
+    interface that cannot work here with the reason. ValueError naming an interface python-can does not know."""
+    import logging
+
+    import can
+    from can.interfaces import BACKENDS
+
+    named = interfaces is not None
+    names = list(dict.fromkeys(interfaces)) if interfaces is not None else sorted(BACKENDS)
+    unknown = [name for name in names if name not in BACKENDS]
+    if unknown:
+        raise ValueError(f"python-can knows no interface {', '.join(repr(n) for n in unknown)} (it knows: "
+                         f"{', '.join(sorted(BACKENDS))})")
+    unusable: dict[str, str] = {}
+    said: dict[str, list[str]] = {name: [] for name in names}  # what python-can logged of each interface
+    loading: list[str] = []  # the interface being loaded
+
+    class Said(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            text = " ".join(record.getMessage().split())
+            owners = loading or [n for n in names if n in record.name.split(".")]
+            for name in owners:
+                said[name].append(text)
+
+    logger = logging.getLogger("can")
+    level, propagate = logger.level, logger.propagate
+    handler = Said(logging.WARNING)
+    loadable = []
+    try:
+        logger.setLevel(logging.WARNING)
+        logger.propagate = False  # python-can's warnings become the reasons given, not log lines
+        logger.addHandler(handler)
+        for name in names:
+            loading[:] = [name]
+            try:
+                module, attribute = BACKENDS[name]
+                getattr(importlib.import_module(module), attribute)
+            except Exception as exc:  # noqa: BLE001 - an interface module fails to load in its own ways
+                unusable[name] = f"cannot be loaded: {' '.join(str(exc).split())}"
+                continue
+            finally:
+                loading.clear()
+            lacking = interface_missing(name)
+            if lacking is not None:
+                unusable[name] = str(lacking)
+                continue
+            loadable.append(name)
+        found = can.detect_available_configs(interfaces=loadable) if loadable else []
+        if named:
+            detected = {c.get("interface") for c in found}
+            for name in loadable:
+                if name not in detected:
+                    unusable[name] = _why_none(name, said[name])
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+        logger.propagate = propagate
+    configs = tuple(dict(c) for c in found)
+    return CanSearch(configs, tuple((name, unusable[name]) for name in names if name in unusable))
+
+
+def _why_none(interface: str, said: Sequence[str]) -> str:
+    """Why python-can found no channel of a loadable ``interface``: its vendor library missing, an interface that
+    cannot list its channels, or none attached."""
+    from can.interfaces import BACKENDS
+
+    if interface == "pcan":  # python-can's PCAN detection returns nothing when PCAN-Basic cannot be loaded
+        try:
+            from can.interfaces.pcan.basic import PCANBasic
+
+            PCANBasic()
+        except OSError as exc:
+            return f"the PCAN-Basic library from PEAK-System is not installed here ({exc})"
+    module, attribute = BACKENDS[interface]
+    try:
+        getattr(importlib.import_module(module), attribute)._detect_available_configs()
+    except NotImplementedError:
+        return ("python-can cannot list its channels: give [can] channel yourself (a serial port for an adapter on "
+                "one: bodebench ports lists those)")
+    except Exception as exc:  # noqa: BLE001 - a vendor library fails in its own ways
+        return f"searching failed: {' '.join(str(exc).split())}"
+    told = f": python-can says {'; '.join(dict.fromkeys(said))}" if said else ""
+    return f"no channel found (no adapter attached, or its vendor driver not installed){told}"
+
+
 class CanPort(FramePort):
     """Frames on a python-can bus (any interface). Error frames are returned flagged ``is_error`` and counted."""
 
@@ -309,6 +426,9 @@ class CanPort(FramePort):
         if fd:
             kwargs["fd"] = True
         name = f"CAN {interface}:{channel}"
+        lacking = interface_missing(interface)
+        if lacking is not None:
+            raise DriverInitError(f"cannot open CAN interface {interface!r} channel {channel!r}: {lacking}")
         try:
             bus = can.Bus(interface=interface or None, channel=channel or None, **kwargs)
         except (can.CanError, OSError, ValueError, TypeError, ImportError, NotImplementedError) as exc:

@@ -83,3 +83,24 @@ def test_a_can_sweep_runs_and_a_pty_simulator_says_it_needs_posix(no_posix_tty: 
         lines = done.stderr.strip().splitlines()
         assert len(lines) == 1 and "need a POSIX system" in lines[0], done.stderr
         assert "Traceback" not in done.stderr
+
+
+def test_results_are_saved_where_os_has_no_fchmod(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Windows has os.fchmod only from Python 3.13: the atomic writes of the results files do without it."""
+    from bodebench.core.response import FrequencyResponse, ResponsePoint
+    from bodebench.io.results import load_response, save_response, verify_results
+
+    monkeypatch.delattr(os, "fchmod", raising=False)
+    assert not hasattr(os, "fchmod")
+    points = [ResponsePoint(f, 1, "position", 0.01, 0.004 * f, -0.003, 12, True, "converged", 1e-7, 5e-8, True)
+              for f in (2.0, 5.0, 10.0)]
+    save_response(FrequencyResponse(points, config={"note": "no fchmod"}, case="nofchmod"), tmp_path)
+    loaded = load_response(tmp_path)
+    assert loaded.points == points and loaded.case == "nofchmod" and loaded.config["note"] == "no fchmod"
+    assert verify_results(tmp_path) == (True, [])  # the checksums recorded match what is on disk
+    assert not list(tmp_path.glob(".*.tmp"))  # no temporary file left behind
+    if os.name == "posix":  # what an ordinary open() would have given, not mkstemp's 0600
+        mask = os.umask(0)
+        os.umask(mask)
+        for name in ("response.csv", "response.json"):
+            assert (tmp_path / name).stat().st_mode & 0o777 == 0o666 & ~mask

@@ -584,14 +584,19 @@ def _ports(args: argparse.Namespace) -> int:
     serial_ports = [{"port": p.device, "description": p.description or "", "hwid": p.hwid or ""}
                     for p in sorted(serial.tools.list_ports.comports(), key=lambda p: p.device)]
     can_configs: list[dict[str, object]] = []
+    unusable: list[dict[str, str]] = []
     if not args.no_can:
-        import can
+        from bodebench.drivers.ports import detect_can
 
-        found = can.detect_available_configs(interfaces=args.can or None)
+        try:
+            found = detect_can(args.can)
+        except ValueError as exc:
+            raise _ArgumentError(f"--can: {exc}") from None
         can_configs = [{k: v if isinstance(v, (str, int, float, bool)) or v is None else str(v)
-                        for k, v in dict(c).items()} for c in found]
+                        for k, v in c.items()} for c in found.configs]
+        unusable = [{"interface": name, "why": why} for name, why in found.unusable]
     if args.json:
-        print(json.dumps({"serial": serial_ports, "can": can_configs}, indent=2))
+        print(json.dumps({"serial": serial_ports, "can": can_configs, "can_unusable": unusable}, indent=2))
         return 0
     print(f"serial ports (pyserial): {len(serial_ports)}")
     for p in serial_ports:
@@ -602,6 +607,73 @@ def _ports(args: argparse.Namespace) -> int:
     print(f"CAN configurations (python-can, {where}): {len(can_configs)}")
     for c in can_configs:
         print("  " + ", ".join(f"{k} = {json.dumps(v)}" for k, v in c.items()))
+    if unusable:
+        print(f"CAN interfaces that cannot be used here: {len(unusable)}")
+        for item in unusable:
+            print(f"  {item['interface']}: {item['why']}")
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    from bodebench.apps.check import check_lines
+
+    for line in check_lines(_load(args)):
+        print(line)
+    return 0
+
+
+def _dbc(args: argparse.Namespace) -> int:
+    from bodebench.drivers.dbc import layout_database
+    from bodebench.io.config import ConfigError
+
+    config = _load(args)
+    if not config.on_bench:
+        raise ConfigError(f"{args.config}: bench: missing (an offline experiment has no frames to describe)", "bench")
+    texts: dict[str, list[str]] = {}
+    for case in config.cases:
+        layout = case.on_bench.layout
+        texts.setdefault(layout_database(layout, f"bodebench frame layout of {args.config}").as_dbc_string(),
+                         []).append(case.name)
+    if len(texts) > 1:
+        groups = "; ".join(", ".join(names) for names in texts.values())
+        raise ConfigError(f"{args.config}: frames: the cases have different frame layouts ({groups}): write each "
+                          "from a configuration of its own", "frames")
+    _write_new(next(iter(texts)), args.out, "frame layout")
+    return 0
+
+
+def _write_new(text: str, out: str | None, what: str) -> None:
+    """``text`` to stdout, or to the new file ``out`` (--out): an existing file is never overwritten
+    (ResultsError, one line)."""
+    from bodebench.io.results import ResultsError
+
+    if out is None:
+        sys.stdout.write(text)
+        return
+    try:
+        with open(out, "x", encoding="utf-8", newline="") as handle:
+            handle.write(text)
+    except FileExistsError:
+        raise ResultsError(f"--out {out}: a file is there already; bodebench does not overwrite it") from None
+    except OSError as exc:
+        raise ResultsError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
+    print(f"{what} -> {out}", file=sys.stderr)
+
+
+def _example(args: argparse.Namespace) -> int:
+    from bodebench.io.examples import ExampleError, example, examples
+
+    if args.name is None:
+        every = examples()
+        width = max(len(e.name) for e in every)
+        for item in every:
+            print(f"{item.name:<{width}}  {item.line}")
+        return 0
+    try:
+        item = example(args.name)
+    except ExampleError as exc:
+        raise _ArgumentError(str(exc)) from None
+    _write_new(item.text(), args.out, f"example {item.name}")
     return 0
 
 
@@ -771,6 +843,24 @@ def build_parser() -> argparse.ArgumentParser:
     ports.add_argument("--no-can", action="store_true", help="list the serial ports only")
     ports.add_argument("--json", action="store_true", help="print JSON")
     ports.set_defaults(handler=_ports)
+    chk = add("check", help="validate a configuration and print its plan, what is sent to the drive and the "
+                            "safety limits, opening no bus")
+    chk.add_argument("config", help="TOML experiment or bench file")
+    chk.add_argument("--set", action="append", type=_override, metavar="KEY=VALUE", help=SET_HELP)
+    chk.add_argument("--port", default=None, metavar="PORT", help=PORT_HELP)
+    chk.set_defaults(handler=_check)
+    dbc = add("dbc", help="write a bench configuration's frame layout (setpoint and feedback frames) as a DBC file")
+    dbc.add_argument("config", help="TOML bench file")
+    dbc.add_argument("--set", action="append", type=_override, metavar="KEY=VALUE", help=SET_HELP)
+    dbc.add_argument("--out", default=None, metavar="FILE",
+                     help="write it to FILE, which must not exist yet (default: standard output)")
+    dbc.set_defaults(handler=_dbc)
+    exa = add("example", help="list the example configurations shipped with bodebench, or write one out")
+    exa.add_argument("name", nargs="?", default=None, metavar="NAME",
+                     help="the example to write (default: list them, one line each)")
+    exa.add_argument("--out", default=None, metavar="FILE",
+                     help="write it to FILE, which must not exist yet (default: standard output)")
+    exa.set_defaults(handler=_example)
     cal = add("calibrate", help="compute the friction link's calibration curves (identify's procedure)")
     cal.add_argument("--out", default=None, help="output file (default: the table shipped in the package)")
     cal.add_argument("--jobs", type=_jobs, default=None,
@@ -810,10 +900,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ResultsError: type[Exception] = _NotRaised
     DriverError: type[Exception] = _NotRaised
     SimulatorStartError: type[Exception] = _NotRaised
+    MissingDependency: type[Exception] = _NotRaised
     try:
         with stop_on_signals():  # from the first moment: a signal during start-up is one line, not a traceback
             args = build_parser().parse_args(argv)
             from bodebench.drivers.errors import DriverError
+            from bodebench.drivers.extras import MissingDependency
             from bodebench.io.config import ConfigError
             from bodebench.io.results import ResultsError
             from bodebench.sim.serve import SimulatorStartError
@@ -829,7 +921,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except _ArgumentError as exc:
         print(f"bodebench {args.command}: {exc} (see --help)", file=sys.stderr)
         return 2
-    except (ConfigError, ResultsError) as exc:
+    except (ConfigError, ResultsError, MissingDependency) as exc:
         print(f"bodebench: {exc}", file=sys.stderr)
         return 2
     except (DriverError, SimulatorStartError) as exc:

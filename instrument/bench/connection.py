@@ -61,9 +61,12 @@ class CanopenLink:
     setup: CanopenSetup
     layout: Layout
     simulator: SimulatorSpec | None = None
+    log: str = ""
+    """A bus log of every frame the host sends and receives, SDO, NMT and heartbeats included (empty: none)."""
 
     def __call__(self) -> tuple[FramePort, Layout, list[Any]]:
-        link = CanLink(self.interface, self.channel, self.bitrate, self.options, self.layout, self.simulator)
+        link = CanLink(self.interface, self.channel, self.bitrate, self.options, self.layout, self.simulator,
+                       log=self.log)
         return link()
 
     def make_driver(self, port: FramePort, layout: Layout) -> Driver:
@@ -172,7 +175,7 @@ def plan_link(case: CaseConfig, *, direct: bool = False, log: str = "") -> LinkP
         channel = can.channel or "bodebench"
         spec = simulator_spec(case) if simulated else None
         co_link = CanopenLink(can.interface, channel, can.bitrate, dict(can.options), case.canopen_setup, layout,
-                              spec)
+                              spec, log)
         return LinkPlan(co_link, layout, where=f"CANopen node {case.canopen_setup.node_id} on {can.interface} "
                                             f"channel {channel}")
     if bench.transport == "can":

@@ -32,6 +32,10 @@ from bodebench.drivers.layout import SETPOINT_ECHO
 from bodebench.drivers.scheduling import keep_to, lower_timer_slack, pacing_cpu, request_fifo
 from bodebench.drivers.stop_signals import StopSignal, signals_held, stop_on_signals
 
+ZERO_SETPOINTS = 3
+"""Setpoints of zero the worker sends on its way out, after any slew to zero and before the disable frame: one lost
+frame still leaves the drive at zero."""
+
 # ------------------------------------------------------------------------------------------- messages to the worker
 
 
@@ -746,7 +750,7 @@ class BusWorker:
                     time.sleep(self.h)
                 else:
                     self.driver.receive(0.0)
-            for _ in range(3):
+            for _ in range(ZERO_SETPOINTS):
                 self._send(0.0)
                 self.tick += 1
                 zero_sent = True

@@ -25,7 +25,9 @@ from bodebench.drivers.canopen_link import STATUSWORD, CanopenSetup, load_od, re
 from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS, TARGET_OBJECTS
 from bodebench.drivers.codec import COUNTER, SETPOINT, TIMESTAMP
 from bodebench.drivers.errors import LayoutError
+from bodebench.drivers.extras import missing, require
 from bodebench.drivers.layout import Layout, default_layout
+from bodebench.drivers.ports import INTERFACE_NEEDS
 from bodebench.io.document import Override, OverrideError, apply_overrides, names_override
 from bodebench.io.schema import (
     ConfigError,
@@ -445,6 +447,12 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
     elif tables.get("canopen") is not None:
         raise _Fault("canopen", f'only used with bench.transport = "canopen" (not "{bench.transport}")')
     simulated = tables.get("simulator") is not None
+    if isinstance(link, CanConfig) and link.interface in INTERFACE_NEEDS:
+        try:
+            require(INTERFACE_NEEDS[link.interface], "")
+        except ImportError:
+            raise missing(INTERFACE_NEEDS[link.interface],
+                          f'{source}: can.interface = "{link.interface}" (python-can\'s {link.interface})') from None
     if isinstance(link, CanConfig) and not link.channel and not simulated:
         raise _Fault(key("can", "channel"), "missing: not in the file, nor in python-can's configuration "
                                             "(CAN_CHANNEL, ~/.canrc); only a [simulator] provides its own")
@@ -538,6 +546,7 @@ def _canopen_setup(table: CanopenConfig, simulated: bool, key: Callable[[str, st
         eds = SIMULATED_DRIVE_EDS
     else:
         raise _Fault(key("canopen", "eds"), "missing: the drive's EDS or DCF file (only a [simulator] brings its own)")
+    require("canopen", f'{source}: bench.transport = "canopen"')
     try:
         od = load_od(eds, table.node_id)
     except ValueError as exc:
@@ -646,5 +655,6 @@ def read_document(path: str | Path) -> dict[str, Any]:
 
 def load_config(path: str | Path, overrides: Sequence[Override] = ()) -> ExperimentConfig:
     """Read and validate a TOML configuration file, ``overrides`` set in it first (see :func:`parse_config`).
-    Raises :class:`ConfigError` (one-line message)."""
+    Raises :class:`ConfigError` (one-line message); :class:`~bodebench.drivers.extras.MissingDependency` (one line
+    naming the extra) for transport canopen without the canopen package."""
     return parse_config(read_document(path), str(path), overrides)

@@ -16,12 +16,9 @@ from typing import Any
 import numpy as np
 
 from bodebench.core.response import FrequencyResponse
+from bodebench.drivers.extras import MissingDependency
 
 __all__ = ["MAT_COLUMNS", "MissingDependency", "mat_arrays", "save_mat", "to_dataframe", "to_frd"]
-
-
-class MissingDependency(ImportError):
-    """An exporter's library is not installed; the message names the package to install."""
 
 
 #: Per-point columns of :func:`mat_arrays` and :func:`to_dataframe`, in order.

@@ -153,7 +153,9 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` through a synced temporary file in the same directory and os.replace."""
     fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        os.fchmod(fd, 0o666 & ~_UMASK)  # the permissions an ordinary open() would give, not mkstemp's 0600
+        # the permissions an ordinary open() would give, not mkstemp's 0600; by path, as every platform has it
+        # (os.fchmod came to Windows only with Python 3.13, where it sets the read-only flag alone, as os.chmod does)
+        os.chmod(tmp_name, 0o666 & ~_UMASK)
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
             handle.flush()
