@@ -49,7 +49,7 @@ def test_the_real_cia402_example_uses_standard_objects_only() -> None:
     assert case.canopen_setup is not None
     assert case.canopen_setup.setpoint.index == 0x607A
     assert [(name, ref.index) for name, ref, _ in case.canopen_setup.actual] == [("position", 0x6064)]
-    assert case.bench is not None and case.bench.timebase == "receive"
+    assert case.bench is not None and case.bench.timebase == "sync"  # dated by the SYNC, no counter needed
 
 
 def test_example_lists_every_shipped_file_with_its_title(capsys: pytest.CaptureFixture[str]) -> None:
