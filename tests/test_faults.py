@@ -151,3 +151,26 @@ def test_a_drive_that_stops_following_is_never_a_point_and_the_run_keeps_its_rec
     assert run["completed"] is False and run["points"] == 0
     assert "not following the setpoint" in run["ended_by"] and run["refused"][0]["frequency_hz"] > 0
     assert run["bus"]["frames_in"] > 0 if "frames_in" in run["bus"] else run["bus"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, faults, kind", [
+    ("sensor out of range", {"out_of_range_after_s": 1.5}, "feedback_limit"),
+    ("drive disables itself and goes on answering", {"disable_after_s": 1.5}, "no_response"),
+    ("every feedback value NaN", {"nan": 1.0}, "watchdog"),
+])
+def test_on_the_realtime_clock_garbage_feedback_ends_the_sweep_with_the_drive_safe(name: str, faults: dict[str, Any],
+                                                                                   kind: str) -> None:
+    """The same faults with the bus worker pacing setpoints in real time, in its own process: the sweep ends, the
+    drive is seen zeroed and disabled on the bus."""
+    from helpers import BusRecorder
+
+    channel = "faults-rt-" + name.replace(" ", "-")
+    recorder = BusRecorder(channel)
+    data = can_config(channel, faults, safety={"watchdog_s": 0.3, "feedback_limits": {"position": [-1.0, 1.0]}})
+    data["bench"] = {**data["bench"], "clock": "realtime", "worker": "thread"}
+    session, _, error = run(data)
+    value, disabled = recorder.close()
+    assert error is not None and (error.kind == kind or kind == "no_response" and error.kind == "watchdog"), name
+    assert value == 0.0 and disabled
+    assert all(p.converged for p in session.response.points)
