@@ -75,7 +75,7 @@ def test_the_fewest_periods_are_where_the_rule_stops_on_a_steady_sine(capsys: py
     assert "periods: at least 18 " in out
     # 18 periods plus the ramp in (2) and out (1) at 2 Hz: 10.5 s of drive time
     row = next(line for line in out.splitlines() if line.split()[:1] == ["2"])
-    assert row.split()[5] == "18-20000" and "10.5 s" in row
+    assert row.split()[5] == "18-1200" and "10.5 s" in row  # at most 600 s of periods at 2 Hz (max_point_s)
 
 
 @pytest.mark.parametrize("edit, key", [

@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
-from bodebench.core.autointegration import Autointegrator
+from bodebench.core.autointegration import DEFAULT_BENCH_POINT_S, MIN_BUDGET_PERIODS, Autointegrator, period_budget
 from bodebench.core.benchgrid import nearest_line
 from bodebench.drivers.codec import COUNTER, SETPOINT, Codec
 from bodebench.drivers.dbc import signal_specs
@@ -73,15 +73,18 @@ def _case_lines(case: CaseConfig) -> Iterator[str]:
     else:
         yield f"case {case.name}: {_where(case)}, {bench.clock} clock at {_number(rate)} Hz, timebase {bench.timebase}"
     harmonics = ", ".join(str(k) for k in analysis.harmonics)
+    seconds = analysis.max_point_s if analysis.max_point_s is not None else (
+        DEFAULT_BENCH_POINT_S if bench is not None else None)
+    timed = "" if seconds is None else f", and at most {seconds:g} s of them (never fewer than {MIN_BUDGET_PERIODS})"
     yield (f"plan: {len(excitation.frequencies_hz)} frequencies, harmonics {harmonics}, criterion {analysis.criterion}"
            f", tolerance {analysis.tolerance_percent:g} %, skip_periods {analysis.skip_periods}, at most "
-           f"{analysis.max_periods} periods a point")
+           f"{analysis.max_periods} periods a point{timed}")
     ramp_in = bench.ramp_in_periods if bench is not None else 0
     ramp_out = bench.ramp_out_periods if bench is not None else 0
     top = max(excitation.frequencies_hz)
     fewest = fewest_periods(analysis, top, rate if rate else top * analysis.steps_per_period)
     yield (f"{INDENT}periods: at least {fewest} (a steady response without noise, where the rule stops first), at most "
-           f"{analysis.max_periods}; time: {'drive' if bench is not None else 'simulated'} time at that many periods")
+           f"the point's budget; time: {'drive' if bench is not None else 'simulated'} time at that many periods")
     header = (f"{'f Hz':>12} {'amplitude':>12} {'samples/period':>14} {'ramp in':>7} {'settle':>6} "
               f"{'periods':>13} {'ramp out':>8} {'time':>21}")
     yield INDENT + header
@@ -90,10 +93,11 @@ def _case_lines(case: CaseConfig) -> Iterator[str]:
         settle = excitation.settle_at(f)
         per_period = rate / f if bench is not None else float(analysis.steps_per_period)
         extra = ramp_in + settle + ramp_out
-        low, high = (extra + fewest) / f, (extra + analysis.max_periods) / f
+        budget = period_budget(analysis, f, on_bench=bench is not None)
+        low, high = (extra + fewest) / f, (extra + budget) / f
         least, most = least + low, most + high
         yield INDENT + (f"{_number(f):>12} {_number(excitation.amplitude_at(f)):>12} {per_period:>14.4g} "
-                        f"{ramp_in:>7} {settle:>6} {f'{fewest}-{analysis.max_periods}':>13} {ramp_out:>8} "
+                        f"{ramp_in:>7} {settle:>6} {f'{fewest}-{budget}':>13} {ramp_out:>8} "
                         f"{_duration(low) + ' - ' + _duration(high):>21}")
     yield f"{INDENT}sweep: at least {_duration(least)}, at most {_duration(most)}"
     for note in case.plan_notes:
