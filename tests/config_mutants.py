@@ -103,19 +103,25 @@ def mutants(seed: int, count: int) -> Iterator[Mutant]:
         yield Mutant(source, edits, data)
 
 
-def check_mutant(mutant: Mutant) -> str | None:
-    """None when the loader accepted the mutant or refused it with one line naming its source; else the defect."""
+def judge_mutant(mutant: Mutant) -> tuple[bool, str | None]:
+    """(whether the loader accepted the mutant, the defect or None): refused with one line naming its source is no
+    defect."""
     try:
         parse_config(mutant.data, mutant.source)
     except ConfigError as exc:
         message = str(exc)
         if "\n" in message or not message.startswith(mutant.source):
-            return f"{mutant.source} {list(mutant.edits)}: refused with a message that is not one line naming the " \
-                   f"file: {message!r:.300}"
-        return None
+            return False, f"{mutant.source} {list(mutant.edits)}: refused with a message that is not one line " \
+                          f"naming the file: {message!r:.300}"
+        return False, None
     except Exception as exc:  # noqa: BLE001 - any other exception is the defect looked for
-        return f"{mutant.source} {list(mutant.edits)}: {type(exc).__name__}: {exc!s:.300}"
-    return None
+        return False, f"{mutant.source} {list(mutant.edits)}: {type(exc).__name__}: {exc!s:.300}"
+    return True, None
+
+
+def check_mutant(mutant: Mutant) -> str | None:
+    """None when the loader accepted the mutant or refused it with one line naming its source; else the defect."""
+    return judge_mutant(mutant)[1]
 
 
 NONSENSE: tuple[tuple[str, Any], ...] = (

@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
-from bodebench.core.autointegration import DEFAULT_BENCH_POINT_S, MIN_BUDGET_PERIODS, Autointegrator, period_budget
+from bodebench.core.autointegration import MIN_BUDGET_PERIODS, Autointegrator, period_budget, point_seconds
 from bodebench.core.benchgrid import nearest_line
 from bodebench.drivers.codec import COUNTER, SETPOINT, Codec
 from bodebench.drivers.dbc import signal_specs
@@ -73,8 +73,7 @@ def _case_lines(case: CaseConfig) -> Iterator[str]:
     else:
         yield f"case {case.name}: {_where(case)}, {bench.clock} clock at {_number(rate)} Hz, timebase {bench.timebase}"
     harmonics = ", ".join(str(k) for k in analysis.harmonics)
-    seconds = analysis.max_point_s if analysis.max_point_s is not None else (
-        DEFAULT_BENCH_POINT_S if bench is not None else None)
+    seconds = point_seconds(analysis, on_bench=bench is not None)
     timed = "" if seconds is None else f", and at most {seconds:g} s of them (never fewer than {MIN_BUDGET_PERIODS})"
     yield (f"plan: {len(excitation.frequencies_hz)} frequencies, harmonics {harmonics}, criterion {analysis.criterion}"
            f", tolerance {analysis.tolerance_percent:g} %, skip_periods {analysis.skip_periods}, at most "

@@ -66,13 +66,19 @@ MIN_BUDGET_PERIODS = 2 * MIN_NOISE_EVIDENCE
 point on, so a low frequency is still measured, and ended noise-limited early where eps is out of reach."""
 
 
+def point_seconds(analysis: AnalysisSettings, on_bench: bool) -> float | None:
+    """A point's time budget, s: ``max_point_s``, else :data:`DEFAULT_BENCH_POINT_S` on a bench and none offline."""
+    if analysis.max_point_s is not None:
+        return analysis.max_point_s
+    return DEFAULT_BENCH_POINT_S if on_bench else None
+
+
 def period_budget(analysis: AnalysisSettings, frequency_hz: float, on_bench: bool) -> int:
-    """The periods a point at ``frequency_hz`` (Hz) may integrate: ``max_periods``, and at most ``max_point_s``
-    seconds of them (on a bench, :data:`DEFAULT_BENCH_POINT_S` when not given; offline, no time limit then), but
-    never fewer than :data:`MIN_BUDGET_PERIODS`. A series whose noise needs more than twice the budget for eps
-    ends ``noise_limited`` as soon as the noise is known (the rule's ``max_periods`` is this budget)."""
-    seconds = analysis.max_point_s if analysis.max_point_s is not None else (
-        DEFAULT_BENCH_POINT_S if on_bench else None)
+    """The periods a point at ``frequency_hz`` (Hz) may integrate: ``max_periods``, and at most
+    :func:`point_seconds` of them, but never fewer than :data:`MIN_BUDGET_PERIODS`. A series whose noise needs more
+    than twice the budget for eps ends ``noise_limited`` as soon as the noise is known (the rule's ``max_periods``
+    is this budget)."""
+    seconds = point_seconds(analysis, on_bench)
     if seconds is None:
         return analysis.max_periods
     return min(analysis.max_periods, max(MIN_BUDGET_PERIODS, analysis.skip_periods + 1,

@@ -104,8 +104,7 @@ def move_off_folds(rate_hz: float, frequencies_hz: Sequence[float], harmonics: S
     step = FOLD_TURN / (4 * FOLD_IMAGES * FOLD_IMAGES)
 
     def free(g: float) -> bool:
-        return fold_beat(rate_hz, g) >= FOLD_TURN and not any(
-            abs(d - k * g) * MIN_BEAT_PERIODS < g for k in harmonics for d in lines)
+        return fold_beat(rate_hz, g) >= FOLD_TURN and not _near_lines(g, harmonics, lines)
 
     moved: list[float] = []
     largest = 0.0
@@ -129,6 +128,12 @@ def move_off_folds(rate_hz: float, frequencies_hz: Sequence[float], harmonics: S
                           "spread sees it",)
 
 
+def _near_lines(frequency_hz: float, harmonics: Sequence[int], lines: Sequence[float]) -> list[tuple[int, float]]:
+    """(k, d) for each measured harmonic k of ``frequency_hz`` closer to a disturbance line d than ``f /
+    MIN_BEAT_PERIODS``."""
+    return [(k, d) for k in harmonics for d in lines if abs(d - k * frequency_hz) * MIN_BEAT_PERIODS < frequency_hz]
+
+
 def move_off_disturbances(frequencies_hz: Sequence[float], harmonics: Sequence[int], lines: Sequence[float]
                           ) -> tuple[tuple[float, ...], tuple[str, ...]]:
     """The plan moved so that no measured harmonic of any frequency lies closer to a disturbance line than ``f /
@@ -139,7 +144,7 @@ def move_off_disturbances(frequencies_hz: Sequence[float], harmonics: Sequence[i
     for f in frequencies_hz:
         g = f
         for _ in range(8):  # moving off one line can approach another: a few rounds settle it
-            close = [(k, d) for k in harmonics for d in lines if abs(d - k * g) * MIN_BEAT_PERIODS < g]
+            close = _near_lines(g, harmonics, lines)
             if not close:
                 break
             k, d = close[0]
@@ -147,8 +152,7 @@ def move_off_disturbances(frequencies_hz: Sequence[float], harmonics: Sequence[i
             side = 1.0 if k * g >= d else -1.0
             g = d / (k - side / MIN_BEAT_PERIODS) * (1.0 + side * 1e-9)
         if g != f:
-            k_lines = ", ".join(f"{k} x {f:g} Hz = {k * f:g} Hz" for k in harmonics for d in lines
-                                if abs(d - k * f) * MIN_BEAT_PERIODS < f)
+            k_lines = ", ".join(f"{k} x {f:g} Hz = {k * f:g} Hz" for k, _ in _near_lines(f, harmonics, lines))
             notes.append(f"{f:g} Hz moved to {g:.6g} Hz: {k_lines} lay within {100 / MIN_BEAT_PERIODS:g} % of a "
                          f"disturbance line ({', '.join(f'{d:g}' for d in lines)} Hz)")
         moved.append(g)
