@@ -1,21 +1,27 @@
-"""A CANopen (CiA 402) drive as the instrument's ``Driver``: SDO configuration, PDOs, SYNC, heartbeat and EMCY over
-the same python-can bus the other CAN links use (the ``canopen`` package speaks SDO and NMT).
+"""A CANopen device (a CiA 402 drive or a CiA 408 valve or hydraulic drive) as the instrument's ``Driver``: SDO
+configuration, PDOs, SYNC, heartbeat and EMCY over the same python-can bus the other CAN links use (the ``canopen``
+package speaks SDO and NMT). What differs between the profiles (modes, state machine, enable and exit steps) is a
+``drivers.device_profile.DeviceProfile``.
 
 ``CanopenSetup`` is the resolved ``[canopen]`` table (objects looked up in the device's EDS); its ``layout()`` is the
 frame layout of the cyclic PDOs, so the sample assembly, counter checks and bus health of ``Driver`` apply to
-them unchanged. ``CanopenDriver`` adds the drive's life cycle:
+them unchanged. ``CanopenDriver`` adds the device's life cycle:
 
-- ``enable()``: NMT pre-operational, heartbeat producer time (0x1017); the lost-host protection (below); the PDO
-  mapping (RPDO: the setpoint object; TPDO: statusword, actual values, counter; both synchronous), the mode of
-  operation (0x6060, checked in 0x6061), NMT operational, then shutdown, switch on, enable operation, each checked in
-  the statusword;
+- ``enable()``: NMT pre-operational, heartbeat producer time (0x1017); a device in fault refused or reset, one under
+  local control refused; the device parameters the scales assumed read and compared; the lost-host protection
+  (below); the PDO mapping (RPDO: the setpoint object; TPDO: statusword, actual values, counter; both synchronous);
+  the mode (CiA 402: modes of operation 0x6060, checked in 0x6061; CiA 408: device mode 0x6042 = 1 and control mode
+  0x6043, each read back); NMT operational, then the profile's enable steps (CiA 402: shutdown, switch on, enable
+  operation; CiA 408: DISABLED, HOLD, ACTIVE), each checked in the statusword;
 - ``send_setpoint()``: the RPDO, then SYNC (when the host produces it);
 - ``receive()``: TPDO samples, dated by the host tick of the SYNC they answer when the host produces SYNC: by the
   drive's sample counter (``timebase`` "counter") or, without one, by the order and receive times of the frames
-  (``timebase`` "sync", ``drivers.sync_dating``); an EMCY, a statusword that leaves "operation enabled", a
-  heartbeat missing for ``heartbeat_timeout_s`` or an NMT state other than operational raise ``DriveFaultError``;
-- ``disable()``: quick stop, disable voltage, the drive's 0x1016 and 0x6007 written back, NMT pre-operational;
-  returns whether the drive was seen disabled, and ``shutdown_account`` says what was done and seen.
+  (``timebase`` "sync", ``drivers.sync_dating``); an EMCY, a statusword that leaves the running state ("operation
+  enabled", ACTIVE), a heartbeat missing for ``heartbeat_timeout_s`` or an NMT state other than operational raise
+  ``DriveFaultError``;
+- ``disable()``: the profile's exit steps (CiA 402: quick stop, disable voltage; CiA 408: HOLD, DISABLED, no bit),
+  the device's 0x1016 and 0x6007 written back, NMT pre-operational; returns whether the device was seen disabled,
+  and ``shutdown_account`` says what was done and seen.
 
 The lost-host protection: a host that dies (kill -9, a crash, a pulled cable) sends nothing more, so only the drive
 can stop itself. Before enabling, the host becomes a heartbeat producer (node ``host_node_id``, COB-ID 0x700 + it,
@@ -35,11 +41,13 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .cia402 import ABORT_CONNECTION_OPTIONS, CONTROLWORD, MODES, Command, State, decode_statusword
+from .cia402 import ABORT_CONNECTION_OPTIONS
 from .codec import COUNTER, TIMESTAMP, Message, Signal
+from .device_profile import PROFILES, DeviceProfile, Step
 from .driver import Driver, FeedbackSample
 from .errors import DriveFaultError, DriverOperationError, LayoutError
 from .layout import Layout
@@ -150,24 +158,29 @@ def resolve_object(od: canopen.ObjectDictionary, text: str) -> ObjectRef:
     if kind is None:
         raise ValueError(f"{text!r}: {obj.name!r} is not a number a PDO can carry (data type "
                          f"0x{obj.data_type or 0:X})")
-    return ObjectRef(obj.index, obj.subindex, obj.name, kind)
+    parent = getattr(obj, "parent", None)
+    name = f"{parent.name}.{obj.name}" if isinstance(parent, (ODRecord, ODArray)) else obj.name
+    return ObjectRef(obj.index, obj.subindex, name, kind)
 
 
 @dataclass(frozen=True)
 class CanopenSetup:
     """A resolved ``[canopen]`` table: everything the host and a simulated drive need, picklable.
 
-    node_id: 1..127; eds: path of the EDS/DCF file; mode: a key of ``cia402.MODES``; setpoint: the object the RPDO
-    carries, ``setpoint_scale`` setpoint units per count; actual: (channel, object, units per count) in TPDO order
-    after the statusword (the channel ``counter`` is the sample counter, ``timestamp_us`` a controller time);
-    rpdo, tpdo: PDO numbers 1..4 (COB-IDs of the predefined connection set); sync: "produce" (a SYNC after each
-    setpoint) or "consume" (another node produces it); heartbeat_ms: producer heartbeat time written to 0x1017 (0:
-    left as the drive has it); heartbeat_timeout_s: a heartbeat missing this long is a fault; state_timeout_s:
-    how long each SDO answer and each state change may take; fault_reset: a drive found in fault is reset
-    (controlword bit 7) instead of refused. The lost-host protection (module docstring): host_node_id: the host's
-    own node id (1..127, not ``node_id``); host_heartbeat_ms: its heartbeat period (0: no heartbeat, no
+    node_id: 1..127; eds: path of the EDS/DCF file; mode: a key of the profile's ``modes``; setpoint: the object the
+    RPDO carries, ``setpoint_scale`` setpoint units per count; actual: (channel, object, units per count) in TPDO order
+    after the statusword (the channel ``counter`` is the sample counter, ``timestamp_us`` a controller time); rpdo,
+    tpdo: PDO numbers 1..4 (COB-IDs of the predefined connection set); sync: "produce" (a SYNC after each setpoint) or
+    "consume" (another node produces it); heartbeat_ms: producer heartbeat time written to 0x1017 (0: left as the drive
+    has it); heartbeat_timeout_s: a heartbeat missing this long is a fault; state_timeout_s: how long each SDO answer
+    and each state change may take; fault_reset: a drive found in fault is reset (the profile's reset) instead of
+    refused. The lost-host protection (module docstring): host_node_id: the host's own node id (1..127, not
+    ``node_id``); host_heartbeat_ms: its heartbeat period (0: no heartbeat, no
     protection); drive_heartbeat_timeout_ms: the consumer time written to the drive's 0x1016 (longer than
-    host_heartbeat_ms); abort_connection: the code written to 0x6007 (1 fault, 2 disable voltage, 3 quick stop)."""
+    host_heartbeat_ms); abort_connection: the code written to 0x6007 (1 fault, 2 disable voltage, 3 quick stop), where
+    the EDS has it. timebase: as ``[bench] timebase``. profile: "402" or "408" (``drivers.device_profile``).
+    assumed: (index, subindex, value, what) of device parameters the scales were derived from (a CiA 408 reference
+    value or decimal prefix, from the EDS): read at enable, and a device that disagrees is refused."""
 
     node_id: int
     eds: str
@@ -187,6 +200,13 @@ class CanopenSetup:
     drive_heartbeat_timeout_ms: int = 500
     abort_connection: int = ABORT_CONNECTION_OPTIONS["quick stop"]
     timebase: str = "counter"
+    profile: str = "402"
+    assumed: tuple[tuple[int, int, int, str], ...] = ()
+
+    @property
+    def device_profile(self) -> DeviceProfile:
+        """The device profile ``profile`` names (``drivers.device_profile``)."""
+        return PROFILES[self.profile]
 
     @property
     def host_heartbeat_cob_id(self) -> int:
@@ -256,6 +276,7 @@ class CanopenDriver(Driver):
 
         super().__init__(port, layout if layout is not None else setup.layout())
         self.setup = setup
+        self.profile = setup.device_profile
         self.od = load_od(setup.eds, setup.node_id)
         self.network = _port_network(port)
         self.node = canopen.RemoteNode(setup.node_id, self.od)
@@ -302,8 +323,8 @@ class CanopenDriver(Driver):
             if len(frame.data) >= 2:
                 word = int.from_bytes(frame.data[:2], "little")
                 self._status = word
-                state = decode_statusword(word)
-                if self._cyclic and state is not State.OPERATION_ENABLED and self._left is None:
+                state = self.profile.decode(word)
+                if self._cyclic and state is not self.profile.running and self._left is None:
                     self._left = f"statusword 0x{word:04X} ({state or 'undefined'})"
             return self._dated(self.feed([frame])) if self._cyclic else []
         self.network.notify(frame.id, bytearray(frame.data), frame.timestamp)
@@ -379,15 +400,15 @@ class CanopenDriver(Driver):
         self._status = word
         return word
 
-    def _command(self, command: Command, targets: tuple[State, ...], timeout: float) -> tuple[int, State | None]:
-        """Write the controlword of ``command`` and wait up to ``timeout`` s for one of ``targets``; the last
-        statusword and its state."""
-        self._sdo_write(CONTROLWORD_OBJECT, 0, CONTROLWORD[command], "controlword")
+    def _command(self, step: Step, timeout: float) -> tuple[int, StrEnum | None]:
+        """Write the control word of ``step`` and wait up to ``timeout`` s for one of its targets; the last status
+        word and its state."""
+        self._sdo_write(CONTROLWORD_OBJECT, 0, step.controlword, "controlword")
         deadline = time.monotonic() + timeout
         while True:
             word = self._read_status()
-            state = decode_statusword(word)
-            if state in targets or time.monotonic() >= deadline:
+            state = self.profile.decode(word)
+            if state in step.targets or time.monotonic() >= deadline:
                 return word, state
             time.sleep(0.002)
 
@@ -400,6 +421,27 @@ class CanopenDriver(Driver):
                 return True
             time.sleep(0.005)
         return False
+
+    def _write_confirmed(self, index: int, value: int, what: str, timeout: float, shown: int | None = None) -> None:
+        """Write ``value`` to ``index`` and wait up to ``timeout`` s until ``shown`` (default: ``index`` itself) reads
+        it back; DriveFaultError saying what it read."""
+        self._sdo_write(index, 0, value, what)
+        shown = index if shown is None else shown
+        deadline = time.monotonic() + timeout
+        while (read := self._sdo_read(shown, 0, what)) != value:
+            if time.monotonic() >= deadline:
+                raise DriveFaultError(f"{self._where()} does not take {what} ({value}): 0x{shown:04X} reads {read}")
+            time.sleep(0.002)
+
+    def _check_assumed(self) -> None:
+        """Read the device parameters the scales were derived from (``CanopenSetup.assumed``); DriveFaultError for
+        one the device has otherwise than its EDS."""
+        for index, subindex, value, what in self.setup.assumed:
+            read = self._sdo_read(index, subindex, what)
+            if read != value:
+                raise DriveFaultError(f"{self._where()}: {what} 0x{index:04X}:{subindex:02X} reads {read} on the "
+                                      f"device, the scales assumed {value} (the EDS's default): give "
+                                      "canopen.setpoint_scale and canopen.actual_scale, or the device's own DCF")
 
     # ----------------------------------------------------------------------------------------------------------
     # the life cycle
@@ -418,44 +460,47 @@ class CanopenDriver(Driver):
                 raise DriveFaultError(f"{self._where()}: no heartbeat (COB-ID 0x{0x700 + s.node_id:X}) within "
                                       f"{wait:g} s")
             word = self._read_status()
-            if decode_statusword(word) in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+            p = self.profile
+            if p.local_bit and word & p.local_bit:
+                raise DriveFaultError(f"{self._where()} takes its control word locally (statusword 0x{word:04X}, "
+                                      "bit 4): switch it to bus control (object 0x604F = 0 on CiA 408 devices)")
+            if p.decode(word) in p.faults:
                 if not s.fault_reset:
-                    raise DriveFaultError(f"{self._where()} is in fault (statusword 0x{word:04X}); clear the cause, "
-                                          "or set canopen.fault_reset = true to reset it")
+                    raise DriveFaultError(f"{self._where()} is in fault (statusword 0x{word:04X}, "
+                                          f"{p.decode(word)}); clear the cause, or set canopen.fault_reset = true "
+                                          "to reset it")
                 self._sdo_write(CONTROLWORD_OBJECT, 0, 0, "controlword")
-                word, state = self._command(Command.FAULT_RESET, (State.SWITCH_ON_DISABLED,), s.state_timeout_s)
-                if state is not State.SWITCH_ON_DISABLED:
+                word, state = self._command(p.reset, s.state_timeout_s)
+                if state not in p.reset.targets:
                     raise DriveFaultError(f"{self._where()}: fault reset did not clear the fault (statusword "
                                           f"0x{word:04X}, {state or 'undefined'})")
                 steps.append("fault reset")
+            self._check_assumed()
             self._protect()
             steps.append(self.protection)
             self._map_pdos()
             steps.append(f"RPDO{s.rpdo} {s.setpoint}, TPDO{s.tpdo} statusword"
                          + "".join(f", {ref}" for _, ref, _ in s.actual) + ", synchronous")
-            mode = MODES[s.mode]
-            self._sdo_write(MODES_OF_OPERATION, 0, mode, "modes of operation")
-            deadline = time.monotonic() + s.state_timeout_s
-            while (shown := self._sdo_read(MODES_DISPLAY, 0, "modes of operation display")) != mode:
-                if time.monotonic() >= deadline:
-                    raise DriveFaultError(f"{self._where()} does not run mode {s.mode} ({mode}): modes of operation "
-                                          f"display 0x6061 reads {shown}")
-                time.sleep(0.002)
+            if p.device_mode is not None:
+                index, value, what = p.device_mode
+                self._write_confirmed(index, value, what, s.state_timeout_s)
+                steps.append(f"{what} 0x{index:04X} = {value}")
+            mode = p.modes[s.mode]
+            self._write_confirmed(p.mode_object, mode, f"mode {s.mode}", s.state_timeout_s, p.mode_display)
             steps.append(f"mode {s.mode} ({mode})")
             self._sdo_write(s.setpoint.index, s.setpoint.subindex, 0, s.setpoint.name)
             self._nmt(0x01)
             if not self._wait_heartbeat(wait, NMT_OPERATIONAL):
                 raise DriveFaultError(f"{self._where()}: did not report NMT operational within {wait:g} s")
             steps.append("NMT operational")
-            for command, target in ((Command.SHUTDOWN, State.READY_TO_SWITCH_ON),
-                                    (Command.SWITCH_ON, State.SWITCHED_ON),
-                                    (Command.ENABLE_OPERATION, State.OPERATION_ENABLED)):
-                word, state = self._command(command, (target, State.FAULT), s.state_timeout_s)
-                if state is not target:
-                    raise DriveFaultError(f"{self._where()} did not reach '{target}' within {s.state_timeout_s:g} s "
-                                          f"of controlword 0x{CONTROLWORD[command]:04X} ({command}): statusword "
-                                          f"0x{word:04X} ({state or 'undefined'})")
-                steps.append(str(command))
+            for step in p.enable:
+                word, state = self._command(step, s.state_timeout_s)
+                if state is not step.targets[0]:
+                    raise DriveFaultError(f"{self._where()} did not reach '{step.targets[0]}' within "
+                                          f"{s.state_timeout_s:g} s of controlword 0x{step.controlword:04X} "
+                                          f"({step.name}): statusword 0x{word:04X} ({state or 'undefined'})"
+                                          f"{p.stuck(step, state)}")
+                steps.append(step.name)
         self.start_account = ", ".join(steps)
         self._left = None
         self._first_counter = None
@@ -492,7 +537,9 @@ class CanopenDriver(Driver):
         parts = [beat]
         option = s.abort_connection
         name = next((k for k, v in ABORT_CONNECTION_OPTIONS.items() if v == option), str(option))
-        if self._has_variable(ABORT_CONNECTION, 0):
+        if not self.profile.abort_connection:
+            parts.append(f"a lost host is the {self.profile.name} {self.profile.device}'s own fault reaction")
+        elif self._has_variable(ABORT_CONNECTION, 0):
             old = int(self._sdo_read(ABORT_CONNECTION, 0, "abort connection option code"))
             self._restore.append((ABORT_CONNECTION, 0, old, "abort connection option code"))
             self._sdo_write(ABORT_CONNECTION, 0, option, "abort connection option code")
@@ -700,7 +747,7 @@ class CanopenDriver(Driver):
             raise DriveFaultError(f"{self._where()}: EMCY 0x{e.code:04X} ({e.get_desc() or 'no description'}), "
                                   f"error register 0x{e.register:02X}")
         if self._left is not None:
-            raise DriveFaultError(f"{self._where()} left operation enabled: {self._left}")
+            raise DriveFaultError(f"{self._where()} left {self.profile.running}: {self._left}")
         limit = self.setup.heartbeat_timeout_s
         with self._lock:
             seen, state = self._last_heartbeat, self._nmt_state
@@ -722,23 +769,22 @@ class CanopenDriver(Driver):
         what was done and seen."""
         self._cyclic = False
         steps: list[str] = []
-        seen: State | None = None
+        seen: StrEnum | None = None
         if self.port.closed:
             self.shutdown_account = "the bus was closed: no quick stop, disable voltage or NMT command sent" + (
                 "; the drive's 0x1016 and 0x6007 NOT restored" if self._restore else "")
             self._restore = []
             return False
+        p = self.profile
         with self._pumped():
-            for command, targets in ((Command.QUICK_STOP, (State.QUICK_STOP_ACTIVE, State.SWITCH_ON_DISABLED,
-                                                           State.FAULT)),
-                                     (Command.DISABLE_VOLTAGE, (State.SWITCH_ON_DISABLED, State.FAULT))):
+            for step in p.leave:
                 try:
-                    word, seen = self._command(command, targets, self.setup.state_timeout_s)
-                    steps.append(f"{command} (controlword 0x{CONTROLWORD[command]:04X}): statusword 0x{word:04X} "
+                    word, seen = self._command(step, self.setup.state_timeout_s)
+                    steps.append(f"{step.name} (controlword 0x{step.controlword:04X}): statusword 0x{word:04X} "
                                  f"({seen or 'undefined'})")
                 except DriverOperationError as exc:
                     seen = None
-                    steps.append(f"{command} (controlword 0x{CONTROLWORD[command]:04X}) not confirmed: {exc}")
+                    steps.append(f"{step.name} (controlword 0x{step.controlword:04X}) not confirmed: {exc}")
             restored = self._restore_protection()  # before the NMT command, the last word to the drive
             try:
                 self._nmt(0x80)
@@ -750,7 +796,7 @@ class CanopenDriver(Driver):
         if self._unprotected:
             steps.append(self._unprotected)
         self.shutdown_account = "; ".join(steps)
-        return seen in (State.SWITCH_ON_DISABLED, State.FAULT)
+        return seen in p.safe
 
     def close(self) -> None:
         """Write back the drive's 0x1016 and 0x6007 if no ``disable()`` did, stop the host's heartbeat, close the

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Collection
 
 from bodebench.sim.hydraulic import HYDRAULIC_DEFAULTS, SUBSTEPS_PER_PERIOD, ElectrohydraulicDrive
-from bodebench.sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant
+from bodebench.sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant, ProportionalValve
 
 __all__ = ["load_kernels", "plant_from_config"]
 
@@ -13,10 +13,11 @@ __all__ = ["load_kernels", "plant_from_config"]
 def plant_from_config(model: str, *, mass: float = 1.0, stiffness: float = 1.0, friction: float = 0.0,
                       damping_ratio: float = 0.0, time_constant: float = 1.0, gain: float = 1.0,
                       **hydraulic: float) -> Plant:
-    """Build the plant a ``[plant]`` table describes (model: coulomb, linear, lag or hydraulic).
+    """Build the plant a ``[plant]`` table describes (model: coulomb, linear, lag, hydraulic or valve).
 
     ``hydraulic``: the keyword parameters of :class:`sim.hydraulic.ElectrohydraulicDrive` (SI units); accepted by
-    every model (a ``[plant]`` table carries them all) and used by "hydraulic" only.
+    every model (a ``[plant]`` table carries them all), used by "hydraulic", and their valve natural frequency and
+    damping ratio by "valve".
     """
     if model == "coulomb":
         return CoulombOscillator(mass, stiffness, friction, damping_ratio)
@@ -24,6 +25,10 @@ def plant_from_config(model: str, *, mass: float = 1.0, stiffness: float = 1.0, 
         return LinearOscillator(mass, stiffness, damping_ratio)
     if model == "lag":
         return FirstOrderLag(time_constant, gain)
+    if model == "valve":
+        valve = {key: hydraulic.get(key, HYDRAULIC_DEFAULTS[key])
+                 for key in ("valve_natural_frequency_hz", "valve_damping_ratio")}
+        return ProportionalValve(**valve)
     if model == "hydraulic":
         unknown = sorted(set(hydraulic) - set(HYDRAULIC_DEFAULTS))
         if unknown:

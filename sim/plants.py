@@ -175,6 +175,22 @@ class FirstOrderLag(LinearPlant):
         super().__init__([[-1.0 / time_constant]], [gain / time_constant], [[1.0]], ("position",))
 
 
+class ProportionalValve(LinearPlant):
+    """A proportional valve's spool in its position loop: ``x'' = w_v^2 (u - x) - 2 zeta_v w_v x'``, input the spool
+    set point u, output the spool position x (both in the set point's units, % of stroke on a CiA 408 valve);
+    natural frequency ``valve_natural_frequency_hz`` (w_v / 2 pi), damping ratio ``valve_damping_ratio``."""
+
+    def __init__(self, valve_natural_frequency_hz: float, valve_damping_ratio: float) -> None:
+        self.valve_natural_frequency_hz, self.valve_damping_ratio = valve_natural_frequency_hz, valve_damping_ratio
+        w = 2.0 * math.pi * valve_natural_frequency_hz
+        super().__init__([[0.0, 1.0], [-w * w, -2.0 * valve_damping_ratio * w]], [0.0, w * w],
+                         [[1.0, 0.0]], ("spool",))
+
+    @property
+    def natural_frequency_hz(self) -> float:
+        return self.valve_natural_frequency_hz
+
+
 _CoulombMatrices = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]
 """Augmented matrices sliding forward and backward, their one-sub-step transitions, and the sub-steps per step."""
 

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from bodebench.drivers.canopen_link import CanopenSetup
 from bodebench.drivers.layout import Layout
 from bodebench.drivers.ports import CanPort, Frame, FramePort, SerialPort
-from bodebench.sim.cia402_drive import Cia402Faults, ServingCanopen, serve_canopen
+from bodebench.sim.canopen_device import CanopenFaults, ServingCanopen, serve_canopen
 from bodebench.sim.controller import ControllerTiming, FeedbackSensing, SimulatedController
 from bodebench.sim.faults import FaultConfig, FaultyPort, ValueFaults
 from bodebench.sim.models import plant_from_config
@@ -51,7 +51,7 @@ class SimulatorSpec:
     faults: FaultConfig | None = None
     sensing: FeedbackSensing | None = None
     canopen: CanopenSetup | None = None  # a CiA 402 drive (``layout`` is then ``canopen.layout()``)
-    cia402: Cia402Faults | None = None
+    canopen_faults: CanopenFaults | None = None
 
     def controller(self) -> SimulatedController:
         """A new controller around a new plant."""
@@ -123,10 +123,10 @@ class Serving:
 
 def serve_can(spec: SimulatorSpec) -> Serving | ServingCanopen:
     """Serve on a python-can bus opened from ``spec.can`` (for ``virtual``: in this process); with
-    ``spec.canopen`` as a CiA 402 drive (sim.cia402_drive)."""
+    ``spec.canopen`` as a CiA 402 drive (sim.canopen_device)."""
     can = dict(spec.can)
     if spec.canopen is not None:
-        return serve_canopen(spec.controller(), spec.canopen, can, spec.cia402)
+        return serve_canopen(spec.controller(), spec.canopen, can, spec.canopen_faults)
     port = CanPort.open(can["interface"], can.get("channel"), can.get("bitrate"), can.get("options", {}),
                         fd=bool(can.get("fd", False)))
     return Serving(spec.controller(), spec.wire(port))

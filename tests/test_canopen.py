@@ -35,7 +35,7 @@ from bodebench.drivers.errors import DriveFaultError
 from bodebench.drivers.ports import CanPort
 from bodebench.io.config import ConfigError, parse_config
 from bodebench.io.results import load_response
-from bodebench.sim.cia402_drive import Cia402Faults, serve_canopen
+from bodebench.sim.canopen_device import CanopenFaults, serve_canopen
 from bodebench.sim.controller import ControllerTiming, SimulatedController
 from bodebench.sim.models import plant_from_config
 from bodebench.status import FaultKind
@@ -153,7 +153,7 @@ def test_the_enable_and_exit_sequences_walk_the_state_machine() -> None:
 # ------------------------------------------------------------------------------- the driver and the drive
 
 
-def _drive_and_host(name: str, faults: Cia402Faults | None = None, **canopen: Any) -> tuple[Any, CanopenDriver]:
+def _drive_and_host(name: str, faults: CanopenFaults | None = None, **canopen: Any) -> tuple[Any, CanopenDriver]:
     case = parse_config(bench(name, canopen=canopen), "canopen.toml").cases[0]
     setup = case.canopen_setup
     assert setup is not None and case.layout is not None
@@ -267,7 +267,7 @@ def run_session(data: dict[str, Any], out: Path | None = None) -> tuple[BenchSes
 def test_a_drive_that_refuses_to_enable_stops_the_session_with_the_reason(tmp_path: Path) -> None:
     name = channel()
     recorder = FrameRecorder(name)
-    session, error = run_session(bench(name, simulator={"cia402": {"refuse_enable": True}}), tmp_path)
+    session, error = run_session(bench(name, simulator={"canopen": {"refuse_enable": True}}), tmp_path)
     frames = recorder.frames_seen()
     assert error is not None and error.kind is FaultKind.DRIVE
     assert "did not reach 'operation enabled'" in str(error) and "switched on" in str(error)
@@ -286,7 +286,7 @@ def test_an_emcy_mid_sweep_stops_it_keeps_the_converged_points_and_leaves_the_dr
     name = channel()
     recorder = FrameRecorder(name)
     # the 5 Hz point takes about 4 s of controller time (ramps and 17 periods); the EMCY comes during the 12 Hz one
-    session, error = run_session(bench(name, simulator={"cia402": {"emcy_at_s": 4.8, "emcy_code": 0x2310}}),
+    session, error = run_session(bench(name, simulator={"canopen": {"emcy_at_s": 4.8, "emcy_code": 0x2310}}),
                                  tmp_path)
     frames = recorder.frames_seen()
     assert error is not None and error.kind is FaultKind.DRIVE
@@ -303,7 +303,7 @@ def test_a_missed_heartbeat_is_a_drive_fault(tmp_path: Path) -> None:
     name = channel()
     recorder = FrameRecorder(name)
     session, error = run_session(bench(name, canopen={"heartbeat_timeout_s": 0.4},
-                                       simulator={"cia402": {"heartbeat_stops_at_s": 0.5}}), tmp_path)
+                                       simulator={"canopen": {"heartbeat_stops_at_s": 0.5}}), tmp_path)
     frames = recorder.frames_seen()
     assert error is not None and error.kind is FaultKind.DRIVE and "no heartbeat" in str(error)
     assert_left_safe(frames)  # the drive still answers SDO: it is seen disabled
@@ -314,7 +314,7 @@ def test_a_silent_drive_is_a_fault_and_the_session_says_it_was_not_seen_disabled
     name = channel()
     recorder = FrameRecorder(name)
     session, error = run_session(bench(name, canopen={"heartbeat_timeout_s": 0.4, "state_timeout_s": 0.3},
-                                       simulator={"cia402": {"silent_at_s": 0.5}}), tmp_path)
+                                       simulator={"canopen": {"silent_at_s": 0.5}}), tmp_path)
     frames = recorder.frames_seen()
     assert error is not None and error.kind is FaultKind.DRIVE and "no heartbeat" in str(error)
     assert_left_safe(frames, answered=False)  # everything was still sent

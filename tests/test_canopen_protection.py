@@ -32,7 +32,7 @@ from bodebench.drivers.canopen_link import CanopenDriver
 from bodebench.drivers.cia402 import State, decode_statusword
 from bodebench.drivers.ports import CanPort
 from bodebench.io.config import SIMULATED_DRIVE_EDS, ConfigError, parse_config
-from bodebench.sim.cia402_drive import serve_canopen
+from bodebench.sim.canopen_device import serve_canopen
 from bodebench.sim.controller import ControllerTiming, SimulatedController
 from bodebench.sim.models import plant_from_config
 
@@ -143,8 +143,8 @@ def test_kill_9_of_the_host_mid_sweep_leaves_the_canopen_drive_quick_stopped(tmp
     assert states[-1] == str(State.QUICK_STOP_ACTIVE) and str(State.OPERATION_ENABLED) in states, events
     assert states[-2:] == [str(State.OPERATION_ENABLED), str(State.QUICK_STOP_ACTIVE)], events  # by no command
     # the drive watched the host from before it was enabled, and lost it once, within its consumer time
-    watching = events.index("watching the heartbeat of node 127 (consumer time 2 s; abort connection option 3: "
-                            "quick stop)")
+    watching = events.index("watching the heartbeat of node 127 (consumer time 2 s; abort connection option 3 "
+                            "(quick stop))")
     assert watching < events.index("operation enabled (controlword 0x000F)"), events
     trips = [e for e in events if e.startswith("heartbeat of node 127 lost")]
     assert len(trips) == 1, events

@@ -13,7 +13,7 @@ import pytest
 
 from bodebench.apps.cli import main
 from bodebench.bench.procedure import SweepProcedure
-from bodebench.io.config import SIMULATED_DRIVE_EDS, load_config, parse_config
+from bodebench.io.config import SIMULATED_DRIVE_EDS, SIMULATED_EDS, load_config, parse_config
 from bodebench.io.document import parse_override
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -21,10 +21,12 @@ CONFIGS = sorted((ROOT / "configs").glob("*.toml"))
 HEX = r"[0-9a-f]{2}(?: [0-9a-f]{2})*"
 """Bytes as check prints them."""
 EDS = f"canopen.eds={SIMULATED_DRIVE_EDS}"  # a real CiA 402 config names the user's own EDS
+REAL_EDS = {"real_cia402.toml": EDS, "real_cia408.toml": f"canopen.eds={SIMULATED_EDS['408']}"}
+"""The real CANopen examples name the user's own EDS; the simulated device's of the same profile stands in."""
 
 
 def checked(path: Path, capsys: pytest.CaptureFixture[str], *extra: str) -> str:
-    sets = ["--set", EDS] if path.name == "real_cia402.toml" else []
+    sets = ["--set", REAL_EDS[path.name]] if path.name in REAL_EDS else []
     assert main(["check", str(path), *sets, *extra]) == 0
     captured = capsys.readouterr()
     assert captured.err == ""
@@ -50,7 +52,7 @@ def plan_rows(out: str) -> list[list[tuple[float, float]]]:
 @pytest.mark.parametrize("path", CONFIGS, ids=[p.stem for p in CONFIGS])
 def test_check_prints_each_shipped_configs_own_plan(path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = checked(path, capsys)
-    config = load_config(path, [parse_override(EDS)] if path.name == "real_cia402.toml" else [])
+    config = load_config(path, [parse_override(REAL_EDS[path.name])] if path.name in REAL_EDS else [])
     expected = [[(f, case.excitation.amplitude_at(f)) for f in case.excitation.frequencies_hz]
                 for case in config.cases]
     assert plan_rows(out) == expected

@@ -235,7 +235,7 @@ VALUE_ERRORS = [
     ("plant", "time_constant", 0.0, "lag", "plant.time_constant: must be > 0, got 0.0"),
     ("plant", "gain", 0, "lag", "plant.gain: must be != 0, got 0.0"),
     ("plant", "model", "spring", "coulomb",
-     'plant.model: must be one of "coulomb", "linear", "lag", "hydraulic", got "spring"'),
+     'plant.model: must be one of "coulomb", "linear", "lag", "hydraulic", "valve", got "spring"'),
     ("excitation", "amplitude", 0.0, "coulomb", "excitation.amplitude: must be > 0, got 0.0"),
     ("excitation", "frequencies_hz", [], "coulomb", "excitation.frequencies_hz: must not be empty"),
     ("excitation", "frequencies_hz", [1, 2, 3, -4], "coulomb",

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from bodebench.apps.cli import main
-from bodebench.io.config import SIMULATED_DRIVE_EDS, ConfigError, load_config
+from bodebench.io.config import SIMULATED_DRIVE_EDS, SIMULATED_EDS, ConfigError, load_config
 from bodebench.io.document import parse_override
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,8 +24,12 @@ EDS = parse_override(f"canopen.eds={SIMULATED_DRIVE_EDS}")
 """A real CiA 402 config names the user's own EDS; the simulated drive's holds the same standard objects."""
 
 
+REAL_EDS = {"real_cia402.toml": EDS, "real_cia408.toml": parse_override(f"canopen.eds={SIMULATED_EDS['408']}")}
+"""The real CANopen examples name the user's own EDS; the simulated device's of the same profile stands in."""
+
+
 def overrides_for(name: str) -> list:  # type: ignore[type-arg]
-    return [EDS] if name == "real_cia402.toml" else []
+    return [REAL_EDS[name]] if name in REAL_EDS else []
 
 
 @pytest.mark.parametrize("name", [n for n in SHIPPED if n.endswith(".toml")])

@@ -16,7 +16,7 @@ from bodebench.drivers.canopen_link import CanopenDriver
 from bodebench.drivers.ports import CanPort
 from bodebench.drivers.sync_dating import SyncMatcher
 from bodebench.io.config import ConfigError, parse_config
-from bodebench.sim.cia402_drive import Cia402Faults, serve_canopen
+from bodebench.sim.canopen_device import CanopenFaults, serve_canopen
 from bodebench.sim.controller import ControllerTiming, SimulatedController
 from bodebench.sim.models import plant_from_config
 
@@ -160,7 +160,7 @@ def canopen_case(timebase: str | None, actual: dict[str, str], cia402: dict[str,
             "canopen": {"node_id": 9, "setpoint_scale": 1e-9, "actual": actual, "actual_scale": {"position": 1e-9},
                         "heartbeat_timeout_s": 1.0},
             "safety": {"max_amplitude": 0.02, "watchdog_s": 3.0},
-            "simulator": {"noise": 2e-5, "seed": 1, **({"cia402": cia402} if cia402 else {})}}
+            "simulator": {"noise": 2e-5, "seed": 1, **({"canopen": cia402} if cia402 else {})}}
     return parse_config(data, "sync.toml").cases[0]
 
 
@@ -222,7 +222,7 @@ def test_every_sample_dated_by_sync_is_dated_by_the_drives_own_tick_through_lost
     name = case.can.channel
     # the drive's own view: position only; it sends its counter wherever the host's mapping puts 0x2000
     plain = canopen_case("sync", {"position": "0x6064"})
-    faults = Cia402Faults(tpdo_drop=0.05, tpdo_late=0.05, sync_miss=0.03, seed=5)
+    faults = CanopenFaults(tpdo_drop=0.05, tpdo_late=0.05, sync_miss=0.03, seed=5)
     controller = SimulatedController(plant_from_config(**PLANT), plain.layout, ControllerTiming(RATE_HZ))
     serving = serve_canopen(controller, plain.canopen_setup, {"interface": "virtual", "channel": name}, faults)
     host = CanopenDriver(CanPort.open("virtual", name), setup, layout)

@@ -230,12 +230,10 @@ def _canopen_lines(case: CaseConfig) -> Iterator[str]:
         HEARTBEAT_CONSUMER,
         HEARTBEAT_PRODUCER,
         HOST_HEARTBEAT_STATE,
-        MODES_DISPLAY,
-        MODES_OF_OPERATION,
         STATUSWORD,
         SYNC_COB_ID,
     )
-    from bodebench.drivers.cia402 import CONTROLWORD, MODES, Command
+    from bodebench.drivers.device_profile import Step
 
     setup, safety = case.canopen_setup, case.on_bench.safety
     assert setup is not None and case.bench is not None
@@ -248,21 +246,30 @@ def _canopen_lines(case: CaseConfig) -> Iterator[str]:
         where = f"0x{index:04X}" + (f":{sub:02X}" if sub is not None else "")
         return f"SDO write {where} = {value} ({what})"
 
-    def control(command: Command) -> str:
-        return sdo(CONTROLWORD_OBJECT, 0, f"0x{CONTROLWORD[command]:04X}", f"controlword: {command}") + \
+    profile = setup.device_profile
+
+    def control(step: Step) -> str:
+        return sdo(CONTROLWORD_OBJECT, 0, f"0x{step.controlword:04X}", f"controlword: {step.name}") + \
             f", waited for in the statusword 0x{STATUSWORD:04X}"
 
     start = [nmt("PRE-OPERATIONAL")]
     if setup.heartbeat_ms:
         start.append(sdo(HEARTBEAT_PRODUCER, 0, str(setup.heartbeat_ms), "the drive's heartbeat period, ms"))
-    start.append(f"wait for the drive's heartbeat (id 0x{0x700 + node:X}); read the statusword 0x{STATUSWORD:04X}"
-                 + (f"; a drive in fault: {control(Command.FAULT_RESET)}" if setup.fault_reset
-                    else "; a drive in fault is refused (canopen.fault_reset = false)"))
+    device = profile.device
+    start.append(f"wait for the {device}'s heartbeat (id 0x{0x700 + node:X}); read the statusword 0x{STATUSWORD:04X}"
+                 + (f"; a {device} in fault: controlword 0, then {control(profile.reset)}" if setup.fault_reset
+                    else f"; a {device} in fault is refused (canopen.fault_reset = false)")
+                 + ("; a device under local control (statusword bit 4) is refused" if profile.local_bit else ""))
+    for index, sub, value, what in setup.assumed:
+        start.append(f"SDO read 0x{index:04X}:{sub:02X} ({what}): the scales assume {value}, a device that reads "
+                     "otherwise is refused")
     if setup.host_heartbeat_ms:
         start.append(f"host heartbeat: id 0x{setup.host_heartbeat_cob_id:X} data {HOST_HEARTBEAT_STATE:02x} every "
                      f"{setup.host_heartbeat_ms} ms until the session ends")
-        start.append(sdo(ABORT_CONNECTION, 0, str(setup.abort_connection), "abort connection option code, where the "
-                                                                           "EDS has it; the old value read first"))
+        if profile.abort_connection:
+            start.append(sdo(ABORT_CONNECTION, 0, str(setup.abort_connection), "abort connection option code, where "
+                                                                               "the EDS has it; the old value read "
+                                                                               "first"))
         start.append(sdo(HEARTBEAT_CONSUMER, None, f"0x{setup.consumer_value:08X}", f"a sub-entry watches node "
                      f"{setup.host_node_id} for {setup.drive_heartbeat_timeout_ms} ms; the old value read first"))
     else:
@@ -271,11 +278,14 @@ def _canopen_lines(case: CaseConfig) -> Iterator[str]:
     start.append(f"PDO mapping over SDO: RPDO{setup.rpdo} (id 0x{setup.rpdo_cob_id:X}) = {setup.setpoint}; "
                  f"TPDO{setup.tpdo} (id 0x{setup.tpdo_cob_id:X}) = statusword 0x{STATUSWORD:04X}, {actual}; both "
                  "synchronous")
-    start.append(sdo(MODES_OF_OPERATION, 0, str(MODES[setup.mode]), f"modes of operation: {setup.mode}")
-                 + f", until 0x{MODES_DISPLAY:04X} shows it")
+    if profile.device_mode is not None:
+        index, value, what = profile.device_mode
+        start.append(sdo(index, 0, str(value), what) + ", until it reads back")
+    start.append(sdo(profile.mode_object, 0, str(profile.modes[setup.mode]), f"mode: {setup.mode}")
+                 + f", until 0x{profile.mode_display:04X} shows it")
     start.append(sdo(setup.setpoint.index, setup.setpoint.subindex, "0", setup.setpoint.name))
     start.append(nmt("OPERATIONAL"))
-    start += [control(c) for c in (Command.SHUTDOWN, Command.SWITCH_ON, Command.ENABLE_OPERATION)]
+    start += [control(step) for step in profile.enable]
     sync = (f", then SYNC (id 0x{SYNC_COB_ID:X})" if setup.sync == "produce" else " (SYNC from another node)")
     start.append(f"at {_number(case.bench.rate_hz)} Hz: RPDO{setup.rpdo} id 0x{setup.rpdo_cob_id:X} setpoint in counts "
                  f"of {setup.setpoint_scale:g} ({setup.setpoint.type}){sync}")
@@ -287,9 +297,10 @@ def _canopen_lines(case: CaseConfig) -> Iterator[str]:
         out.append(f"the setpoint slewed to 0 at safety.max_rate = {safety.max_rate:g} units/s")
     out.append(f"{ZERO_SETPOINTS} x setpoint 0: RPDO{setup.rpdo} id 0x{setup.rpdo_cob_id:X} data "
                f"{case.on_bench.layout.setpoint.encode({SETPOINT: 0.0}).hex(' ')}{sync}")
-    out += [control(Command.QUICK_STOP), control(Command.DISABLE_VOLTAGE)]
+    out += [control(step) for step in profile.leave]
     if setup.host_heartbeat_ms:
-        out.append(f"SDO write back 0x{HEARTBEAT_CONSUMER:04X} and 0x{ABORT_CONNECTION:04X} as they were")
+        out.append(f"SDO write back 0x{HEARTBEAT_CONSUMER:04X}"
+                   + (f" and 0x{ABORT_CONNECTION:04X}" if profile.abort_connection else "") + " as they were")
     out.append(nmt("PRE-OPERATIONAL"))
     if setup.host_heartbeat_ms:
         out.append("the host heartbeat stops")

@@ -223,7 +223,7 @@ def _tui(args: argparse.Namespace) -> int:
 def _sim_controller(args: argparse.Namespace) -> int:
     from bodebench.bench.connection import simulator_spec
     from bodebench.io.config import ConfigError
-    from bodebench.sim.cia402_drive import ServingCanopen
+    from bodebench.sim.canopen_device import ServingCanopen
     from bodebench.sim.serve import Serving, serve_can, serve_serial_pty, serve_slcan_pty
 
     config = _load(args)
@@ -246,11 +246,13 @@ def _sim_controller(args: argparse.Namespace) -> int:
         reach = (("serial", "port"), path)
     elif bench.transport == "canopen":
         if case.can is not None and case.can.interface == "slcan":
-            raise ConfigError(f"{args.config}: can.interface: the simulated CiA 402 drive is served on a python-can "
+            raise ConfigError(f"{args.config}: can.interface: the simulated CANopen device is served on a python-can "
                               "bus (virtual, udp_multicast, socketcan, ...), not as an SLCAN adapter",
                               "can.interface")
         serving = serve_can(spec)
-        where = (f"CiA 402 drive, CANopen node {spec.canopen.node_id if spec.canopen else '?'}, on python-can "
+        profile = spec.canopen.device_profile if spec.canopen else None
+        where = (f"{profile.name if profile else 'CANopen'} {profile.device if profile else 'device'}, CANopen node "
+                 f"{spec.canopen.node_id if spec.canopen else '?'}, on python-can "
                  f"{spec.can['interface']} channel {spec.can['channel']}")
         reach, drop_simulator = (("can", "channel"), str(spec.can["channel"])), True
     elif case.can is not None and case.can.interface == "slcan":
@@ -274,7 +276,7 @@ def _sim_controller(args: argparse.Namespace) -> int:
         print(f"{time.monotonic() - serving_started:10.3f} s  drive {text}", flush=True)
 
     serving.controller.on_event = report
-    if bench.transport == "canopen":  # a CiA 402 drive watches the host's heartbeat once the host writes 0x1016
+    if bench.transport == "canopen":  # a CANopen device watches the host's heartbeat once the host writes 0x1016
         watchdog = "; it watches the host's heartbeat where the host sets its 0x1016 (canopen.host_heartbeat_ms)"
     else:
         watchdog = f"; watchdog {layout.drive_watchdog_s:g} s" if layout.drive_watchdog_s else "; no watchdog"
@@ -309,7 +311,7 @@ def _write_bench_copy(args: argparse.Namespace, reach: tuple[tuple[str, str], st
     drive (``reach``: key parts and value) and, on a CAN bus, without [simulator]; relative file names in it
     (frames.dbc, canopen.eds) made absolute when the copy goes to another directory. The copy is validated;
     raises ResultsError when it cannot be written."""
-    from bodebench.io.config import SIMULATED_DRIVE_EDS, ConfigError, load_config, read_document
+    from bodebench.io.config import SIMULATED_EDS, ConfigError, load_config, read_document
     from bodebench.io.document import Override, OverrideError, apply_overrides, edited_copy
     from bodebench.io.results import ResultsError, atomic_write_text
 
@@ -333,7 +335,9 @@ def _write_bench_copy(args: argparse.Namespace, reach: tuple[tuple[str, str], st
         overrides.append(Override(parts, value))
     canopen = document.get("canopen")
     if drop_simulator and isinstance(canopen, dict) and not canopen.get("eds"):
-        overrides.append(Override(("canopen", "eds"), str(SIMULATED_DRIVE_EDS)))  # the [simulator] brought it
+        profile = str(canopen.get("profile", "402"))
+        if profile in SIMULATED_EDS:  # the [simulator] brought it
+            overrides.append(Override(("canopen", "eds"), str(SIMULATED_EDS[profile])))
     header = (f"written by bodebench sim-controller: {source}, {'.'.join(parts)} set to {value}, where it serves "
               "the simulated drive" + (" ([simulator] left out: the drive is the one served)" if drop_simulator
                                        else ""))

@@ -141,9 +141,10 @@ def simulator_spec(case: CaseConfig, *, wire_faults: bool = True) -> SimulatorSp
         can_map = {"interface": can.interface, "channel": can.channel or "bodebench", "bitrate": can.bitrate,
                    "fd": can.fd, "options": dict(can.options)}
     faults = sim.faults if sim is not None and wire_faults else None
-    cia402 = sim.cia402 if sim is not None and wire_faults and sim.cia402.any else None
+    device_faults = sim.canopen if sim is not None and wire_faults and sim.canopen.any else None
     return SimulatorSpec(asdict(case.plant), tables.layout, timing, serial.framing if serial else "binary", can_map,
-                         faults if faults is not None and faults.any else None, sensing, case.canopen_setup, cia402)
+                         faults if faults is not None and faults.any else None, sensing, case.canopen_setup,
+                         device_faults)
 
 
 def plan_link(case: CaseConfig, *, direct: bool = False, log: str = "") -> LinkPlan:
@@ -161,10 +162,10 @@ def plan_link(case: CaseConfig, *, direct: bool = False, log: str = "") -> LinkP
             raise ConfigError(f"{case.source}: simulator.faults: fault injection needs a bus; bodebench simulate runs "
                               "the drive in-process (use bodebench run, or remove [simulator.faults])",
                               "simulator.faults")
-        if sim is not None and sim.cia402.any:
-            raise ConfigError(f"{case.source}: simulator.cia402: drive faults need a bus; bodebench simulate runs "
-                              "the drive in-process (use bodebench run, or remove [simulator.cia402])",
-                              "simulator.cia402")
+        if sim is not None and sim.canopen.any:
+            raise ConfigError(f"{case.source}: simulator.canopen: drive faults need a bus; bodebench simulate runs "
+                              "the drive in-process (use bodebench run, or remove [simulator.canopen])",
+                              "simulator.canopen")
         transport = (f"serial-{serial.framing}" if bench.transport == "serial" and serial
                      else "can-fd" if case.can is not None and case.can.fd else "can")
         return LinkPlan(DirectLink(simulator_spec(case, wire_faults=False), transport), layout,

@@ -469,6 +469,8 @@ class BusWorker:
             raw = s.counter * self.h
         elif base == "timestamp" and s.timestamp is not None:
             raw = s.timestamp
+        elif base == "sync" and answered_tick is not None:
+            raw = (answered_tick + 1) * self.h  # a drive called in lockstep answers the very tick it was sent
         else:
             raw = s.receive_time - self.wall0
             if base != "receive":

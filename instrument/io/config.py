@@ -21,9 +21,11 @@ from typing import Any
 import numpy as np
 
 from bodebench.core.benchgrid import disturbance_lines, folding_notes, move_off_disturbances, move_off_folds
-from bodebench.drivers.canopen_link import STATUSWORD, CanopenSetup, load_od, resolve_object
-from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS, TARGET_OBJECTS
+from bodebench.drivers import cia408
+from bodebench.drivers.canopen_link import CanopenSetup, ObjectRef, load_od, resolve_object
+from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS
 from bodebench.drivers.codec import COUNTER, SETPOINT, TIMESTAMP
+from bodebench.drivers.device_profile import PROFILES
 from bodebench.drivers.errors import LayoutError
 from bodebench.drivers.extras import missing, require
 from bodebench.drivers.layout import Layout, default_layout
@@ -106,6 +108,9 @@ FRAMES = "frames"
 _BENCH_ONLY = ("can", "canopen", "serial", FRAMES, "safety", "simulator")
 SIMULATED_DRIVE_EDS = Path(__file__).resolve().parent.parent / "data" / "cia402_sim.eds"
 """The EDS of the simulated CiA 402 drive (package data), the default ``canopen.eds`` of a simulated bench."""
+SIMULATED_EDS: dict[str, Path] = {"402": SIMULATED_DRIVE_EDS,
+                                  "408": SIMULATED_DRIVE_EDS.with_name("cia408_sim.eds")}
+"""The EDS of each profile's simulated device (package data), by ``canopen.profile``."""
 _TOP_LEVEL_KEYS = ("title", "cases")
 
 
@@ -543,7 +548,7 @@ def _canopen_setup(table: CanopenConfig, simulated: bool, key: Callable[[str, st
         if not eds.is_absolute():
             eds = Path(source).parent / eds
     elif simulated:
-        eds = SIMULATED_DRIVE_EDS
+        eds = SIMULATED_EDS[table.profile]
     else:
         raise _Fault(key("canopen", "eds"), "missing: the drive's EDS or DCF file (only a [simulator] brings its own)")
     require("canopen", f'{source}: bench.transport = "canopen"')
@@ -555,15 +560,20 @@ def _canopen_setup(table: CanopenConfig, simulated: bool, key: Callable[[str, st
         if index not in od or (index + 0x200) not in od:
             raise _Fault(key("canopen", what), f"the EDS has no PDO {getattr(table, what)} (objects 0x{index:04X} "
                                                f"and 0x{index + 0x200:04X})")
-    for index, name in ((STATUSWORD, "statusword"), (0x6040, "controlword"), (0x6060, "modes of operation"),
-                        (0x6061, "modes of operation display")):
+    profile = PROFILES[table.profile]
+    for index, name in profile.required:
         if index not in od:
-            raise _Fault(key("canopen", "eds"), f"the EDS has no {name} (0x{index:04X}): not a CiA 402 drive")
+            raise _Fault(key("canopen", "eds"), f"the EDS has no {name} (0x{index:04X}): not a {profile.name} "
+                                                f"{profile.device} (canopen.profile = \"{table.profile}\")")
+    mode = table.mode_name
     try:
-        setpoint = resolve_object(od, table.setpoint or f"0x{TARGET_OBJECTS[table.mode]:04X}")
+        setpoint = resolve_object(od, table.setpoint or profile.setpoints[mode])
     except ValueError as exc:
         raise _Fault(key("canopen", "setpoint"), str(exc)) from None
-    actual_table = table.actual or {"position": "0x6064"}
+    assumed: dict[tuple[int, int], tuple[int, int, int, str]] = {}
+    setpoint_scale = table.setpoint_scale if table.setpoint_scale is not None else \
+        _default_scale(od, profile.number, setpoint, assumed)
+    actual_table = table.actual or profile.actuals[mode]
     actual = []
     for channel, text in actual_table.items():
         try:
@@ -575,16 +585,52 @@ def _canopen_setup(table: CanopenConfig, simulated: bool, key: Callable[[str, st
                          f"{ref} is {ref.type}: a sample counter must be UNSIGNED8 or UNSIGNED16")
         if channel == TIMESTAMP and not ref.type.startswith("uint"):
             raise _Fault(f"{key('canopen', 'actual')}.{channel}", f"{ref} is {ref.type}: a timestamp is unsigned")
-        scale = float(table.actual_scale.get(channel, 1.0)) if channel not in (COUNTER, TIMESTAMP) else 1.0
+        if channel in (COUNTER, TIMESTAMP):
+            scale = 1.0
+        elif channel in table.actual_scale:
+            scale = float(table.actual_scale[channel])
+        else:
+            scale = _default_scale(od, profile.number, ref, assumed)
         actual.append((channel, ref, scale))
     size = 2 + sum(ref.size for _, ref, _ in actual)
     if size > 8:
         raise _Fault(key("canopen", "actual"), f"the statusword and these objects take {size} bytes: a TPDO carries 8")
-    return CanopenSetup(table.node_id, str(eds), table.mode, setpoint, table.setpoint_scale, tuple(actual),
+    return CanopenSetup(table.node_id, str(eds), mode, setpoint, setpoint_scale, tuple(actual),
                         table.rpdo, table.tpdo, table.sync, table.heartbeat_ms, table.heartbeat_timeout_s,
                         table.state_timeout_s, table.fault_reset, host_node_id=table.host_node_id,
                         host_heartbeat_ms=table.host_heartbeat_ms, drive_heartbeat_timeout_ms=table.consumer_ms,
-                        abort_connection=ABORT_CONNECTION_OPTIONS[table.abort_connection])
+                        abort_connection=ABORT_CONNECTION_OPTIONS[table.abort_connection], profile=table.profile,
+                        assumed=tuple(assumed.values()))
+
+
+def _default_scale(od: Any, profile: int, ref: ObjectRef,
+                   assumed: dict[tuple[int, int], tuple[int, int, int, str]]) -> float:
+    """Units per count of ``ref`` when the config gives none: 1 on CiA 402; on CiA 408 a process value's scale from
+    the EDS (``cia408.process_value_scale``), the EDS values it used added to ``assumed``."""
+    if profile != 408 or ref.subindex != 1:
+        return 1.0
+    if cia408.is_spool_value(ref.index):
+        index, sub = cia408.SPOOL_REFERENCE
+        reference = _eds_default(od, index, sub)
+        if reference is None or reference <= 0:
+            return cia408.process_value_scale(ref.index)
+        assumed[(index, sub)] = (index, sub, reference, "spool position reference value")
+        return cia408.process_value_scale(ref.index, reference=reference)
+    prefix = _eds_default(od, ref.index, cia408.PREFIX_SUBINDEX)
+    if prefix is None:
+        return 1.0
+    assumed[(ref.index, cia408.PREFIX_SUBINDEX)] = (ref.index, cia408.PREFIX_SUBINDEX, prefix,
+                                                    f"decimal prefix of {ref.name}")
+    return cia408.process_value_scale(ref.index, prefix=prefix)
+
+
+def _eds_default(od: Any, index: int, subindex: int) -> int | None:
+    """The EDS's default value of ``index``:``subindex`` as an integer; None where it has none."""
+    try:
+        value = od[index][subindex].default
+    except (KeyError, TypeError, AttributeError):
+        return None
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
 
 
 def parse_config(data: Mapping[str, Any], source: str = "<config>", overrides: Sequence[Override] = ()

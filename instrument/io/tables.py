@@ -15,9 +15,10 @@ from dataclasses import dataclass, field, replace
 from bodebench.core.autointegration import DEFAULT_BENCH_POINT_S, MIN_BUDGET_PERIODS
 from bodebench.core.rules import CRITERIA, MIN_NOISE_EVIDENCE
 from bodebench.core.summary import RESPONSE_KINDS
-from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS, MODES
+from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS
+from bodebench.drivers.device_profile import PROFILES
 from bodebench.io.schema import FieldError
-from bodebench.sim.cia402_drive import Cia402Faults
+from bodebench.sim.canopen_device import CanopenFaults
 from bodebench.sim.faults import FaultConfig
 
 DEFAULT_DISTURBANCE_HZ = (50.0,)
@@ -70,8 +71,10 @@ class PlantConfig:
 
     model: str = field(
         metadata={
-            "choices": ("coulomb", "linear", "lag", "hydraulic"),
-            "doc": "plant model: coulomb, linear, lag or hydraulic (electrohydraulic position drive, SI units)",
+            "choices": ("coulomb", "linear", "lag", "hydraulic", "valve"),
+            "doc": "plant model: coulomb, linear, lag, hydraulic (electrohydraulic position drive, SI units) or valve "
+                   "(a proportional valve's spool in its position loop: valve_natural_frequency_hz, "
+                   "valve_damping_ratio)",
         }
     )
     mass: float = field(
@@ -124,11 +127,13 @@ class PlantConfig:
     )
     valve_natural_frequency_hz: float = field(
         default=150.0,
-        metadata={"min": 0, "min_exclusive": True, "only_if": _HYDRAULIC, "doc": "servo valve natural frequency, Hz"},
+        metadata={"min": 0, "min_exclusive": True, "only_if": ("model", ("hydraulic", "valve")),
+                  "doc": "servo valve natural frequency, Hz"},
     )
     valve_damping_ratio: float = field(
         default=0.7,
-        metadata={"min": 0, "only_if": _HYDRAULIC, "doc": "servo valve damping ratio (dimensionless)"},
+        metadata={"min": 0, "only_if": ("model", ("hydraulic", "valve")),
+                  "doc": "servo valve damping ratio (dimensionless)"},
     )
     piston_area: float = field(
         default=5e-4,
@@ -498,27 +503,36 @@ class CanConfig:
 
 @dataclass(frozen=True)
 class CanopenConfig:
-    """A CANopen (CiA 402) drive on the [can] bus: its node, EDS and the objects the sweep uses."""
+    """A CANopen device on the [can] bus (a CiA 402 drive or a CiA 408 valve or hydraulic drive): its node, EDS,
+    profile and the objects the sweep uses."""
 
     TABLE_OPTIONAL = True
 
-    node_id: int = field(metadata={"min": 1, "max": 127, "doc": "the drive's CANopen node id"})
+    node_id: int = field(metadata={"min": 1, "max": 127, "doc": "the device's CANopen node id"})
     eds: str = field(default="", metadata={
-        "doc": "the drive's EDS or DCF file (relative to the config file); empty with [simulator]: the simulated "
-               "drive's shipped EDS"})
-    mode: str = field(default="csp", metadata={
-        "choices": tuple(MODES), "doc": "mode of operation: csp, csv, cst (cyclic synchronous position, velocity, "
-                                       "torque), pv, tq (profile velocity, torque)"})
+        "doc": "the device's EDS or DCF file (relative to the config file); empty with [simulator]: the simulated "
+               "device's shipped EDS"})
+    profile: str = field(default="402", metadata={
+        "choices": tuple(PROFILES), "doc": "the device profile: 402 (drives) or 408 (fluid power: valves, hydraulic "
+                                           "drives)"})
+    mode: str = field(default="", metadata={
+        "choices": ("", *dict.fromkeys(m for p in PROFILES.values() for m in p.modes)),
+        "doc": "CiA 402 mode of operation: csp (default), csv, cst (cyclic synchronous position, velocity, torque), "
+               "pv, tq (profile velocity, torque); CiA 408 control mode: spool (default, spool position closed "
+               "loop), spool_open_loop, velocity, position (axis)"})
     setpoint: str = field(default="", metadata={
-        "doc": "the object the RPDO carries: index[:subindex] or EDS name; empty: the mode's target object "
-               "(0x607A, 0x60FF or 0x6071)"})
-    setpoint_scale: float = field(default=1.0, metadata={"nonzero": True,
-                                                         "doc": "setpoint units per count of the setpoint object"})
+        "doc": "the object the RPDO carries: index[:subindex] or EDS name; empty: the mode's set point object "
+               "(CiA 402 0x607A, 0x60FF or 0x6071; CiA 408 0x6300:1, 0x6500:1 or 0x6600:1)"})
+    setpoint_scale: float | None = field(default=None, metadata={
+        "nonzero": True, "doc": "setpoint units per count of the setpoint object (CiA 402 default 1; CiA 408 "
+                                "default: a spool value in % of its reference value 0x6311:1, any other process "
+                                "value 10**prefix from its sub-index 3 in the EDS)"})
     actual: dict = field(default_factory=dict, metadata={
         "doc": "channel = object the TPDO carries after the statusword, in order (counter: a sample counter, "
-               "timestamp_us: a controller time); empty: position = 0x6064"})
+               "timestamp_us: a controller time); empty: the mode's actual value (CiA 402 position = 0x6064; CiA "
+               "408 spool = 0x6301:1, velocity = 0x6501:1, position = 0x6601:1)"})
     actual_scale: dict = field(default_factory=dict, metadata={
-        "doc": "channel = its units per count (default 1)"})
+        "doc": "channel = its units per count (default as setpoint_scale's, for the actual value's object)"})
     rpdo: int = field(default=1, metadata={"min": 1, "max": 4, "doc": "the RPDO that carries the setpoint"})
     tpdo: int = field(default=1, metadata={"min": 1, "max": 4, "doc": "the TPDO that carries the actual values"})
     sync: str = field(default="produce", metadata={
@@ -554,8 +568,17 @@ class CanopenConfig:
             return self.drive_heartbeat_timeout_ms
         return min(65535, 20 * self.host_heartbeat_ms)
 
+    @property
+    def mode_name(self) -> str:
+        """The mode the sweep runs in: ``mode`` or the profile's default."""
+        return self.mode or PROFILES[self.profile].default_mode
+
     def validate(self, where: Callable[[str], str]) -> None:
-        """The scales, the heartbeats and the host's node id; raises :class:`FieldError`."""
+        """The mode, the scales, the heartbeats and the host's node id; raises :class:`FieldError`."""
+        profile = PROFILES[self.profile]
+        if self.mode_name not in profile.modes:
+            raise FieldError("mode", f'"{self.mode}" is not a {profile.name} mode (with {where("profile")} = '
+                                     f'"{self.profile}": {", ".join(profile.modes)})')
         for table, name in ((self.actual, "actual"), (self.actual_scale, "actual_scale")):
             for channel, value in table.items():
                 ok = isinstance(value, str) and value.strip() if name == "actual" else (
@@ -566,7 +589,7 @@ class CanopenConfig:
                         "a finite non-zero number"
                     raise FieldError(name, f"{channel}: expected {expected}, got {value!r}")
         for channel in self.actual_scale:
-            if channel not in (self.actual or {"position": ""}):
+            if channel not in (self.actual or PROFILES[self.profile].actuals[self.mode_name]):
                 raise FieldError("actual_scale", f"{channel}: not a channel of canopen.actual")
         if self.heartbeat_ms and self.heartbeat_timeout_s <= self.heartbeat_ms / 1000:
             raise FieldError("heartbeat_timeout_s", f"must be longer than the heartbeat period "
@@ -639,7 +662,7 @@ class SimulatorConfig:
                                                   "doc": "frequency of the hum, Hz"})
     faults: FaultConfig = field(default_factory=FaultConfig, metadata={
         "doc": "fault injection on the wire and in the drive (README, \"Faults and what bodebench does\")"})
-    cia402: Cia402Faults = field(default_factory=Cia402Faults, metadata={
+    canopen: CanopenFaults = field(default_factory=CanopenFaults, metadata={
         "doc": "faults of the simulated CiA 402 drive (transport canopen)"})
 
 

@@ -1,5 +1,8 @@
-"""A simulated CiA 402 servo drive: a canopen ``LocalNode`` (the shipped EDS, or any with the same objects) around a
-``SimulatedController``'s plant.
+"""Simulated CANopen devices: a CiA 402 servo drive and a CiA 408 fluid-power device (a proportional valve or a
+hydraulic drive), each a canopen ``LocalNode`` (the shipped EDS of its profile, or any with the same objects) around
+a ``SimulatedController``'s plant. The CiA 408 device differs from the drive only where the profiles do: its state
+machine (``drivers.cia408``: DISABLED, HOLD, ACTIVE and the fault states, a hardware enable input), its device mode
+0x6042 and control mode 0x6043, and its reaction to a lost host (a fault: EMCY, FAULT_REACTION, FAULT_DISABLED).
 
 What it honours, as a drive does:
 
@@ -10,13 +13,14 @@ What it honours, as a drive does:
 - SYNC: each SYNC holds the latest setpoint over one control period on the plant (``SimulatedController.advance``)
   and samples the actual values at its end, so a lockstep host gets the same zero-order-hold record as from the
   other simulated links;
-- the power state machine (``drivers.cia402``): the plant gets a zero setpoint unless "operation enabled";
+- the power state machine (``drivers.cia402``): the plant gets a zero setpoint unless "operation enabled" (CiA 408:
+  unless ACTIVE with device mode 1; in HOLD the hold set point, zero);
 - a lost host: the heartbeat consumer times of 0x1016 (node id << 16 | time in ms) and the abort connection option
   code 0x6007 (where its EDS has them). A watched node's heartbeat, once seen, missing for longer than its consumer
   time is a heartbeat event: the drive says so, sends an EMCY (0x8130) and takes the 0x6007 reaction (1 fault,
   2 disable voltage, 3 quick stop, 0 none). ``check_heartbeat`` checks on the wall clock; ``ServingCanopen`` calls it
   from a thread of its own, as a drive's timer does, so a host that died (and sends no SYNC) is still noticed;
-- faults (``Cia402Faults``): it refuses to enable, sends an EMCY and goes to fault, stops its heartbeat, or falls
+- faults (``CanopenFaults``): it refuses to enable, sends an EMCY and goes to fault, stops its heartbeat, or falls
   silent altogether, at a given controller time; at random, it misses a SYNC (the plant holds the setpoint it had
   over that period, no TPDO), drops a TPDO, or sends one late: after the next SYNC, just before that SYNC's own.
 """
@@ -29,8 +33,10 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from enum import StrEnum
+from typing import TYPE_CHECKING, Any, cast
 
+from bodebench.drivers import cia408
 from bodebench.drivers.canopen_link import (
     ABORT_CONNECTION,
     CONTROLWORD_OBJECT,
@@ -52,34 +58,42 @@ from bodebench.drivers.cia402 import (
     statusword,
 )
 from bodebench.drivers.codec import COUNTER
+from bodebench.drivers.device_profile import CIA402, CIA408, DeviceProfile
 from bodebench.sim.controller import SimulatedController
 
 if TYPE_CHECKING:
     import canopen
 
-__all__ = ["Cia402Faults", "SimulatedCia402Drive", "ServingCanopen", "serve_canopen"]
+__all__ = ["CanopenFaults", "ServingCanopen", "SimulatedCia402Drive", "SimulatedCia408Device", "serve_canopen"]
 
 SAMPLE_COUNTER = 0x2000
 """The shipped EDS's sample counter (UNSIGNED16): control periods stepped."""
 ERROR_CODE = 0x603F
+DEVICE_ERROR_CODE = 0x604E
+"""CiA 408 device error code."""
+DEVICE_MODE = 0x6042
+CONTROL_MODE = 0x6043
 HEARTBEAT_ERROR = 0x8130
 """EMCY error code of a heartbeat event (CiA 301: life guard error or heartbeat error)."""
 _ABORT_NAMES = {0: "no action", **{code: name for name, code in ABORT_CONNECTION_OPTIONS.items()}}
 
 
 @dataclass(frozen=True)
-class Cia402Faults:
-    """Faults of the simulated CiA 402 drive (times in s of controller time; 0: never).
+class CanopenFaults:
+    """Faults of the simulated CANopen device (times in s of controller time; 0: never).
 
-    refuse_enable: the drive stays "switched on" when told to enable operation. emcy_at_s, emcy_code: from then on
-    the drive is in fault, having sent an EMCY with this error code. heartbeat_stops_at_s: its heartbeat stops (the
-    PDOs go on). silent_at_s: it answers nothing more (no heartbeat, PDO or SDO). sync_miss, tpdo_drop, tpdo_late:
-    probabilities per SYNC that the drive misses it (no new setpoint taken, no TPDO; the plant goes on), that its
-    TPDOs are not sent, that they are sent late (after the next SYNC arrived, before that SYNC's own); seed: of
+    refuse_enable: the drive stays "switched on" when told to enable operation (CiA 408: in HOLD when told ACTIVE).
+    enable_input: (CiA 408) the hardware enable input is set; False: the device stays DISABLED. emcy_at_s, emcy_code:
+    from then on the drive is in fault, having sent an EMCY with this error code. heartbeat_stops_at_s: its heartbeat
+    stops (the PDOs go on). silent_at_s: it answers nothing more (no heartbeat, PDO or SDO). sync_miss, tpdo_drop,
+    tpdo_late: probabilities per SYNC that the drive misses it (no new setpoint taken, no TPDO; the plant goes on), that
+    its TPDOs are not sent, that they are sent late (after the next SYNC arrived, before that SYNC's own); seed: of
     these draws.
     """
 
-    refuse_enable: bool = field(default=False, metadata={"doc": "never reach operation enabled"})
+    refuse_enable: bool = field(default=False, metadata={"doc": "never reach operation enabled (CiA 408: ACTIVE)"})
+    enable_input: bool = field(default=True, metadata={"doc": "CiA 408: the hardware enable input is set (false: "
+                                                              "the device stays DISABLED)"})
     emcy_at_s: float = field(default=0.0, metadata={"min": 0, "doc": "EMCY and fault at this controller time, s"})
     emcy_code: int = field(default=0x2310, metadata={"min": 0x1000, "max": 0xFFFF,
                                                      "doc": "error code of that EMCY (0x2310: continuous "
@@ -97,8 +111,9 @@ class Cia402Faults:
     @property
     def any(self) -> bool:
         """True when any fault is configured."""
-        return self.refuse_enable or bool(self.emcy_at_s or self.heartbeat_stops_at_s or self.silent_at_s
-                                          or self.sync_miss or self.tpdo_drop or self.tpdo_late)
+        return self.refuse_enable or not self.enable_input or bool(
+            self.emcy_at_s or self.heartbeat_stops_at_s or self.silent_at_s or self.sync_miss or self.tpdo_drop
+            or self.tpdo_late)
 
 
 class SimulatedCia402Drive:
@@ -109,20 +124,20 @@ class SimulatedCia402Drive:
     ``heartbeats_consumed`` (heartbeats of watched nodes taken in), ``heartbeat_events`` (lost heartbeats acted
     on)."""
 
-    def __init__(self, controller: SimulatedController, setup: CanopenSetup, faults: Cia402Faults | None = None,
+    def __init__(self, controller: SimulatedController, setup: CanopenSetup, faults: CanopenFaults | None = None,
                  on_event: Callable[[str], None] | None = None) -> None:
         self.controller = controller
         self.setup = setup
         self.faults = faults if faults is not None and faults.any else None
         self.on_event = on_event or (lambda text: None)
-        self.state = State.SWITCH_ON_DISABLED
+        self.state: StrEnum = self._initial_state()
         controller.enabled = False
         self.mode = 0
         self.error_code = 0
         self.syncs = 0
         self.silent = False
-        self.transitions: list[tuple[State, State]] = []
-        self._controlword = 0
+        self.transitions: list[tuple[StrEnum, StrEnum]] = []
+        self._last_word = 0  # the latest controlword written
         self._heartbeat_stopped = False
         self._rpdos: list[Any] = []
         self._tpdos: list[Any] = []
@@ -173,13 +188,87 @@ class SimulatedCia402Drive:
         assert self.node is not None
         return self.node.nmt.state
 
-    def _go(self, state: State, why: str) -> None:
+    # ----------------------------------------------------------------------------------------------------------
+    # the profile: what a CiA 408 device does otherwise
+    profile: DeviceProfile = CIA402
+    error_code_object = ERROR_CODE
+
+    def _initial_state(self) -> StrEnum:
+        """The state after boot."""
+        return State.SWITCH_ON_DISABLED
+
+    def _statusword(self) -> int:
+        return statusword(cast(State, self.state), warning=self.error_code != 0)
+
+    def _controlword(self, word: int) -> None:
+        """A controlword written (``self._last_word`` is the one before it)."""
+        command = command_of(word, self._last_word)
+        new = next_state(cast(State, self.state), command)
+        if command is Command.FAULT_RESET and self.state is State.FAULT:
+            self._clear_error()
+        if new is State.OPERATION_ENABLED and self.faults is not None and self.faults.refuse_enable:
+            self.on_event(f"refuses to enable operation (controlword 0x{word:04X})")
+            return
+        self._go(new, f"controlword 0x{word:04X}")
+
+    def _write_mode(self, index: int, data: bytes) -> bool:
+        """A write to a mode object: taken (True), refused (SdoAbortedError), or not a mode object (False)."""
+        from canopen.sdo import SdoAbortedError
+
+        if index != MODES_OF_OPERATION:
+            return False
+        mode = int.from_bytes(data, "little", signed=True)
+        if mode not in MODES.values():
+            raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
+        self.mode = mode
+        return True
+
+    def _read_mode(self, index: int) -> int | None:
+        return self.mode if index == MODES_DISPLAY else None
+
+    def _fault(self, why: str) -> None:
+        """Go to the fault state (an EMCY was sent)."""
+        self._go(State.FAULT, why)
+
+    def _left_operational(self, why: str) -> None:
+        """NMT left operational: a running drive stops."""
+        if self.state is State.OPERATION_ENABLED:
+            self._go(State.SWITCH_ON_DISABLED, why)
+
+    def _lost_host(self, why: str) -> None:
+        """The reaction to a lost heartbeat: the abort connection option code 0x6007."""
+        option = self.abort_option
+        if option == ABORT_CONNECTION_OPTIONS["fault"]:
+            if self.state not in (State.FAULT, State.SWITCH_ON_DISABLED, State.NOT_READY):
+                self.error_code = HEARTBEAT_ERROR
+                self._go(State.FAULT, why)
+        elif option == ABORT_CONNECTION_OPTIONS["disable voltage"]:
+            self._go(next_state(cast(State, self.state), Command.DISABLE_VOLTAGE), why)
+        elif option == ABORT_CONNECTION_OPTIONS["quick stop"]:
+            self._go(next_state(cast(State, self.state), Command.QUICK_STOP), why)
+
+    def _lost_host_note(self) -> str:
+        option = self.abort_option
+        return f"abort connection option {option} ({_ABORT_NAMES.get(option, 'manufacturer-specific: no action')})"
+
+    @property
+    def running(self) -> bool:
+        """Whether the bus set point acts on the plant."""
+        return self.state is self.profile.running
+
+    def _clear_error(self) -> None:
+        self.error_code = 0
+        assert self.node is not None
+        self.node.emcy.reset()
+
+    # ----------------------------------------------------------------------------------------------------------
+    def _go(self, state: StrEnum, why: str) -> None:
         if state is self.state:
             return
         self.transitions.append((self.state, state))
         self.on_event(f"{state} ({why})")
         self.state = state
-        enabled = state is State.OPERATION_ENABLED
+        enabled = self.running
         if not enabled and self.controller.setpoint != 0.0:
             self.on_event(f"setpoint zeroed (was {self.controller.setpoint:g})")
         self.controller.enabled = enabled
@@ -190,10 +279,11 @@ class SimulatedCia402Drive:
     # object dictionary
     def _on_read(self, index: int, subindex: int, od: Any) -> int | None:
         if index == STATUSWORD:
-            return statusword(self.state, warning=self.error_code != 0)
-        if index == MODES_DISPLAY:
-            return self.mode
-        if index == ERROR_CODE:
+            return self._statusword()
+        mode = self._read_mode(index)
+        if mode is not None:
+            return mode
+        if index == self.error_code_object:
             return self.error_code
         if index == SAMPLE_COUNTER:
             return self.controller.tick_count % (1 << 16)
@@ -215,27 +305,12 @@ class SimulatedCia402Drive:
             self.abort_option = option
         elif index == CONTROLWORD_OBJECT:
             word = int.from_bytes(data, "little")
-            command = command_of(word, self._controlword)
-            self._controlword = word
-            self._command(command, word)
-        elif index == MODES_OF_OPERATION:
-            mode = int.from_bytes(data, "little", signed=True)
-            if mode not in MODES.values():
-                raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
-            self.mode = mode
+            self._controlword(word)
+            self._last_word = word
+        elif self._write_mode(index, data):
+            pass
         elif (index, subindex) == self._setpoint_key:
             self._setpoint_raw = od.decode_raw(data)
-
-    def _command(self, command: Command | None, word: int) -> None:
-        new = next_state(self.state, command)
-        if command is Command.FAULT_RESET and self.state is State.FAULT:
-            self.error_code = 0
-            assert self.node is not None
-            self.node.emcy.reset()
-        if new is State.OPERATION_ENABLED and self.faults is not None and self.faults.refuse_enable:
-            self.on_event(f"refuses to enable operation (controlword 0x{word:04X})")
-            return
-        self._go(new, f"controlword 0x{word:04X}")
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if self.silent or len(data) < 2 or data[1] not in (0, self.setup.node_id):
@@ -249,8 +324,7 @@ class SimulatedCia402Drive:
             self.on_event("NMT operational")
         else:
             self._rpdos, self._tpdos = [], []
-            if self.state is State.OPERATION_ENABLED:
-                self._go(State.SWITCH_ON_DISABLED, f"left NMT operational: {self.nmt_state.lower()}")
+            self._left_operational(f"left NMT operational: {self.nmt_state.lower()}")
             self.on_event(f"NMT {self.nmt_state.lower()}")
 
     # ----------------------------------------------------------------------------------------------------------
@@ -290,9 +364,8 @@ class SimulatedCia402Drive:
                 return
             if node_id not in self._heard:
                 limit = min(t for n, t in self.consumers.values() if n == node_id)
-                option = self.abort_option
-                self.on_event(f"watching the heartbeat of node {node_id} (consumer time {limit:g} s; abort "
-                              f"connection option {option}: {_ABORT_NAMES.get(option, 'manufacturer-specific')})")
+                self.on_event(f"watching the heartbeat of node {node_id} (consumer time {limit:g} s; "
+                              f"{self._lost_host_note()})")
             self._heard[node_id] = time.monotonic()
             self.heartbeats_consumed += 1
 
@@ -322,22 +395,12 @@ class SimulatedCia402Drive:
     def _heartbeat_lost(self, node_id: int, silent: float, limit: float) -> None:
         assert self.node is not None
         self.heartbeat_events += 1
-        option = self.abort_option
-        name = _ABORT_NAMES.get(option, "manufacturer-specific: no action here")
-        self.on_event(f"heartbeat of node {node_id} lost for {silent:.3f} s (consumer time {limit:g} s): abort "
-                      f"connection option {option} ({name})")
+        self.on_event(f"heartbeat of node {node_id} lost for {silent:.3f} s (consumer time {limit:g} s): "
+                      f"{self._lost_host_note()}")
         self.node.emcy.send(HEARTBEAT_ERROR, 0x11)  # error register: generic error, communication error
-        why = f"heartbeat of node {node_id} lost"
-        was = self.state
-        if option == ABORT_CONNECTION_OPTIONS["fault"]:
-            if self.state not in (State.FAULT, State.SWITCH_ON_DISABLED, State.NOT_READY):
-                self.error_code = HEARTBEAT_ERROR
-                self._go(State.FAULT, why)
-        elif option == ABORT_CONNECTION_OPTIONS["disable voltage"]:
-            self._go(next_state(self.state, Command.DISABLE_VOLTAGE), why)
-        elif option == ABORT_CONNECTION_OPTIONS["quick stop"]:
-            self._go(next_state(self.state, Command.QUICK_STOP), why)
-        if was is State.OPERATION_ENABLED and self.state is not State.OPERATION_ENABLED:
+        was = self.running
+        self._lost_host(f"heartbeat of node {node_id} lost")
+        if was and not self.running:
             self.controller.applied = 0.0  # the output stage holds zero from here on
 
     def _read_pdos(self) -> None:
@@ -384,16 +447,16 @@ class SimulatedCia402Drive:
                 if (var.index, var.subindex) == self._setpoint_key and rpdo.is_received:
                     self._setpoint_raw = var.raw
         value = float(self._setpoint_raw) * self.setup.setpoint_scale
-        c.setpoint = value if self.state is State.OPERATION_ENABLED and math.isfinite(value) else 0.0
-        c.enabled = self.state is State.OPERATION_ENABLED
+        c.setpoint = value if self.running and math.isfinite(value) else 0.0
+        c.enabled = self.running
         y = c.advance()
         self.syncs += 1
-        if f is not None and f.emcy_at_s and self.error_code == 0 and self.state is not State.FAULT \
+        if f is not None and f.emcy_at_s and self.error_code == 0 and self.state not in self.profile.faults \
                 and self._due(f.emcy_at_s):
             self.error_code = f.emcy_code
             self.node.emcy.send(f.emcy_code, 0x03)  # error register: generic error, current
             self.on_event(f"EMCY 0x{f.emcy_code:04X}")
-            self._go(State.FAULT, f"error 0x{f.emcy_code:04X}")
+            self._fault(f"error 0x{f.emcy_code:04X}")
         drop = f is not None and f.tpdo_drop > 0 and self._draws.random() < f.tpdo_drop
         hold = f is not None and f.tpdo_late > 0 and self._draws.random() < f.tpdo_late
         for tpdo in self._tpdos:
@@ -416,7 +479,7 @@ class SimulatedCia402Drive:
         """The value of a mapped object after this period: statusword, sample counter, an actual value in counts."""
         key = (var.index, var.subindex)
         if var.index == STATUSWORD:
-            return statusword(self.state, warning=self.error_code != 0)
+            return self._statusword()
         channel = self._channel_of.get(key)
         if channel is None:
             if var.index == SAMPLE_COUNTER:
@@ -441,6 +504,93 @@ class SimulatedCia402Drive:
         self.node.nmt.stop_heartbeat()
         self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
         self.on_event("fell silent (no heartbeat, PDO or SDO answer)")
+
+
+class SimulatedCia408Device(SimulatedCia402Drive):
+    """A simulated CiA 408 device (a proportional valve, or a hydraulic drive in axis position or velocity control:
+    whichever the plant is) with the drive's NMT, PDO, SYNC, heartbeat consumer and faults, and the CiA 408 state
+    machine: it boots to DISABLED; HOLD and ACTIVE need the hardware enable input (``CanopenFaults.enable_input``);
+    bus set points act only in ACTIVE with device mode 0x6042 = 1; a fault (an EMCY, a lost host) goes through
+    FAULT_REACTION to FAULT_DISABLED, left by a rising edge of controlword bit 3."""
+
+    profile = CIA408
+    error_code_object = DEVICE_ERROR_CODE
+
+    def __init__(self, controller: SimulatedController, setup: CanopenSetup, faults: CanopenFaults | None = None,
+                 on_event: Callable[[str], None] | None = None) -> None:
+        super().__init__(controller, setup, faults, on_event)
+        self.device_mode = 0
+        self.control_mode = 0
+
+    def attach(self, network: canopen.Network) -> None:
+        """As the drive's; device and control mode start as the EDS has them."""
+        super().attach(network)
+        assert self.node is not None
+        od: Any = self.node.object_dictionary
+        self.device_mode = int(od[DEVICE_MODE].default or 0)
+        self.control_mode = int(od[CONTROL_MODE].default or 0)
+
+    def _initial_state(self) -> StrEnum:
+        return cia408.State.DISABLED  # NOT READY and INIT pass during the boot
+
+    def _statusword(self) -> int:
+        return cia408.statusword(cast(cia408.State, self.state))
+
+    @property
+    def running(self) -> bool:
+        return self.state is cia408.State.ACTIVE and self.device_mode == 1
+
+    @property
+    def _enable_input(self) -> bool:
+        return self.faults is None or self.faults.enable_input
+
+    def _controlword(self, word: int) -> None:
+        state = cast(cia408.State, self.state)
+        new = cia408.next_state(state, word, self._last_word, enable_input=self._enable_input)
+        if state in cia408.FAULT_STATES and new not in cia408.FAULT_STATES:
+            self._clear_error()
+        if new is cia408.State.ACTIVE and self.faults is not None and self.faults.refuse_enable:
+            self.on_event(f"refuses to go ACTIVE (controlword 0x{word:04X})")
+            new = cia408.State.HOLD
+        if new is cia408.State.DISABLED and cia408.requested_state(word) in (cia408.State.HOLD, cia408.State.ACTIVE) \
+                and not self._enable_input:
+            self.on_event(f"stays DISABLED: no hardware enable input (controlword 0x{word:04X})")
+        self._go(new, f"controlword 0x{word:04X}")
+
+    def _write_mode(self, index: int, data: bytes) -> bool:
+        from canopen.sdo import SdoAbortedError
+
+        if index not in (DEVICE_MODE, CONTROL_MODE):
+            return False
+        value = int.from_bytes(data, "little", signed=True)
+        if index == DEVICE_MODE:
+            if value not in (1, 3, 4):  # set points via the bus, install, reference mode
+                raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
+            self.device_mode = value
+        else:
+            if value not in cia408.CONTROL_MODES.values():
+                raise SdoAbortedError(0x06090030)
+            self.control_mode = value
+        return True
+
+    def _read_mode(self, index: int) -> int | None:
+        return {DEVICE_MODE: self.device_mode, CONTROL_MODE: self.control_mode}.get(index)
+
+    def _fault(self, why: str) -> None:
+        self._go(cia408.State.FAULT_REACTION, why)
+        self._go(cia408.State.FAULT_DISABLED, "fault reaction done")
+
+    def _left_operational(self, why: str) -> None:
+        if self.state in (cia408.State.ACTIVE, cia408.State.HOLD):
+            self._go(cia408.State.DISABLED, why)
+
+    def _lost_host(self, why: str) -> None:
+        if self.state in (cia408.State.HOLD, cia408.State.ACTIVE):
+            self.error_code = HEARTBEAT_ERROR
+            self._fault(why)
+
+    def _lost_host_note(self) -> str:
+        return "a lost host is a fault: FAULT_REACTION, then FAULT_DISABLED"
 
 
 class ServingCanopen:
@@ -475,9 +625,10 @@ class ServingCanopen:
 
 
 def serve_canopen(controller: SimulatedController, setup: CanopenSetup, can: dict[str, Any],
-                  faults: Cia402Faults | None = None) -> ServingCanopen:
-    """Serve a simulated CiA 402 drive around ``controller`` on a python-can bus opened from ``can`` (interface,
-    channel, bitrate, options); the drive's events go to ``controller.on_event``."""
+                  faults: CanopenFaults | None = None) -> ServingCanopen:
+    """Serve a simulated CANopen device of ``setup.profile`` (a CiA 402 drive or a CiA 408 device) around
+    ``controller`` on a python-can bus opened from ``can`` (interface, channel, bitrate, options); the device's events
+    go to ``controller.on_event``."""
     import can as python_can
     import canopen
 
@@ -486,7 +637,8 @@ def serve_canopen(controller: SimulatedController, setup: CanopenSetup, can: dic
         kwargs["bitrate"] = can["bitrate"]
     bus = python_can.Bus(interface=can["interface"], channel=can.get("channel"), **kwargs)
     network = canopen.Network(bus)
-    drive = SimulatedCia402Drive(controller, setup, faults, lambda text: controller.on_event(text))
+    kind = SimulatedCia408Device if setup.profile == "408" else SimulatedCia402Drive
+    drive = kind(controller, setup, faults, lambda text: controller.on_event(text))
     try:
         network.connect()
         drive.attach(network)
