@@ -1,4 +1,4 @@
-"""Faults on the simulated chain: what the measurement does for each (README, "Faults and what bodebench does").
+"""Faults on the simulated chain: what the measurement does for each (docs/faults.md).
 
 Every case runs the whole chain (python-can's virtual bus or a serial pseudo-terminal) against the simulated
 drive with the fault injected; a completed sweep must agree with the fault-free offline run of the same config.

@@ -4,7 +4,7 @@ A rule looks at the per-period Fourier coefficients of one series (one
 channel, one harmonic), held as complex numbers ``Z(i) = P(i) + j Q(i)``, and
 decides after period ``n`` whether the point is measured and what its value
 is. The paper's rules are implemented exactly as printed; ``adaptive`` is the
-default, built to deliver the requested error (see the README's "Stopping
+default, built to deliver the requested error (see docs/measurement.md, "Stopping
 rules" section for the evidence).
 
 Pure numerics: no I/O, no threads.

@@ -30,7 +30,7 @@ COLUMN_DOCS: dict[str, str] = {
     "q": "Q, averaged cosine coefficient of harmonic k, output units",
     "periods": "periods integrated, the skipped ones included",
     "converged": "true when the stopping rule's error bound met the tolerance",
-    "status": "converged, below_resolution, noise_limited, capped or fixed (README: statuses)",
+    "status": "converged, below_resolution, noise_limited, capped or fixed (docs/measurement.md, Results)",
     "uncertainty": "radius of the confidence disc of (P, Q), output units",
     "gain_ci": "half-width of the gain's confidence interval, output units per input unit",
     "gain_db_ci": "half-width of the gain's confidence interval above the gain, dB",

@@ -37,7 +37,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-__all__ = ["ConfigError", "FieldError", "build_table"]
+__all__ = ["ConfigError", "FieldError", "KeyDoc", "build_table", "check_value", "describe_table"]
 
 T = TypeVar("T")
 
@@ -190,6 +190,91 @@ def _schema(cls: type) -> tuple[_Field, ...]:
     result = tuple(out)
     _SCHEMAS[cls] = result
     return result
+
+
+@dataclass(frozen=True)
+class KeyDoc:
+    """One configuration key as its field declares it: ``key`` (dotted, within its table), ``type`` (as TOML
+    writes it), ``default`` (as TOML writes it; "required" or "none"), ``rule`` (its bounds, choices and array
+    rules in words, empty for none), ``doc`` and ``only_if`` (the models or modes it belongs to, in words)."""
+
+    key: str
+    type: str
+    default: str
+    rule: str
+    doc: str
+    only_if: str
+
+
+_TOML_TYPES = {float: "number", int: "integer", str: "string", bool: "boolean", dict: "table"}
+
+
+def _rule(meta: Mapping[str, Any], array: bool) -> str:
+    """The bounds, choices and array rules of a field's metadata, in words (as the loader enforces them)."""
+    parts = []
+    lo, hi = meta.get("min"), meta.get("max")
+    lo_op = ">" if meta.get("min_exclusive", False) else ">="
+    hi_op = "<" if meta.get("max_exclusive", False) else "<="
+    if lo is not None and hi is not None:
+        parts.append(f"{lo_op} {_show(lo)} and {hi_op} {_show(hi)}")
+    elif lo is not None:
+        parts.append(f"{lo_op} {_show(lo)}")
+    elif hi is not None:
+        parts.append(f"{hi_op} {_show(hi)}")
+    if meta.get("nonzero", False):
+        parts.append("!= 0")
+    if meta.get("choices") is not None:
+        parts.append("one of " + ", ".join(_show(c) for c in meta["choices"]))
+    if array and meta.get("non_empty", False):
+        parts.append("at least one element")
+    if array and meta.get("unique", False):
+        parts.append("no element twice")
+    if array and parts:
+        parts[0] = "each " + parts[0] if not parts[0].startswith(("at least", "no element")) else parts[0]
+    return "; ".join(parts)
+
+
+def describe_table(cls: type, prefix: str = "") -> list[KeyDoc]:
+    """Every key of table dataclass ``cls`` (nested tables' keys as ``inner.key``), from the same field
+    declarations :func:`build_table` enforces."""
+    out: list[KeyDoc] = []
+    for spec in _schema(cls):
+        key = f"{prefix}{spec.name}"
+        if dataclasses.is_dataclass(spec.base):
+            out.append(KeyDoc(key, "table", "none" if spec.optional else "{}", "", str(spec.meta.get("doc", "")), ""))
+            out.extend(describe_table(spec.base, f"{key}."))
+            continue
+        kind = _TOML_TYPES[spec.base]
+        kind = f"array of {kind}s" if spec.array else kind
+        if spec.required:
+            default = "required"
+        elif spec.default is None:
+            default = "none"
+        elif spec.array:
+            default = "[" + ", ".join(_show(v) for v in spec.default) + "]"
+        elif isinstance(spec.default, dict):
+            default = "{}" if not spec.default else json.dumps(spec.default)
+        else:
+            default = _show(spec.default)
+        only_if = ""
+        if "only_if" in spec.meta:
+            other, allowed = spec.meta["only_if"]
+            only_if = f"{other} = " + " or ".join(_show(a) for a in allowed)
+        out.append(KeyDoc(key, kind, default, _rule(spec.meta, spec.array), str(spec.meta.get("doc", "")), only_if))
+    return out
+
+
+def check_value(cls: type, name: str, value: Any) -> str | None:
+    """What is wrong with ``value`` for key ``name`` of table dataclass ``cls`` by its declaration (type, bounds,
+    choices), in words; None when the loader would take it. For an editor of one value (the terminal UI)."""
+    spec = next((s for s in _schema(cls) if s.name == name), None)
+    if spec is None:
+        raise KeyError(f"{cls.__name__} has no key {name!r}")
+    try:
+        _convert(spec, value, name)
+    except _Fault as fault:
+        return fault.problem
+    return None
 
 
 class _Fault(Exception):

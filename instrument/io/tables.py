@@ -661,7 +661,7 @@ class SimulatorConfig:
     hum_hz: float = field(default=50.0, metadata={"min": 0, "min_exclusive": True,
                                                   "doc": "frequency of the hum, Hz"})
     faults: FaultConfig = field(default_factory=FaultConfig, metadata={
-        "doc": "fault injection on the wire and in the drive (README, \"Faults and what bodebench does\")"})
+        "doc": "fault injection on the wire and in the drive (docs/faults.md)"})
     canopen: CanopenFaults = field(default_factory=CanopenFaults, metadata={
         "doc": "faults of the simulated CiA 402 drive (transport canopen)"})
 

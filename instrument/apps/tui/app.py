@@ -60,7 +60,7 @@ from bodebench.bench.session import completed_frequencies
 from bodebench.bench.worker import Health
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.summary import summarize_response
-from bodebench.io.config import CaseConfig, ExperimentConfig
+from bodebench.io.config import AnalysisConfig, CaseConfig, ExperimentConfig
 from bodebench.io.results import (
     CSV_NAME,
     ResultsError,
@@ -69,6 +69,7 @@ from bodebench.io.results import (
     sidecar_runs,
     update_sidecar,
 )
+from bodebench.io.schema import check_value
 from bodebench.status import FaultKind
 
 VIEWS = ("live", "sweep", "bode", "bus")
@@ -425,9 +426,8 @@ class BodeBenchApp(App[int]):
                 value = float(text)
             except ValueError:
                 return f"not a number: {text!r}"
-            if not (math.isfinite(value) and 0.0 < value < 100.0):
-                return f"the tolerance must be between 0 and 100 %, got {text}"
-            return None
+            problem = check_value(AnalysisConfig, "tolerance_percent", value)
+            return f"the tolerance {problem}" if problem else None
 
         def done(text: str | None) -> None:
             if text is None:
