@@ -175,8 +175,8 @@ def test_a_write_failure_mid_sweep_stops_safely_and_keeps_every_point_on_disk(tm
     cfg = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
     case = load_config(cfg).cases[0]
     save_response(FrequencyResponse(config=case.raw, case=case.name), tmp_path / "probe")
-    # the sidecar (the configuration, the run's record) fits; response.csv (a comment block of about 2.5 kB, then a
-    # row of about 300 bytes per point) outgrows it within the first four frequencies; the raw samples, bigger
+    # the sidecar as it starts (the configuration, the run's record) fits; response.csv (a row of about 300 bytes per
+    # point) or the sidecar with its growing checksums outgrows it within a few frequencies; the raw samples, bigger
     # still, are not kept here
     limit = (tmp_path / "probe" / "response.json").stat().st_size + 500
 
@@ -195,5 +195,7 @@ def test_a_write_failure_mid_sweep_stops_safely_and_keeps_every_point_on_disk(tm
     assert 0 < len(kept.points) < 2 * len(freqs)
     assert all(p.converged for p in kept.points)
     assert lines[0].startswith(f"bodebench: sim_can: stopped: output: {out}: cannot write the point at ")
-    assert lines[0].endswith(f"File too large; {len(kept.points)} points kept in {out}; "
-                             "drive left at setpoint 0, disabled")
+    # the limit meets either the rows (refused whole) or, after them, the sidecar's checksums (the rows kept)
+    assert re.search(rf"File too large( \(the rows are on disk; their checksums could not be recorded in the "
+                     rf"sidecar\))?; {len(kept.points)} points kept in {re.escape(str(out))}; drive left at setpoint 0, "
+                     rf"disabled$", lines[0]), lines[0]

@@ -24,9 +24,8 @@ HEADER = (
     "uncertainty,gain_ci,gain_db_ci,phase_ci_deg,uncertainty_1d,within_eps,periods_needed,thd,coherence,"
     "periods_discarded,drift_per_s"
 )
-HEAD = 3 + len(HEADER.split(","))
-"""Comment lines above the header of a response.csv: what a row is, the confidence level, the style, a line per
-column."""
+HEAD = 0
+"""Lines above the header of a response.csv (its description is beside it, in response.csv-metadata.json)."""
 
 
 def point(
@@ -270,7 +269,8 @@ def test_save_load_round_trip_is_exact(tmp_path: Path) -> None:
         "rule": {"name": "full", "n_k": 1},
         "x": None,
     }
-    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["response.csv", "response.json"]
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["response.csv", "response.csv-metadata.json",
+                                                                     "response.json"]
 
 
 @settings(max_examples=60, deadline=None)
@@ -298,7 +298,7 @@ def test_csv_layout(tmp_path: Path) -> None:
     fr = FrequencyResponse([point(3.0, 4.0, amplitude=2.0, periods=7, converged=False, status="capped")])
     save_response(fr, tmp_path)
     lines = (tmp_path / "response.csv").read_text().splitlines()
-    assert all(line.startswith("# ") for line in lines[:HEAD]) and lines[HEAD] == HEADER
+    assert lines[HEAD] == HEADER
     cells = dict(zip(HEADER.split(","), lines[HEAD + 1].split(","), strict=False))
     assert float(cells["gain"]) == pytest.approx(2.5)
     assert cells["converged"] == "false" and cells["status"] == "capped" and cells["periods"] == "7"
@@ -309,7 +309,7 @@ def test_csv_layout(tmp_path: Path) -> None:
 def test_sidecar_content(tmp_path: Path) -> None:
     save_response(sample_response(), tmp_path)
     data = json.loads((tmp_path / "response.json").read_text())
-    assert data["format"] == "bodebench-response" and data["version"] == 5
+    assert data["format"] == "bodebench-response" and data["version"] == 6
     assert data["case"] == "friction Fbar=0.8"
     assert data["config"]["frequencies_hz"] == [1.0, 1.3, 2.0]
     assert data["software"]["name"] == "bodebench" and isinstance(data["software"]["version"], str)
@@ -427,7 +427,7 @@ def test_missing_files(tmp_path: Path) -> None:
         ("{not json", "not valid JSON"),
         ("[1, 2]", "JSON object"),
         (json.dumps({"format": "other", "version": 1, "case": "", "config": {}}), "'format'"),
-        (json.dumps({"format": "bodebench-response", "version": 6, "case": "", "config": {}}), "'version'"),
+        (json.dumps({"format": "bodebench-response", "version": 7, "case": "", "config": {}}), "'version'"),
         (json.dumps({"format": "bodebench-response", "version": 1, "case": ""}), "'config'"),
     ],
 )

@@ -1,5 +1,5 @@
-"""Results that describe themselves: the CSV's comment block, its delimiter and decimal mark, and the record of
-every run in the sidecar."""
+"""Results that describe themselves: the CSV's description beside it, its delimiter and decimal mark, and the record
+of every run in the sidecar."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from bodebench.apps.cli import main
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.io.config import ConfigError, parse_config
 from bodebench.io.csvstyle import COLUMN_DOCS
-from bodebench.io.results import CSV_COLUMNS, ResultsWriter, load_response, save_response
+from bodebench.io.results import CSV_COLUMNS, CSV_METADATA_NAME, ResultsWriter, load_response, save_response
 
 OFFLINE = """title = "A lag"
 [plant]
@@ -45,19 +45,41 @@ def data_lines(path: Path) -> list[str]:
     return [line for line in path.read_text().splitlines() if not line.startswith("#")]
 
 
-def test_the_csv_states_every_column_and_the_confidence_level(tmp_path: Path) -> None:
+def test_the_csv_is_a_plain_table_and_its_description_states_every_column(tmp_path: Path) -> None:
+    """response.csv opens with pandas' defaults (the header its first line, each column's type as written); the
+    CSVW description beside it names every column with its meaning and the confidence level."""
+    import pandas as pd
+
     save_response(FrequencyResponse(points(), config={}), tmp_path)
     text = (tmp_path / "response.csv").read_text()
-    comments = [line[2:] for line in text.splitlines() if line.startswith("# ")]
-    assert "95% confidence" in comments[1]
-    documented = {line.split(":")[0] for line in comments[3:]}
-    assert documented == set(CSV_COLUMNS) == set(COLUMN_DOCS)
-    assert any(line.startswith("p: P, averaged sine coefficient") for line in comments)
-    assert data_lines(tmp_path / "response.csv")[0] == ",".join(CSV_COLUMNS)
-    loaded = load_response(tmp_path)
-    assert loaded.points == points()
-    # a file without the comment block (written before it existed) loads the same
-    (tmp_path / "response.csv").write_text("\n".join(data_lines(tmp_path / "response.csv")) + "\n")
+    assert text.splitlines()[0] == ",".join(CSV_COLUMNS)
+    table = pd.read_csv(tmp_path / "response.csv")
+    assert list(table.columns) == list(CSV_COLUMNS) and len(table) == len(points())
+    assert table["frequency_hz"].tolist() == [p.frequency_hz for p in points()]
+    assert table["p"].tolist() == [p.p for p in points()] and table["converged"].dtype == bool
+    meta = json.loads((tmp_path / CSV_METADATA_NAME).read_text())
+    assert meta["url"] == "response.csv" and meta["dialect"]["delimiter"] == ","
+    assert "95% confidence" in meta["dc:description"]
+    columns = meta["tableSchema"]["columns"]
+    assert [c["name"] for c in columns] == list(CSV_COLUMNS)
+    assert {c["name"]: c["dc:description"] for c in columns} == COLUMN_DOCS
+    assert load_response(tmp_path).points == points()
+
+
+def test_a_file_of_the_previous_format_with_its_comment_block_loads_and_resumes_into_a_plain_table(
+        tmp_path: Path) -> None:
+    save_response(FrequencyResponse(points()[:2], config={}), tmp_path)
+    csv_path = tmp_path / "response.csv"
+    lines = csv_path.read_text().splitlines()
+    old = ["# bodebench response, format 5: one row per frequency, harmonic and channel, in the order measured",
+           "# every interval and uncertainty is at 95% confidence", *lines]
+    csv_path.write_text("\n".join(old) + "\n")
+    (tmp_path / CSV_METADATA_NAME).unlink()
+    assert load_response(tmp_path).points == points()[:2]
+    writer = ResultsWriter(tmp_path, "c", {}, resume=True)
+    writer.append(points()[2:])
+    assert csv_path.read_text().splitlines()[0] == ",".join(CSV_COLUMNS)
+    assert (tmp_path / CSV_METADATA_NAME).exists()
     assert load_response(tmp_path).points == points()
 
 

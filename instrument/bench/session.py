@@ -52,7 +52,7 @@ from bodebench.drivers.layout import SETPOINT_ECHO
 from bodebench.drivers.scheduling import pacing_cpu_left_alone
 from bodebench.drivers.stop_signals import StopSignal
 from bodebench.io.config import AnalysisConfig, BenchConfig, CaseConfig
-from bodebench.io.results import CSV_NAME, ResultsWriter, check_output
+from bodebench.io.results import CSV_NAME, ResultsWriter, RowsOnDiskError, check_output
 from bodebench.io.samples import PointSamples
 from bodebench.status import FaultKind
 
@@ -436,6 +436,9 @@ class BenchSession:
                     record.save(self.out_dir)  # before the rows: a point on disk always has its samples
                 self._results_writer().append(points)
             except OSError as exc:  # the rows already on disk stay; a torn row of these is dropped on resume
+                if isinstance(exc, RowsOnDiskError):  # these rows too: only their checksums are missing
+                    for p in points:
+                        self.response.add(p)
                 self.listener(SessionFault(FaultKind.OUTPUT, str(exc), len(self.response.points)))
                 raise SessionError(FaultKind.OUTPUT, f"{self.out_dir}: cannot write the point at {f:g} Hz: "
                                                      f"{exc.strerror or exc}") from None

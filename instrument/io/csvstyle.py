@@ -1,8 +1,11 @@
-"""How ``response.csv`` is laid out: its delimiter and decimal mark, and the comment block that states every
-column's meaning, units and the confidence level of the intervals.
+"""How ``response.csv`` is laid out: its delimiter and decimal mark, and the description of every column's meaning,
+units and the confidence level of the intervals.
 
-The ``[results]`` table of a configuration chooses the style; a reader needs no configuration: the comment lines
-start with ``#``, the header is the first other line, and the delimiter is the one the header uses.
+The ``[results]`` table of a configuration chooses the style; a reader needs no configuration: the header is the
+first line and the delimiter is the one it uses. The description sits beside the table, in
+``response.csv-metadata.json`` (W3C's metadata vocabulary for tabular data, CSVW), so that the file itself is a
+plain table to pandas, a spreadsheet or MATLAB's ``readtable``. Files of earlier versions carried it as comment
+lines starting with ``#`` above the header; those are still read.
 """
 
 from __future__ import annotations
@@ -11,7 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["COLUMN_DOCS", "CsvStyle", "DELIMITERS", "preamble", "style_of_config", "style_of_header"]
+__all__ = ["COLUMN_DOCS", "CsvStyle", "DELIMITERS", "csv_metadata", "style_of_config", "style_of_header"]
 
 DELIMITERS: dict[str, str] = {",": ",", ";": ";", "tab": "\t"}
 """``results.delimiter`` values and the character each stands for."""
@@ -84,14 +87,17 @@ def style_of_header(header: str) -> CsvStyle:
     return CsvStyle()
 
 
-def preamble(format_version: int, confidence: float, style: CsvStyle, columns: tuple[str, ...]) -> str:
-    """The comment lines written above the header: what a row is, the confidence level, the style, each column."""
-    shown = {",": "comma", ";": "semicolon", "\t": "tab"}[style.delimiter]
-    lines = [
-        f"bodebench response, format {format_version}: one row per frequency, harmonic and channel, in the "
-        "order measured",
-        f"every interval and uncertainty is at {confidence:.0%} confidence",
-        f"delimiter: {shown}; decimal mark: {style.decimal!r}; comment lines start with '#'",
-        *(f"{name}: {COLUMN_DOCS[name]}" for name in columns),
-    ]
-    return "".join(f"# {line}\n" for line in lines)
+def csv_metadata(csv_name: str, format_version: int, confidence: float, style: CsvStyle,
+                 columns: tuple[str, ...]) -> dict[str, Any]:
+    """The CSVW description of ``csv_name``: what a row is, the confidence level, the dialect (delimiter; the decimal
+    mark of the numbers) and each column's name and meaning with units."""
+    return {
+        "@context": "http://www.w3.org/ns/csvw",
+        "url": csv_name,
+        "dc:title": f"bodebench response, format {format_version}",
+        "dc:description": (f"one row per frequency, harmonic and channel, in the order measured; every interval and "
+                           f"uncertainty is at {confidence:.0%} confidence; decimal mark {style.decimal!r}"),
+        "dialect": {"delimiter": style.delimiter, "header": True, "encoding": "utf-8"},
+        "tableSchema": {"columns": [{"name": name, "titles": name, "dc:description": COLUMN_DOCS[name]}
+                                    for name in columns]},
+    }

@@ -24,16 +24,18 @@ from typing import Any
 from bodebench.core.response import FrequencyResponse, ResponsePoint, _is_int, _normalise_config
 from bodebench.core.summary import CONFIDENCE
 from bodebench.drivers.stop_signals import signals_held
-from bodebench.io.csvstyle import CsvStyle, preamble, style_of_config, style_of_header
+from bodebench.io.csvstyle import CsvStyle, csv_metadata, style_of_config, style_of_header
 
 __all__ = [
     "CSV_COLUMNS",
+    "CSV_METADATA_NAME",
     "CSV_NAME",
     "CHECKSUMS",
     "FORMAT_NAME",
     "FORMAT_VERSION",
     "ResultsError",
     "ResultsWriter",
+    "RowsOnDiskError",
     "SIDECAR_NAME",
     "check_output",
     "load_response",
@@ -46,10 +48,12 @@ __all__ = [
 
 CSV_NAME = "response.csv"
 SIDECAR_NAME = "response.json"
+CSV_METADATA_NAME = "response.csv-metadata.json"
+"""Beside response.csv: its columns' meanings and units, the confidence level, the dialect (CSVW)."""
 PLOT_FIGURES = ("bode", "periods")
 """The figures a results directory holds: the stems of their files (the suffix is the format)."""
 FORMAT_NAME = "bodebench-response"
-FORMAT_VERSION = 5
+FORMAT_VERSION = 6
 
 #: Columns of response.csv, in file order.
 CSV_COLUMNS: tuple[str, ...] = (
@@ -215,8 +219,15 @@ def _point_row(point: ResponsePoint, style: CsvStyle = _DEFAULT_STYLE) -> str:
 
 
 def _file_head(style: CsvStyle) -> str:
-    """The comment block and the header line of a new response.csv."""
-    return preamble(FORMAT_VERSION, CONFIDENCE, style, CSV_COLUMNS) + style.join(list(CSV_COLUMNS)) + "\n"
+    """The header line of a new response.csv."""
+    return style.join(list(CSV_COLUMNS)) + "\n"
+
+
+def _write_csv(directory: Path, style: CsvStyle, rows: list[str]) -> None:
+    """response.csv (its header and ``rows``) and its description, response.csv-metadata.json, atomically."""
+    metadata = csv_metadata(CSV_NAME, FORMAT_VERSION, CONFIDENCE, style, CSV_COLUMNS)
+    atomic_write_text(directory / CSV_METADATA_NAME, json.dumps(metadata, indent=2) + "\n")
+    atomic_write_text(directory / CSV_NAME, _file_head(style) + "".join(row + "\n" for row in rows))
 
 
 def _header_index(lines: list[str]) -> int:
@@ -409,7 +420,7 @@ def save_response(response: FrequencyResponse, directory: str | Path) -> None:
     sidecar[CHECKSUMS] = {"rows": [_digest(row.encode()) for row in rows],
                           "samples": _samples_digests(directory, {p.frequency_hz for p in response.points})}
     atomic_write_text(directory / SIDECAR_NAME, json.dumps(sidecar, indent=2) + "\n")
-    atomic_write_text(directory / CSV_NAME, _file_head(style) + "".join(row + "\n" for row in rows))
+    _write_csv(directory, style, rows)
 
 
 CHECKSUMS = "checksums"
@@ -546,12 +557,12 @@ class ResultsWriter:
                 header = first
                 while header.startswith("#"):
                     header = handle.readline()
-            if _columns_of(header.rstrip("\n")) != CSV_COLUMNS or not first.startswith("#"):
+            if _columns_of(header.rstrip("\n")) != CSV_COLUMNS or first.startswith("#") \
+                    or not (self.directory / CSV_METADATA_NAME).exists():
                 points = _parse_csv(self.path)  # an older format: its rows rewritten in the current one
-                atomic_write_text(self.path, _file_head(self.style)
-                                  + "".join(_point_row(p, self.style) + "\n" for p in points))
+                _write_csv(self.directory, self.style, [_point_row(p, self.style) for p in points])
         else:
-            atomic_write_text(self.path, _file_head(self.style))
+            _write_csv(self.directory, self.style, [])
         # the checksums of what is on disk now (a resumed file was checked against its own before it was continued)
         lines = self.path.read_text(encoding="utf-8").split("\n")
         rows = [line for line in lines[_header_index(lines) + 1:] if line]
@@ -590,7 +601,16 @@ class ResultsWriter:
             # two leaves rows of one frequency after the last checksum, which verify_results takes as that
             self._rows += [_digest(row.encode()) for row in rows]
             self._samples.update(_samples_digests(self.directory, {p.frequency_hz for p in points}))
-            self._record()
+            try:
+                self._record()
+            except OSError as exc:
+                raise RowsOnDiskError(exc.errno, f"{exc.strerror or exc} (the rows are on disk; their checksums "
+                                                 "could not be recorded in the sidecar)") from None
+
+
+class RowsOnDiskError(OSError):
+    """An append whose rows are on disk, synced, but whose checksums could not be written to the sidecar (a full
+    disk, a file size limit): the points are kept, and a resumed sweep takes those rows as the last append."""
 
 
 def _end_last_row(path: Path) -> None:
