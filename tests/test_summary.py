@@ -300,3 +300,45 @@ def test_simulate_writes_and_prints_the_summary(tmp_path: Path, capsys: pytest.C
     truth = brentq(lambda f: lag(f) - lag(freqs[0]) / math.sqrt(2), 0.1, 20.0)
     assert abs(bw["value"] - truth) <= bw["interpolation"] + 1e-3 * truth
     assert bw["low"] <= bw["value"] <= bw["high"]
+
+
+# ------------------------------------------------------------------------------------------- an honest readout
+
+
+def _second_order(f: np.ndarray, fn: float = 10.0, zeta: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """Gain (dB) and phase (deg) of 1 / (1 - u^2 + 2 j zeta u), u = f / fn: a resonance near fn."""
+    u = f / fn
+    g = 1.0 / (1.0 - u * u + 2j * zeta * u)
+    return 20.0 * np.log10(np.abs(g)), np.degrees(np.angle(g))
+
+
+def test_a_figure_read_from_a_point_that_did_not_converge_says_so() -> None:
+    f = np.array([1.0, 5.0, 9.0, 10.0, 11.0, 20.0, 40.0])
+    gain, phase = _second_order(f)
+    zero = np.zeros_like(f)
+    settled = summarize(f, gain, gain, gain, phase, zero)
+    assert not any("did not converge" in fig.note for fig in settled.figures)
+    capped = summarize(f, gain, gain, gain, phase, zero, converged=[True, True, True, False, True, True, True])
+    peak = capped.figure("resonance peak")
+    assert peak.note.startswith("read from points that did not converge (10 Hz)"), peak.note
+    assert "did not converge (10 Hz)" in capped.figure("phase -90 deg").note  # the crossing sits on 10 Hz
+    assert "did not converge" not in capped.figure("phase -180 deg").note  # not found: nothing read
+
+
+def test_the_peak_says_what_it_is_relative_to() -> None:
+    f = np.array([2.0, 5.0, 9.0, 10.0, 11.0, 20.0])
+    gain, phase = _second_order(f)
+    gain = gain + 6.0  # a static gain of 2: the peak is still read above the gain at the lowest frequency
+    peak = summarize(f, gain, gain, gain, phase, np.zeros_like(f)).figure("resonance peak")
+    assert "above the gain at 2 Hz" in peak.text()
+    largest = float(np.max(gain) - gain[0])
+    assert peak.value >= largest - 1e-12 and f"largest measured: {largest:.4g} dB" in peak.text()
+
+
+def test_an_interpolation_error_larger_than_the_figure_is_not_printed_as_a_plus_minus() -> None:
+    from bodebench.core.summary import Figure
+
+    wide = Figure("bandwidth (-3 dB)", "Hz", value=16.05, low=16.05, high=16.05, interpolation=160.0)
+    assert "+-" not in wide.text() and "measure more frequencies near it" in wide.text()
+    narrow = Figure("bandwidth (-3 dB)", "Hz", value=16.05, low=16.0, high=16.1, interpolation=0.2)
+    assert "interpolation +-0.2" in narrow.text()

@@ -100,7 +100,9 @@ class Figure:
         extra = [f"95 %: {show(self.low)} to {show(self.high)}"]
         if math.isfinite(self.at_hz):
             extra.append(f"frequency {show(self.at_low_hz)} to {show(self.at_high_hz)} Hz")
-        if math.isfinite(self.interpolation):
+        if math.isfinite(self.interpolation) and self.interpolation >= abs(self.value) > 0.0:
+            extra.append("interpolation error larger than the figure: measure more frequencies near it")
+        elif math.isfinite(self.interpolation):
             extra.append(f"interpolation +-{self.interpolation:.2g}")
         line += f" ({'; '.join(extra)})"
         if self.note:
@@ -281,6 +283,7 @@ def _peak(gain: _Curve, ref: float, ref_lo: float, ref_hi: float) -> Figure:
         xv, yv = pair
         interpolation = abs(yv - largest)  # what the local form adds to the largest measured gain
         note = f"largest measured: {largest - ref:.4g} dB at {_hz(float(gain.x[i])):.4g} Hz"
+    note = f"above the gain at {_hz(float(gain.x[0])):.4g} Hz; {note}"
     bounds = []
     for curve in (gain.lo, gain.hi):
         at = _pole_pair(xs, curve[around]) if pair is not None else None
@@ -362,9 +365,10 @@ def _margin(driver: _Curve, reader: _Curve, level: float, name: str, unit: str,
 def summarize(frequency_hz: Sequence[float] | np.ndarray, gain_db: Sequence[float] | np.ndarray,
               gain_low_db: Sequence[float] | np.ndarray, gain_high_db: Sequence[float] | np.ndarray,
               phase_deg: Sequence[float] | np.ndarray, phase_ci_deg: Sequence[float] | np.ndarray,
-              kind: str = "system", channel: str = "") -> ResponseSummary:
+              kind: str = "system", channel: str = "", converged: Sequence[bool] | None = None) -> ResponseSummary:
     """The summary of a response given per point: frequency (Hz, > 0), gain (dB) with its 95 % bounds (dB),
-    phase (degrees, unwrapped, or folded: it is unwrapped here) with its 95 % half-width (degrees).
+    phase (degrees, unwrapped, or folded: it is unwrapped here) with its 95 % half-width (degrees). ``converged``
+    (per point, default all): a figure read from a point that did not converge says so in its note.
 
     Points are sorted by frequency; at least two are needed. ``kind`` (:data:`RESPONSE_KINDS`): "open_loop" adds
     the margins and leaves out the bandwidth and the resonance peak, which belong to the closed loop."""
@@ -383,6 +387,7 @@ def summarize(frequency_hz: Sequence[float] | np.ndarray, gain_db: Sequence[floa
     order = np.argsort(f)
     f = f[order]
     g, g_lo, g_hi, ph, ph_ci = (c[order] for c in columns)
+    settled = np.ones(f.size, dtype=bool) if converged is None else np.asarray(converged, dtype=bool)[order]
     if not (np.all(np.isfinite(g)) and np.all(np.isfinite(ph)) and np.all(np.isfinite(g_hi))):
         raise ValueError("gains, their upper bounds and phases must be finite")
     g_lo = np.where(np.isfinite(g_lo), g_lo, _FLOOR_DB)
@@ -406,9 +411,29 @@ def summarize(frequency_hz: Sequence[float] | np.ndarray, gain_db: Sequence[floa
                                "the gain does not fall through 0 dB"))
         figures.append(_margin(phase, gain, -180.0, "gain margin", "dB", lambda g_: -np.asarray(g_),
                                "the phase does not fall through -180 deg"))
+    figures = [_unconverged_note(figure, f, settled) for figure in figures]
     return ResponseSummary(channel=channel, kind=kind, points=int(f.size), reference_hz=float(f[0]),
                            reference_db=ref, reference_low_db=ref_lo, reference_high_db=ref_hi,
                            figures=tuple(figures))
+
+
+def _unconverged_note(figure: Figure, f: np.ndarray, settled: np.ndarray) -> Figure:
+    """``figure`` with a note naming the points it was read between (the two around its frequency, or the one it
+    sits on) that did not converge; the reference point too, for the figures relative to it."""
+    if not figure.found:
+        return figure
+    at = figure.at_hz if math.isfinite(figure.at_hz) else figure.value
+    i = int(np.searchsorted(f, at))
+    used = {j for j in (i - 1, i) if 0 <= j < f.size} if not np.any(np.isclose(f, at)) else \
+        {int(np.argmin(np.abs(f - at)))}
+    if figure.unit == "dB" or figure.name.startswith("bandwidth"):
+        used.add(0)  # relative to the reference gain, at the lowest frequency
+    loose = sorted(float(f[j]) for j in used if not settled[j])
+    if not loose:
+        return figure
+    shown = ", ".join(f"{x:.4g}" for x in loose)
+    note = f"read from points that did not converge ({shown} Hz)"
+    return replace(figure, note=f"{note}; {figure.note}" if figure.note else note)
 
 
 def summarize_response(response: FrequencyResponse, kind: str = "system") -> list[ResponseSummary]:
@@ -435,7 +460,7 @@ def summarize_response(response: FrequencyResponse, kind: str = "system") -> lis
         phase_ci = np.array([p.phase_ci_deg for p in points])
         phase_ci = np.where(np.isfinite(phase_ci), phase_ci, 0.0)
         summary = summarize([p.frequency_hz for p in points], gain_db, low, high, [p.phase_deg for p in points],
-                            phase_ci, kind=kind, channel=channel)
+                            phase_ci, kind=kind, channel=channel, converged=[p.converged for p in points])
         if unstated:
             summary = replace(summary, note=f"{unstated} points state no interval: taken as exact")
         out.append(summary)
