@@ -41,30 +41,55 @@ def lines_of(ax) -> list:  # noqa: ANN001 - a matplotlib Axes
 def test_below_resolution_points_are_upper_bounds_not_data() -> None:
     r = response()
     fig = bode_figure(r)
-    ax_gain, ax_phase = fig.axes[:2]
+    ax_gain, ax_phase, ax_dist = fig.axes[:3]
     zero = [p for p in r.points if p.harmonic == 2]
-    bounds = sorted(20 * math.log10(p.magnitude / p.amplitude + p.gain_ci) for p in zero)
-    triangles = [line for line in lines_of(ax_gain) if line.get_marker() == "v"]
-    assert len(triangles) == 1
+    first = {p.frequency_hz: p.gain_db for p in r.points if p.harmonic == 1}
+    bounds = sorted(20 * math.log10(p.magnitude / p.amplitude + p.gain_ci) - first[p.frequency_hz] for p in zero)
+    triangles = [line for line in lines_of(ax_dist) if line.get_marker() == "v"]
+    assert len(triangles) == 1 and not [line for line in lines_of(ax_gain) if line.get_marker() == "v"]
     assert sorted(np.asarray(triangles[0].get_ydata(), dtype=float)) == pytest.approx(bounds)
     assert to_hex(triangles[0].get_markeredgecolor()) == harmonic_colour(2)
-    for line in lines_of(ax_gain) + lines_of(ax_phase):
+    for line in lines_of(ax_dist):
         if line is triangles[0]:
             continue
         y = np.asarray(line.get_ydata(), dtype=float)
         if to_hex(line.get_color()) == harmonic_colour(2):  # the k = 2 curve itself draws nothing
             assert not np.isfinite(y).any()
+    for line in lines_of(ax_gain) + lines_of(ax_phase):  # harmonic 1 only above the distortion panel
+        assert to_hex(line.get_color()) == harmonic_colour(1)
     legend = [t.get_text() for t in ax_gain.get_legend().get_texts()]
     assert "below resolution: upper bound" in legend and "95% confidence band" in legend
 
 
+def test_harmonics_above_the_first_are_drawn_as_distortion_relative_to_it() -> None:
+    """Harmonic 3 is 0.01 of harmonic 1 at every frequency: -40 dB in the distortion panel, whatever the gain."""
+    fig = bode_figure(response())
+    ax_dist = fig.axes[2]
+    assert ax_dist.get_ylabel() == "Distortion (dB re k=1)"
+    third = [line for line in lines_of(ax_dist) if to_hex(line.get_color()) == harmonic_colour(3)
+             and line.get_label() == "k=3"]
+    assert len(third) == 1
+    assert np.asarray(third[0].get_ydata(), dtype=float) == pytest.approx(-40.0, abs=1e-9)
+
+
+def test_the_amplitude_and_the_tolerance_are_on_the_plot() -> None:
+    r = response()
+    r.config = {"analysis": {"tolerance_percent": 0.05}}
+    legend = [t.get_text() for t in bode_figure(r).axes[0].get_legend().get_texts()]
+    assert "amplitude 0.5, tolerance 0.05 %" in legend
+
+
 def test_confidence_bands_are_the_point_intervals() -> None:
     r = response()
-    ax_gain = bode_figure(r).axes[0]
-    bands = [c for c in ax_gain.collections if not isinstance(c, LineCollection)]  # not the minor grid
-    assert len(bands) == 2  # k = 1 and k = 3; none for the zero harmonic
+    fig = bode_figure(r)
+    ax_gain, ax_dist = fig.axes[0], fig.axes[2]
+
+    def bands(ax) -> list:  # noqa: ANN001 - a matplotlib Axes
+        return [c for c in ax.collections if not isinstance(c, LineCollection)]  # not the minor grid
+
+    assert len(bands(ax_gain)) == 1 and len(bands(ax_dist)) == 1  # k = 1; k = 3; none for the zero harmonic
     first = r.select(harmonic=1)
-    path = bands[0].get_paths()[0].vertices
+    path = bands(ax_gain)[0].get_paths()[0].vertices
     top = max(path[:, 1])
     assert top == pytest.approx(max(20 * np.log10(first.gain + np.array([p.gain_ci for p in first.points]))))
 
@@ -72,7 +97,7 @@ def test_confidence_bands_are_the_point_intervals() -> None:
 def test_log_ticks_are_plain_numbers_and_the_title_is_shown() -> None:
     fig = bode_figure(response(), title="Drive X, axis 2")
     fig.canvas.draw()
-    labels = [t.get_text() for t in fig.axes[1].get_xticklabels() if t.get_text()]
+    labels = [t.get_text() for t in fig.axes[-1].get_xticklabels() if t.get_text()]
     assert labels and all(float(text) > 0 for text in labels), labels
     assert {"1", "2", "5", "10", "20", "50", "100"} <= set(labels)
     assert fig._suptitle is not None and fig._suptitle.get_text() == "Drive X, axis 2"

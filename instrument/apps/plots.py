@@ -244,12 +244,14 @@ def bode_figure(
     title: str = "",
     summary: Sequence[ResponseSummary] = (),
 ) -> Figure:
-    """Bode diagram: gain (dB) over phase (degrees, unwrapped per curve) against log frequency (Hz).
+    """Bode diagram: gain (dB) over phase (degrees, unwrapped per curve) of harmonic 1 against log frequency (Hz),
+    and, where harmonics above the first were measured, a third panel of their distortion: each harmonic's
+    amplitude relative to harmonic 1's at the same frequency (dB), not a transfer function.
 
     One curve per (case label, harmonic, channel), coloured by harmonic; hollow markers for points that did not
     converge; the 95 % interval of every point as a band; points below the resolution as the upper end of their
     gain interval (downward triangles), left out of the curves; the figures of ``summary`` marked (diamonds, with
-    their 95 % frequency intervals).
+    their 95 % frequency intervals); the excitation amplitude and the tolerance in the legend.
     """
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -257,7 +259,10 @@ def bode_figure(
 
     curves = _as_mapping(responses)
     groups = _series_groups(curves)
-    fig, (ax_gain, ax_phase) = _new_figure(2, 6.5, titled=bool(title))
+    distortion = any(k > 1 for response in curves.values() for k in response.harmonics)
+    fig, axes = _new_figure(3 if distortion else 2, 8.5 if distortion else 6.5, titled=bool(title))
+    ax_gain, ax_phase = axes[0], axes[1]
+    ax_dist = axes[2] if distortion else None
     any_hollow = any_band = any_bound = False
     for case_label, response in curves.items():
         for harmonic in response.harmonics:
@@ -271,62 +276,91 @@ def bode_figure(
                 freq = sel.frequency_hz
                 unresolved = np.array([p.status in PHASE_UNDEFINED_STATUSES for p in sel.points])
                 filled = sel.converged & ~unresolved
-                gain_db = sel.gain_db.copy()
-                gain_db[unresolved | ~np.isfinite(gain_db)] = np.nan
-                phase = sel.phase_unwrapped_deg()
-                phase[unresolved] = np.nan
                 low, high = _gain_bounds(sel)
+                gain_db = sel.gain_db.copy()
                 label = _label(case_label if len(curves) > 1 else "", f"k={harmonic}",
                                channel if len(response.channels) > 1 or len(curves) > 1 else "")
-                ax_gain.plot(freq, gain_db, style, lw=1.0, color=color, label=label)
-                ax_phase.plot(freq, phase, style, lw=1.0, color=color)
-                for ax, y in ((ax_gain, gain_db), (ax_phase, phase)):
+                if harmonic == 1:
+                    panels = [(ax_gain, gain_db), (ax_phase, sel.phase_unwrapped_deg())]
+                else:
+                    assert ax_dist is not None
+                    # relative to harmonic 1 of the same channel at the same frequency (dB)
+                    first = {p.frequency_hz: p.gain_db for p in response.select(harmonic=1, channel=channel).points}
+                    base = np.array([first.get(float(fr), np.nan) for fr in freq])
+                    gain_db, low, high = gain_db - base, low - base, high - base
+                    panels = [(ax_dist, gain_db)]
+                gain_db[unresolved | ~np.isfinite(gain_db)] = np.nan
+                for ax, y in panels:
+                    y[unresolved] = np.nan
+                    ax.plot(freq, y, style, lw=1.0, color=color, label=label)
                     ax.plot(freq[filled], y[filled], marker, ms=_MARKER_SIZE, color=color, linestyle="none")
                     ax.plot(freq[~filled], y[~filled], marker, ms=_MARKER_SIZE, mfc="none", mec=color,
                             linestyle="none")
                 any_hollow |= bool((~filled & ~unresolved).any())
+                ax_level = panels[0][0]
                 band_low = np.where(unresolved, np.nan, np.where(np.isfinite(low), low, np.nanmin(
                     np.concatenate([low[np.isfinite(low)], gain_db[np.isfinite(gain_db)], [0.0]])) - 20.0))
                 band_high = np.where(unresolved, np.nan, high)
                 if np.isfinite(band_high).any():
-                    ax_gain.fill_between(freq, band_low, band_high, color=color, alpha=_BAND_ALPHA, lw=0)
+                    ax_level.fill_between(freq, band_low, band_high, color=color, alpha=_BAND_ALPHA, lw=0)
                     any_band = True
-                ci = sel.phase_ci_deg
-                ci = np.where(np.isfinite(ci), ci, np.nan)
-                if np.isfinite(phase + ci).any():
-                    ax_phase.fill_between(freq, phase - ci, phase + ci, color=color, alpha=_BAND_ALPHA, lw=0)
+                if harmonic == 1:
+                    phase = panels[1][1]
+                    ci = sel.phase_ci_deg
+                    ci = np.where(np.isfinite(ci), ci, np.nan)
+                    if np.isfinite(phase + ci).any():
+                        ax_phase.fill_between(freq, phase - ci, phase + ci, color=color, alpha=_BAND_ALPHA, lw=0)
                 if unresolved.any():
                     any_bound = True
                     bound = np.where(np.isfinite(high), high, np.nan)[unresolved]
-                    ax_gain.plot(freq[unresolved], bound, "v", ms=6.0, mfc="none", mec=color, linestyle="none")
+                    ax_level.plot(freq[unresolved], bound, "v", ms=6.0, mfc="none", mec=color, linestyle="none")
     _mark_summary(ax_gain, ax_phase, summary)
     ax_gain.set_xscale("log")
-    _plain_log_axis(ax_phase.xaxis)
+    _plain_log_axis(axes[-1].xaxis)
     ax_gain.set_ylabel("Gain (dB)")
     ax_phase.set_ylabel("Phase (deg)")
-    ax_phase.set_xlabel("Frequency (Hz)")
+    axes[-1].set_xlabel("Frequency (Hz)")
     ax_phase.yaxis.set_major_locator(MaxNLocator(nbins=8, steps=[1, 1.5, 3, 4.5, 9, 10]))
-    for ax in (ax_gain, ax_phase):
+    if ax_dist is not None:
+        ax_dist.set_ylabel("Distortion (dB re k=1)")
+    for ax in axes:
         ax.grid(True, which="major", alpha=0.5)
-    handles, labels = ax_gain.get_legend_handles_labels()
+    extras: list[tuple[Any, str]] = []
     if any_band:
-        handles.append(Patch(color="0.3", alpha=_BAND_ALPHA, lw=0))
-        labels.append(f"{CONFIDENCE:.0%} confidence band")
+        extras.append((Patch(color="0.3", alpha=_BAND_ALPHA, lw=0), f"{CONFIDENCE:.0%} confidence band"))
     if any_hollow:
-        handles += [
-            Line2D([], [], marker="o", color="0.3", linestyle="none", ms=_MARKER_SIZE),
-            Line2D([], [], marker="o", mfc="none", mec="0.3", linestyle="none", ms=_MARKER_SIZE),
-        ]
-        labels += ["converged", "not converged"]
+        extras += [(Line2D([], [], marker="o", color="0.3", linestyle="none", ms=_MARKER_SIZE), "converged"),
+                   (Line2D([], [], marker="o", mfc="none", mec="0.3", linestyle="none", ms=_MARKER_SIZE),
+                    "not converged")]
     if any_bound:
-        handles.append(Line2D([], [], marker="v", mfc="none", mec="0.3", linestyle="none", ms=6.0))
-        labels.append("below resolution: upper bound")
-    ax_gain.legend(handles, labels, fontsize="small")
+        extras.append((Line2D([], [], marker="v", mfc="none", mec="0.3", linestyle="none", ms=6.0),
+                       "below resolution: upper bound"))
+    conditions = _conditions(curves)
+    if conditions:
+        extras.append((Line2D([], [], linestyle="none"), conditions))
+    handles, labels = ax_gain.get_legend_handles_labels()
+    ax_gain.legend(handles + [h for h, _ in extras], labels + [text for _, text in extras], fontsize="small")
+    if ax_dist is not None:
+        ax_dist.legend(fontsize="small")
     if title:
         fig.suptitle(title)
-    for ax in (ax_gain, ax_phase):
+    for ax in axes:
         _minor_log_grid(ax, "x")
     return fig
+
+
+def _conditions(curves: Mapping[str, FrequencyResponse]) -> str:
+    """The excitation amplitude (harmonic-1 points, input units) and the tolerance the curves were measured with,
+    in words; empty where the curves differ in them."""
+    amplitudes = sorted({p.amplitude for r in curves.values() for p in r.select(harmonic=1).points})
+    tolerances = {(r.config.get("analysis") or {}).get("tolerance_percent") for r in curves.values()}
+    parts = []
+    if amplitudes:
+        shown = f"{amplitudes[0]:.4g}" if len(amplitudes) == 1 else f"{amplitudes[0]:.4g} to {amplitudes[-1]:.4g}"
+        parts.append(f"amplitude {shown}")
+    if len(tolerances) == 1 and isinstance(tol := next(iter(tolerances)), (int, float)):
+        parts.append(f"tolerance {tol:g} %")
+    return ", ".join(parts)
 
 
 def plot_periods(
