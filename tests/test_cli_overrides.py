@@ -161,7 +161,8 @@ def test_overrides_are_what_the_results_record_and_what_resume_compares(tmp_path
     # resuming without the overrides is resuming another configuration: refused
     assert main(["simulate", str(cfg), "--out", str(out), "--jobs", "1", "--resume", "-q"]) == 2
     err = capsys.readouterr().err
-    assert "made with another configuration (tables differ: analysis, excitation)" in err
+    assert ("made with another configuration (analysis.tolerance_percent: 0.1 in the results, 0.01 now; "
+            "excitation.frequencies_hz: [2.0, 8.0] in the results, ") in err, err
     # with them it is the same one: nothing left to measure, nothing changed
     before = {case: (out / case / "response.csv").read_text() for case in ("light", "heavy")}
     assert main(["simulate", str(cfg), "--out", str(out), "--jobs", "1", "--resume", "-q", "--plots", "none",

@@ -184,7 +184,8 @@ def test_a_sweep_resumes_on_another_port_or_channel_but_not_on_another_drive(tmp
         elsewhere = case(source, **moved)
         assert elsewhere.raw != made.raw
         assert previous_run(out, elsewhere, "resume") is not None
-        with pytest.raises(ResultsError, match=r"tables differ: analysis\)"):
+        with pytest.raises(ResultsError, match=r"another configuration \(analysis.tolerance_percent: [0-9.e-]+ in the "
+                                               r"results, 0.02 now\); cannot resume"):
             previous_run(out, case(source, **moved, analysis={"tolerance_percent": 0.02}), "resume")
 
 

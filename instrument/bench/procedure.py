@@ -11,6 +11,7 @@ or the offline sweep through a :class:`ResultsWriter`), and writes the plots of 
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import threading
@@ -95,10 +96,31 @@ def previous_run(directory: Path, case: CaseConfig, existing: str = "refuse") ->
                     len(frequencies), ", ".join(f"{f:g}" for f in missing))
     before, wanted = _what_is_measured(previous.config), _what_is_measured(FrequencyResponse(config=case.raw).config)
     if before != wanted:
-        changed = sorted(k for k in set(before) | set(wanted) if before.get(k) != wanted.get(k))
-        raise ResultsError(f"{directory / SIDECAR_NAME}: made with another configuration (tables differ: "
-                           f"{', '.join(changed)}); cannot resume")
+        changed = _differences(before, wanted)
+        shown = "; ".join(changed[:5]) + (f"; and {len(changed) - 5} more" if len(changed) > 5 else "")
+        raise ResultsError(f"{directory / SIDECAR_NAME}: made with another configuration ({shown}); cannot resume")
     return previous
+
+
+def _differences(before: Any, now: Any, key: str = "") -> list[str]:
+    """Each key whose value differs between two configurations (dicts), in words: ``analysis.tolerance_percent:
+    0.01 in the results, 0.1 now``."""
+    if isinstance(before, dict) and isinstance(now, dict):
+        out: list[str] = []
+        for name in sorted(set(before) | set(now), key=str):
+            out += _differences(before.get(name, _ABSENT), now.get(name, _ABSENT), f"{key}.{name}" if key else
+                                str(name))
+        return out
+    if before == now:
+        return []
+
+    def show(value: Any) -> str:
+        return "absent" if value is _ABSENT else json.dumps(value, default=str)
+
+    return [f"{key}: {show(before)} in the results, {show(now)} now"]
+
+
+_ABSENT = object()
 
 
 WHERE_THE_DRIVE_IS = {"serial": ("port",), "can": ("interface", "channel")}
