@@ -323,6 +323,11 @@ def footer_keys(app: BodeBenchApp) -> set[str]:
     return {key.key for key in app.screen_stack[0].query(FooterKey)}
 
 
+def footer_label(app: BodeBenchApp, key: str) -> str:
+    """What the footer says the key ``key`` does (empty when it is not shown)."""
+    return next((str(k.description) for k in app.screen_stack[0].query(FooterKey) if k.key == key), "")
+
+
 async def expect_footer(pilot, app: BodeBenchApp, keys: set[str], timeout: float = 30.0) -> None:  # type: ignore[no-untyped-def]
     """The footer comes to show exactly ``keys`` (a loaded machine may take a while to lay it out)."""
     deadline = time.monotonic() + timeout
@@ -467,6 +472,11 @@ async def test_resume_after_an_abort_measures_only_the_missing_frequencies(tmp_p
         await pilot.press("s")
         await gate.wait(pilot, "8 Hz integrating")
         await expect_footer(pilot, app, {"a", "p", "n", "r", "t", "w", "o", "q"})  # running, 3 Hz measured
+        assert footer_label(app, "p") == "pause"
+        await pilot.press("p")
+        await wait_for(pilot, lambda: footer_label(app, "p") == "resume", "the footer offering to resume")
+        await pilot.press("p")
+        await wait_for(pilot, lambda: footer_label(app, "p") == "pause", "the footer offering to pause again")
         await pilot.press("a")
         gate.open()
         await wait_for(pilot, lambda: finished(app), "the end of the aborted sweep")

@@ -133,6 +133,7 @@ class BodeBenchApp(App[int]):
         Binding("a", "abort", "ABORT"),
         Binding("s", "start", "start"),
         Binding("p", "pause", "pause"),
+        Binding("p", "resume", "resume"),  # the same key: shown instead of "pause" while paused
         Binding("n", "skip", "skip"),
         Binding("r", "remeasure", "redo"),
         Binding("t", "tolerance", "tol"),
@@ -244,8 +245,8 @@ class BodeBenchApp(App[int]):
 
     def _sync_bindings(self) -> None:
         """Refresh the footer's keys when what they can do has changed (a footer rebuild is not free)."""
-        state = (self.running, bool(self.live_points), self.case_index in self.results, self._modal_open(),
-                 self._quitting)
+        state = (self.running, self._paused, bool(self.live_points), self.case_index in self.results,
+                 self._modal_open(), self._quitting)
         if state != self._bindings_state:
             self._bindings_state = state
             for screen in self.screen_stack:  # the footer is on the first screen, under any dialog
@@ -311,7 +312,11 @@ class BodeBenchApp(App[int]):
         if self._quitting:  # the sweep is being aborted before the app ends: nothing else to do
             return action == "abort"
         running = self.running
-        if action in ("abort", "pause", "skip"):
+        if action == "pause":
+            return running and not self._paused
+        if action == "resume":
+            return running and self._paused
+        if action in ("abort", "skip"):
             return running
         if action == "start":
             return not running
@@ -393,6 +398,16 @@ class BodeBenchApp(App[int]):
         (self.model.pause if control.paused else self.model.unpause)(time.monotonic())
         self.state = "paused" if control.paused else "running"
         self._refresh_status()
+        self._sync_bindings()
+
+    def action_resume(self) -> None:
+        """The pause key while paused: the sweep goes on."""
+        self.action_pause()
+
+    @property
+    def _paused(self) -> bool:
+        control = self.control
+        return bool(self.running and control is not None and control.paused)
 
     def action_skip(self) -> None:
         control = self.control
