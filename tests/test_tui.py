@@ -364,6 +364,7 @@ async def test_start_runs_the_sweep_and_the_screen_follows(tmp_path: Path, monke
         assert app.state == "done", app.worker_errors
         assert table_states(app) == [CONVERGED] * 6
         assert "3/3" in app.w_status.render().plain and "DONE" in app.w_status.render().plain
+        assert len(app.w_live.query_one("#scope", PlotView).traces) == 2  # the last point's periods stay shown
         on_disk = load_response(out)
         assert sorted((p.frequency_hz, p.harmonic) for p in on_disk.points) == sorted(
             (f, k) for f in FREQS for k in (1, 3))

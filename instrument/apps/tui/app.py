@@ -789,8 +789,8 @@ class BodeBenchApp(App[int]):
         latest = bridge.latest_progress if bridge is not None else None
         if latest is not None and latest.index == model.current_index:
             panel.show_scope(latest.scope, self.case.on_bench.bench.output_channels[0])
-        elif self._scope_index != model.current_index:
-            panel.show_scope(None, "")
+        elif model.current_index is not None and self._scope_index != model.current_index:
+            panel.show_scope(None, "")  # a new point: its samples are yet to come (at the end the last stays)
         self._scope_index = model.current_index
 
     def _refresh_rows(self, periods_too: bool = True) -> None:
