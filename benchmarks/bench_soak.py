@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import os
 import sys
 import tempfile
@@ -212,10 +213,8 @@ def main(argv: list[str] | None = None) -> int:
 def _run_quietly(session) -> None:  # type: ignore[no-untyped-def]
     from bodebench.bench.events import SessionError
 
-    try:
+    with contextlib.suppress(SessionError):
         session.run()
-    except SessionError:
-        pass
 
 
 async def _with_ui(config, out: Path, probe: Probe, seconds: float) -> int:  # type: ignore[no-untyped-def]

@@ -586,7 +586,7 @@ class CanopenDriver(Driver):
         when the EDS has no 0x1016 sub-entry."""
         from canopen.objectdictionary import ODArray, ODRecord
 
-        obj = self.od[HEARTBEAT_CONSUMER] if HEARTBEAT_CONSUMER in self.od else None
+        obj = self.od.get(HEARTBEAT_CONSUMER, None)
         if not isinstance(obj, (ODArray, ODRecord)):
             return None
         subs = sorted(i for i in obj.subindices if 1 <= i <= 127 and self._has_variable(HEARTBEAT_CONSUMER, i))

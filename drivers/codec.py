@@ -102,9 +102,8 @@ def signal_problem(field_name: str, value: object) -> str | None:
     elif field_name == "scale":
         if not is_finite(value) or value == 0:
             return f"a finite non-zero number, got {show(value)}"
-    elif field_name == "offset":
-        if not is_finite(value):
-            return f"a finite number, got {show(value)}"
+    elif field_name == "offset" and not is_finite(value):
+        return f"a finite number, got {show(value)}"
     return None
 
 

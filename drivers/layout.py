@@ -138,6 +138,14 @@ class Layout:
     # ----------------------------------------------------------------------------------------------------------
     # checks
     def _check_structure(self) -> None:
+        """Every rule of a layout, in four parts; LayoutError naming the message or key at fault."""
+        self._check_roles()
+        self._check_signals()
+        self._check_ids()
+        self._check_timing()
+
+    def _check_roles(self) -> None:
+        """Each role is a message of its kind: signals where samples go, fixed data for the commands."""
         for role, msg in (("setpoint", self.setpoint), ("enable", self.enable), ("disable", self.disable),
                           ("heartbeat", self.heartbeat)):
             if msg is not None and not isinstance(msg, Codec):
@@ -156,6 +164,10 @@ class Layout:
         for role, msg in (("enable", self.enable), ("disable", self.disable), ("heartbeat", self.heartbeat)):
             if msg is not None and msg.data is None:
                 raise LayoutError(f"{role} message {show(msg.name)}: must be a fixed-data message")
+
+    def _check_signals(self) -> None:
+        """Counters, time stamps, check bytes and channels: their types, widths and where they may appear."""
+        sp = self.setpoint
         # counters: unsigned integers with unit scale, one width everywhere
         moduli: dict[str, int] = {}
         for msg in (sp, *self.feedback):
@@ -202,8 +214,10 @@ class Layout:
                     f"setpoint message {show(sp.name)}: unexpected signal {show(name)} (only \"setpoint\" and "
                     "\"counter\")"
                 )
-        # ids: feedback ids distinct from each other and from every command id; the setpoint id distinct from the
-        # fixed-data command ids. Fixed-data commands may share an id (e.g. enable/disable told apart by content).
+    def _check_ids(self) -> None:
+        """Feedback ids distinct from each other and from every command id; the setpoint id distinct from the
+        fixed-data command ids. Fixed-data commands may share an id (e.g. enable/disable told apart by content)."""
+        sp = self.setpoint
         owners: dict[tuple[int, bool], str] = {}
         for msg in (sp, *self.feedback):
             if _key(msg) in owners:
@@ -211,10 +225,10 @@ class Layout:
                     f"messages {show(owners[_key(msg)])} and {show(msg.name)} share id 0x{msg.id:X}"
                 )
             owners[_key(msg)] = msg.name
-        for msg in (self.enable, self.disable, self.heartbeat):
-            if msg is not None and _key(msg) in owners:
+        for command in (self.enable, self.disable, self.heartbeat):
+            if command is not None and _key(command) in owners:
                 raise LayoutError(
-                    f"messages {show(owners[_key(msg)])} and {show(msg.name)} share id 0x{msg.id:X}"
+                    f"messages {show(owners[_key(command)])} and {show(command.name)} share id 0x{command.id:X}"
                 )
         commands = [(role, m) for role, m in (("enable", self.enable), ("disable", self.disable),
                                                ("heartbeat", self.heartbeat)) if m is not None]
@@ -224,6 +238,9 @@ class Layout:
                     raise LayoutError(f"{role} and {other_role} are the same frame (id 0x{msg.id:X}, data "
                                       f"{bytes(msg.data or b'').hex() or 'empty'}): the drive could not tell them "
                                       "apart")
+
+    def _check_timing(self) -> None:
+        """The heartbeat period and the drive's watchdog, and the one against the other."""
         period = self.heartbeat_period_s
         if not is_finite(period) or period < 0:
             raise LayoutError(f"heartbeat_period_s: a finite number >= 0 s, got {show(period)}")

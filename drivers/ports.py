@@ -17,7 +17,7 @@ import time
 from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, Protocol
@@ -499,10 +499,8 @@ class CanPort(FramePort):
             exc = exc or error
         handle = getattr(writer, "file", None)
         if handle is not None:
-            try:
+            with suppress(Exception):  # closed anyway: nothing left to flush later
                 handle.close()
-            except Exception:  # noqa: BLE001 - closed anyway: nothing left to flush later
-                pass
         if exc is not None and not self.log_failure:
             what = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc) or type(exc).__name__
             self.log_failure = f"{self._log_path}: {what}; nothing logged after {time.strftime('%H:%M:%S')}"
@@ -699,10 +697,8 @@ class SerialPort(FramePort):
         view = memoryview(wire)
         deadline = time.monotonic() + self._send_timeout
         while view:
-            try:
+            with suppress(BlockingIOError):
                 view = view[os.write(self._fd, view):]
-            except BlockingIOError:
-                pass
             if view:  # the line's buffer is full: wait until it drains, but not forever
                 remaining = deadline - time.monotonic()
                 if remaining <= 0 or not select.select([], [self._fd], [], remaining)[1]:
@@ -834,7 +830,7 @@ class ByteLog:
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         try:
-            self._file = open(path, "w", encoding="ascii", buffering=1)
+            self._file = open(path, "w", encoding="ascii", buffering=1)  # noqa: SIM115 - open for the session
         except OSError as exc:
             raise DriverInitError(f"cannot write the bus log {os.fspath(path)!r}: {exc.strerror or exc}") from exc
         self._path = os.fspath(path)
@@ -860,10 +856,8 @@ class ByteLog:
     def _fail(self, exc: OSError | ValueError) -> None:
         what = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
         self.failure = self.failure or f"{self._path}: {what}; nothing logged after {time.strftime('%H:%M:%S')}"
-        try:
+        with suppress(OSError, ValueError):
             self._file.close()
-        except (OSError, ValueError):
-            pass
 
     def close(self) -> None:
         with self._lock:

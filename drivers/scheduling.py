@@ -11,7 +11,7 @@ from __future__ import annotations
 import ctypes
 import os
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 
 __all__ = ["keep_to", "lower_timer_slack", "pacing_cpu", "pacing_cpu_left_alone", "request_fifo"]
 
@@ -86,10 +86,8 @@ def pacing_cpu_left_alone(cpu: int | None = None) -> Iterator[int | None]:
         yield cpu
     finally:
         for tid in _threads():
-            try:
+            with suppress(OSError):
                 os.sched_setaffinity(tid, before.get(tid, everywhere))
-            except OSError:
-                pass
 
 
 def _threads() -> list[int]:

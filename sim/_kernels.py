@@ -193,10 +193,7 @@ def _first_breakaway(w1: float, w2: float, omega: float, amplitude: float,
             continue
         a = math.asin(x)
         # net crossing the band edge outward: for sgn=+1 amplitude*sin increasing, for -1 decreasing
-        if sgn * sa > 0.0:
-            theta = a  # sin increasing through x
-        else:
-            theta = math.pi - a  # sin decreasing through x
+        theta = a if sgn * sa > 0.0 else math.pi - a  # sin increasing through x, else decreasing through it
         d = (theta - theta0) % two_pi
         if d > two_pi - 1e-9:
             d = 0.0
@@ -302,10 +299,7 @@ def coulomb_run(m_fwd: np.ndarray, m_bwd: np.ndarray, phi_fwd: np.ndarray, phi_b
                             if a0 <= 0.0:
                                 lo = rem * 1e-12
                             tm = _root(pw, _V, s, lo, rem, True)
-                            if _poly(pw, _V, tm) * s > 0.0:
-                                crossing = _root(pw, _V, s, tm, rem, False)
-                            else:
-                                crossing = 0.0
+                            crossing = _root(pw, _V, s, tm, rem, False) if _poly(pw, _V, tm) * s > 0.0 else 0.0
                         else:
                             crossing = 0.0
                 if crossing < 0.0:

@@ -88,10 +88,7 @@ def _rhs(p: np.ndarray, z: np.ndarray, mode: float, r: float, dz: np.ndarray) ->
         xc = 1.0
     elif xc < -1.0:
         xc = -1.0
-    if xc >= 0.0:
-        rad = 0.5 * (p[_PS] - pl)
-    else:
-        rad = 0.5 * (p[_PS] + pl)
+    rad = 0.5 * (p[_PS] - pl) if xc >= 0.0 else 0.5 * (p[_PS] + pl)
     if rad < 0.0:
         rad = 0.0
     q = p[_KQ] * xc * math.sqrt(rad)
@@ -162,10 +159,7 @@ def _root(p: np.ndarray, z: np.ndarray, mode: float, t: float, amplitude: float,
     for _ in range(200):
         if hi - lo <= 4e-16 * hi:
             break
-        if g_lo > g_hi:
-            cand = hi - g_hi * (hi - lo) / (g_hi - g_lo)
-        else:
-            cand = 0.5 * (lo + hi)
+        cand = hi - g_hi * (hi - lo) / (g_hi - g_lo) if g_lo > g_hi else 0.5 * (lo + hi)
         if not (lo < cand < hi):
             cand = 0.5 * (lo + hi)
         g = sign * _probe(p, z, mode, t, cand, amplitude, omega, held, use_held, kind, tmp, work) - offset
@@ -338,11 +332,9 @@ def hydraulic_run(p: np.ndarray, z: np.ndarray, mode: np.ndarray, t_start: float
                     rem = 0.0
                 events += 1
                 net = p[_AP] * z[_P] - p[_KL] * z[_Y]
-                if abs(net) <= fc or crossing == 0.0:
-                    # stuck (a zero-length excursion means the force only grazed the band edge)
-                    s = 0.0
-                else:
-                    s = 1.0 if net > 0.0 else -1.0
+                # stuck (a zero-length excursion means the force only grazed the band edge), else sliding with net
+                stuck = abs(net) <= fc or crossing == 0.0
+                s = 0.0 if stuck else (1.0 if net > 0.0 else -1.0)
             _spool_stops(z)
         out[j, 0] = z[_Y]
         out[j, 1] = z[_V]

@@ -10,6 +10,7 @@ USB-CAN adapter on it.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import select
@@ -60,10 +61,8 @@ class Pty:
     def close(self) -> None:
         """Close both sides."""
         for fd in (self.master, self.slave):
-            try:
+            with contextlib.suppress(OSError):
                 os.close(fd)
-            except OSError:
-                pass
 
 
 class FdStream:

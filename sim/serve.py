@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import collections
+import contextlib
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -207,10 +208,8 @@ class SimulatorProcess:
 
     def close(self) -> None:
         """Stop the simulator process (terminated when it has not ended 5 s later)."""
-        try:
+        with contextlib.suppress(OSError, BrokenPipeError):
             self._conn.send("stop")
-        except (OSError, BrokenPipeError):
-            pass
         self.process.join(timeout=5)
         if self.process.is_alive():
             self.process.terminate()

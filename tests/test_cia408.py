@@ -407,7 +407,7 @@ def test_a_host_that_falls_silent_puts_the_device_in_fault_disabled() -> None:
         serving.close()
     emcy = [m for m in recorder.frames_seen() if m.arbitration_id == 0x80 + NODE]
     assert [int.from_bytes(bytes(m.data[:2]), "little") for m in emcy][:1] == [0x8130]
-    assert cia408.FAULT_STATES >= {State.FAULT_DISABLED}
+    assert {State.FAULT_DISABLED} <= cia408.FAULT_STATES
 
 
 def test_a_hydraulic_axis_in_position_control_on_the_bus_agrees_with_the_same_plant_run_in_process(

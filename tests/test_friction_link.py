@@ -116,7 +116,7 @@ class SteadyRun:
     y_fine: np.ndarray  # Y over one more period at KF * FINE samples
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def steady_run(fbar: float, ratio: float, periods: int = SETTLE + 1) -> SteadyRun:
     """Run the link from rest at f = ratio * f_n for ``periods`` periods (KF steps each), then one finer period."""
     f = ratio * F_N

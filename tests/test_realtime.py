@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import os
 import threading
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from bodebench.drivers.scheduling import keep_to, pacing_cpu, pacing_cpu_left_alone, request_fifo
 

@@ -96,15 +96,14 @@ def test_without_holding_the_signal_the_stream_is_torn() -> None:
 def test_signals_held_raises_once_at_the_end_of_the_block() -> None:
     done = []
     with stop_on_signals() as handler:
-        with pytest.raises(StopSignal, match="SIGTERM"):
-            with signals_held():
-                os.kill(os.getpid(), signal.SIGTERM)
-                time.sleep(0.05)  # the handler runs here: the signal is held, not raised
-                done.append("inside")
-                with signals_held():  # nested: the outermost block raises
-                    os.kill(os.getpid(), signal.SIGHUP)
-                    time.sleep(0.05)
-                done.append("after nested")
+        with pytest.raises(StopSignal, match="SIGTERM"), signals_held():
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.05)  # the handler runs here: the signal is held, not raised
+            done.append("inside")
+            with signals_held():  # nested: the outermost block raises
+                os.kill(os.getpid(), signal.SIGHUP)
+                time.sleep(0.05)
+            done.append("after nested")
         assert done == ["inside", "after nested"]
         os.kill(os.getpid(), signal.SIGINT)  # later signals are ignored while the shutdown runs
         time.sleep(0.05)

@@ -129,7 +129,7 @@ def fold_phase_deg(z: complex) -> float:
 
 def _check_fbar(fbar: float) -> float:
     value = float(fbar)
-    if not (math.isfinite(value) and 0.0 <= value):
+    if not (math.isfinite(value) and value >= 0.0):
         raise ValueError(f"fbar (F_ct / A_F) must be finite and >= 0, got {fbar!r}")
     return value
 

@@ -23,6 +23,7 @@ the phase (radians) is then ``sigma / |p + jq|``.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -846,10 +847,8 @@ def predicted_response(fbar: float, f_n_hz: float, frequency_hz: Sequence[float]
     f = np.asarray(frequency_hz, dtype=float).reshape(-1)
     z = np.full(f.size, complex("nan"))
     for i, fi in enumerate(f):
-        try:
+        with contextlib.suppress(SteadyStateError):
             z[i] = link.steady_state(fi / f_n_hz).z1
-        except SteadyStateError:
-            pass
     return z * amplitude / (stiffness * a_i)
 
 

@@ -10,8 +10,9 @@ import os
 import sys
 import time
 import traceback
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn, Sequence
+from typing import TYPE_CHECKING, Any, NoReturn
 
 # Only the standard library at the top: `bodebench --help` and argument errors import nothing else; each command
 # imports what it uses.

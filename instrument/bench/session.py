@@ -223,10 +223,8 @@ class BenchSession:
                               budgets, bench.clock == "realtime")
 
     def _shutdown(self, reason: str, abort: bool) -> Stopped | None:
-        try:
+        with contextlib.suppress(OSError, BrokenPipeError):
             self._conn.send(Stop(reason, abort=abort))
-        except (OSError, BrokenPipeError):
-            pass
         if self._stopped is not None:  # the worker had ended already, and said how
             return self._stopped
         deadline = time.monotonic() + 10.0

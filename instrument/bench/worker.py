@@ -12,6 +12,7 @@ pre-operational).
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import math
 import select
@@ -711,27 +712,21 @@ class BusWorker:
             self._report(Fault("error", f"{type(exc).__name__}: {exc}"))
         finally:
             zero_sent, disabled = self._make_safe()
-            try:
+            with contextlib.suppress(_Trip):
                 self._ship()
-            except _Trip:
-                pass
             frames_out = self.driver.port.frames_out if self.driver is not None else 0
             shutdown = self.driver.shutdown_account if self.driver is not None else ""
             log_failure = ""
             if self.driver is not None:  # the log is complete with the zero setpoint and the disable frame
-                try:
+                with contextlib.suppress(Exception):  # a log's end never stands in the way of the report
                     self.driver.port.end_log()
-                except Exception:  # noqa: BLE001 - a log's end never stands in the way of the report
-                    pass
                 log_failure = self.driver.port.log_failure
             self._report(Stopped(reason, self.last_sent, disabled, zero_sent, frames_out, shutdown, log_failure))
             self._close()
 
     def _report(self, message: object) -> None:
-        try:
+        with contextlib.suppress(OSError, EOFError, BrokenPipeError, ValueError):
             self.conn.send(message)
-        except (OSError, EOFError, BrokenPipeError, ValueError):
-            pass
 
     def _make_safe(self) -> tuple[bool, bool]:
         """Zero setpoint (slewed if a rate limit asks for it) and disable; (whether the zero setpoint went out,
@@ -763,15 +758,11 @@ class BusWorker:
 
     def _close(self) -> None:
         if self.driver is not None:
-            try:
+            with contextlib.suppress(Exception):  # closing what may have failed: the others are closed all the same
                 self.driver.close()
-            except Exception:  # noqa: BLE001
-                pass
         for r in self.resources:
-            try:
+            with contextlib.suppress(Exception):
                 r.close()
-            except Exception:  # noqa: BLE001
-                pass
 
 
 def worker_main(spec: WorkerSpec, conn: Connection) -> None:
@@ -779,10 +770,8 @@ def worker_main(spec: WorkerSpec, conn: Connection) -> None:
     the same safe shutdown as Ctrl-C)."""
     with stop_on_signals():
         BusWorker(spec, MessagePipe(conn)).run()
-    try:
+    with contextlib.suppress(OSError):
         conn.close()
-    except OSError:
-        pass
 
 
 def start_worker(spec: WorkerSpec, mode: str) -> tuple[MessagePipe, Any]:

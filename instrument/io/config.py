@@ -475,6 +475,15 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
     safety: SafetyConfig | None = tables.get("safety")
     if safety is None:
         raise _Fault("safety", "a bench config needs a [safety] table (at least max_amplitude)")
+    _check_plan(tables, bench, safety, key)
+    layout = _bench_layout(tables, bench, frames, setup, key, source)
+    _check_channels(tables, bench, safety, layout, setup, key)
+    return layout, setup
+
+
+def _check_plan(tables: Mapping[str, Any], bench: BenchConfig, safety: SafetyConfig,
+                key: Callable[[str, str], str]) -> None:
+    """Each frequency of a bench plan against the safety limits and the sample rate; raises :class:`_Fault`."""
     excitation: ExcitationConfig = tables["excitation"]
     top = max(tables["analysis"].harmonics)
     for i, f in enumerate(excitation.frequencies_hz):
@@ -501,6 +510,12 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
         if safety.max_rate is not None and 2 * math.pi * f * amplitude > safety.max_rate:
             raise _Fault(at, f"{f:g} Hz: the sine's slew 2*pi*f*A = {2 * math.pi * f * amplitude:g} exceeds "
                                  f"safety.max_rate ({safety.max_rate:g})")
+
+
+def _bench_layout(tables: Mapping[str, Any], bench: BenchConfig, frames: Mapping[str, Any] | None,
+                  setup: CanopenSetup | None, key: Callable[[str, str], str], source: str) -> Layout:
+    """The frame layout of a bench case (the PDOs on CANopen, else [frames] or the default), validated for its
+    transport; raises :class:`_Fault`."""
     try:
         if setup is not None:
             layout = setup.layout()
@@ -518,6 +533,12 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
         raise _Fault("frames", text + absent) from None
     except OSError as exc:
         raise _Fault(key("frames", "dbc"), f"cannot read: {exc.strerror or exc}") from None
+    return layout
+
+
+def _check_channels(tables: Mapping[str, Any], bench: BenchConfig, safety: SafetyConfig, layout: Layout,
+                    setup: CanopenSetup | None, key: Callable[[str, str], str]) -> None:
+    """The channels and the time base a bench case names against its frame layout; raises :class:`_Fault`."""
     channels = set(layout.channels)
     for name in (*bench.output_channels, *( [bench.reference_channel] if bench.reference_channel else [])):
         if name not in channels:
@@ -537,7 +558,6 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
                         if setup is not None else ""))
     if bench.timebase == "timestamp" and not layout.has_timestamp:
         raise _Fault(key("bench", "timebase"), "timestamp: the feedback frames carry no timestamp_us")
-    return layout, setup
 
 
 def _canopen_setup(table: CanopenConfig, simulated: bool, key: Callable[[str, str], str],

@@ -10,6 +10,7 @@ derived column against ``p``, ``q`` and ``amplitude``.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
@@ -166,10 +167,8 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
             os.fsync(handle.fileno())
         os.replace(tmp_name, path)
     except BaseException:
-        try:
+        with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp_name)
-        except FileNotFoundError:
-            pass
         raise
     try:  # make the rename itself durable where the platform allows it
         dir_fd = os.open(path.parent, os.O_RDONLY)

@@ -301,9 +301,8 @@ class ExcitationConfig:
                                           "amplitude_profile = {frequencies_hz, amplitudes})")
         if len(rules) > 1:
             raise FieldError(rules[1], f"give either this or {where(rules[0])}, not both")
-        if self.amplitudes is not None:
-            if len(self.amplitudes) != n:
-                raise FieldError("amplitudes", f"{len(self.amplitudes)} values for {n} frequencies")
+        if self.amplitudes is not None and len(self.amplitudes) != n:
+            raise FieldError("amplitudes", f"{len(self.amplitudes)} values for {n} frequencies")
         if self.settle_periods_per_frequency is not None:
             if self.settle_periods is not None:
                 raise FieldError("settle_periods_per_frequency",
