@@ -452,21 +452,12 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
     elif tables.get("canopen") is not None:
         raise _Fault("canopen", f'only used with bench.transport = "canopen" (not "{bench.transport}")')
     simulated = tables.get("simulator") is not None
-    if isinstance(link, CanConfig) and link.interface in INTERFACE_NEEDS:
-        try:
-            require(INTERFACE_NEEDS[link.interface], "")
-        except ImportError:
-            raise missing(INTERFACE_NEEDS[link.interface],
-                          f'{source}: can.interface = "{link.interface}" (python-can\'s {link.interface})') from None
+    _check_machine(link, bench, key, source)
     if isinstance(link, CanConfig) and not link.channel and not simulated:
         raise _Fault(key("can", "channel"), "missing: not in the file, nor in python-can's configuration "
                                             "(CAN_CHANNEL, ~/.canrc); only a [simulator] provides its own")
     if isinstance(link, SerialConfig) and not link.port and not simulated:
         raise _Fault(key("serial", "port"), "missing (only a [simulator] provides its own)")
-    cpus = os.cpu_count() or 1
-    if bench.clock == "realtime" and bench.pacing_cpu is not None and bench.pacing_cpu >= cpus:
-        raise _Fault(key("bench", "pacing_cpu"),
-                             f"CPU {bench.pacing_cpu} does not exist on this machine ({cpus} CPUs, numbered from 0)")
     if bench.timebase == "sync" and (setup is None or setup.sync != "produce"):
         raise _Fault(key("bench", "timebase"), 'sync: only on transport "canopen" with canopen.sync = "produce" '
                                                "(samples are dated by the host's own SYNCs)")
@@ -479,6 +470,21 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
     layout = _bench_layout(tables, bench, frames, setup, key, source)
     _check_channels(tables, bench, safety, layout, setup, key)
     return layout, setup
+
+
+def _check_machine(link: Any, bench: BenchConfig, key: Callable[[str, str], str], source: str) -> None:
+    """What a bench case asks of this machine rather than of the file: the package python-can's interface needs,
+    and the CPU the pacing loop is pinned to. Raises :class:`_Fault` (a missing package: MissingDependency)."""
+    if isinstance(link, CanConfig) and link.interface in INTERFACE_NEEDS:
+        try:
+            require(INTERFACE_NEEDS[link.interface], "")
+        except ImportError:
+            raise missing(INTERFACE_NEEDS[link.interface],
+                          f'{source}: can.interface = "{link.interface}" (python-can\'s {link.interface})') from None
+    cpus = os.cpu_count() or 1
+    if bench.clock == "realtime" and bench.pacing_cpu is not None and bench.pacing_cpu >= cpus:
+        raise _Fault(key("bench", "pacing_cpu"),
+                     f"CPU {bench.pacing_cpu} does not exist on this machine ({cpus} CPUs, numbered from 0)")
 
 
 def _check_plan(tables: Mapping[str, Any], bench: BenchConfig, safety: SafetyConfig,
