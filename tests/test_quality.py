@@ -116,5 +116,5 @@ def test_results_files_carry_thd_and_coherence_and_older_files_resume(tmp_path: 
     writer.append(points)
     again = load_response(old)
     header = next(line for line in csv.read_text().splitlines() if not line.startswith("#"))
-    assert len(again) == 4 and header.endswith(",thd,coherence,periods_discarded,drift_per_s")
+    assert len(again) == 4 and header.endswith(",thd,coherence,periods_discarded,drift_per_s,tolerance_percent")
     assert again.points[2].thd == points[0].thd

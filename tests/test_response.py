@@ -22,7 +22,7 @@ from bodebench.io.results import ResultsError, ResultsWriter, load_response, sav
 HEADER = (
     "frequency_hz,harmonic,channel,amplitude,gain,gain_db,phase_deg,p,q,periods,converged,status,"
     "uncertainty,gain_ci,gain_db_ci,phase_ci_deg,uncertainty_1d,within_eps,periods_needed,thd,coherence,"
-    "periods_discarded,drift_per_s"
+    "periods_discarded,drift_per_s,tolerance_percent"
 )
 HEAD = 0
 """Lines above the header of a response.csv (its description is beside it, in response.csv-metadata.json)."""

@@ -25,6 +25,7 @@ from helpers import BusRecorder
 from textual.widgets import Static
 from textual.widgets._footer import FooterKey
 
+from bodebench.analysis.reanalyse import reanalyse
 from bodebench.apps.tui import BodeBenchApp
 from bodebench.apps.tui.braille import Axis, BrailleCanvas, HLine, PlotError, Trace, auto_axis, render_plot
 from bodebench.apps.tui.bridge import SessionBridge
@@ -539,6 +540,12 @@ async def test_tolerance_remeasure_after_the_sweep_save_and_overlay(tmp_path: Pa
         redone = second[(20.0, 1)]
         assert 100 * redone.uncertainty / redone.magnitude <= 0.02  # measured again to the new tolerance
         assert states(app, 20.0) == {CONVERGED}
+        # each row records the tolerance it was measured to, whatever the configuration says
+        assert {p.tolerance_percent for p in first.values()} == {0.2}
+        assert redone.tolerance_percent == 0.02 and second[(8.0, 1)].tolerance_percent == 0.2
+        # analysed again from the samples, each frequency to the tolerance it records: the same points
+        again = {(p.frequency_hz, p.harmonic): p for p in reanalyse(out).response.points}
+        assert again[(20.0, 1)] == redone and again[(8.0, 1)] == second[(8.0, 1)]
         # save: the plots come back
         (out / "bode.png").unlink()
         await pilot.press("w")

@@ -9,7 +9,8 @@ samples have none); a frequency of which too many were is left out, its reason i
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -67,10 +68,10 @@ def reanalyse_point(samples: PointSamples, analysis: AnalysisSettings) -> tuple[
 
 
 def reanalyse(directory: str | Path, **overrides: Any) -> Reanalysis:
-    """Analyse the sweep in ``directory`` again from its samples, with its own [analysis] table but for
-    ``overrides`` (keys of [analysis], e.g. ``criterion="full"``, ``tolerance_percent=0.1``; validated as in a
-    configuration file). Raises ResultsError, ConfigError (a bad override), SamplesError (a missing or bad
-    samples file)."""
+    """Analyse the sweep in ``directory`` again from its samples, with its own [analysis] table (each frequency to the
+    tolerance its points record, where the sweep changed it) but for ``overrides`` (keys of [analysis], e.g.
+    ``criterion="full"``, ``tolerance_percent=0.1``; validated as in a configuration file). Raises ResultsError,
+    ConfigError (a bad override), SamplesError (a missing or bad samples file)."""
     directory = Path(directory)
     stored = load_response(directory)
     table = {**stored.config.get("analysis", {}), **overrides}
@@ -81,8 +82,13 @@ def reanalyse(directory: str | Path, **overrides: Any) -> Reanalysis:
     failed: list[tuple[float, str]] = []
     lines = disturbance_lines_of(stored.config, analysis)
     for f in dict.fromkeys(p.frequency_hz for p in stored.points):
+        # a frequency measured to another tolerance than the table's (changed during the sweep) keeps its own
+        recorded = {p.tolerance_percent for p in stored.points if p.frequency_hz == f}
+        at_f = analysis
+        if "tolerance_percent" not in overrides and len(recorded) == 1 and math.isfinite(tol := recorded.pop()):
+            at_f = replace(analysis, tolerance_percent=tol)
         try:
-            found, short = reanalyse_point(load_samples(samples_path(directory, f)), analysis)
+            found, short = reanalyse_point(load_samples(samples_path(directory, f)), at_f)
         except GapsError as exc:
             failed.append((f, str(exc)))
             continue

@@ -148,6 +148,8 @@ class Autointegrator:
         self.max_periods = period_budget(analysis, frequency_hz, on_bench=not grid_steps_per_period)
         """The periods this point may integrate (:func:`period_budget`)."""
         self.skip_periods = analysis.skip_periods
+        self.tolerance_percent = analysis.tolerance_percent
+        """The tolerance every point of this frequency is measured to, percent."""
         self.reference = reference
         self.reference_phase = reference_phase
         harmonics = self.harmonics if reference is None or 1 in self.harmonics else (*self.harmonics, 1)
@@ -387,5 +389,5 @@ class Autointegrator:
                                          periods_needed=v.periods_needed, periods_discarded=self.discarded,
                                          thd=thd if harmonic == 1 else math.nan,
                                          coherence=coherence(self._histories[c][k].values[start:stop]),
-                                         drift_per_s=float(drift[c])))
+                                         drift_per_s=float(drift[c]), tolerance_percent=self.tolerance_percent))
         return pts

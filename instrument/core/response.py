@@ -69,7 +69,8 @@ class ResponsePoint:
     comparisons between points (NaN, their usual value where not stated, equals nothing), ``periods_discarded``
     the periods not integrated because a gap in the samples touched them (not among ``periods``), ``drift_per_s``
     the channel's linear drift over the analysed periods, taken off every period's coefficients (output units per
-    second; NaN: not estimated, as offline; left out of comparisons).
+    second; NaN: not estimated, as offline; left out of comparisons), ``tolerance_percent`` the tolerance the point
+    was measured to, percent (``within_eps`` is against it; NaN: not recorded, as in files of earlier formats).
     ``p`` and ``q`` may be NaN (e.g. a failed point) but not infinite.
     """
 
@@ -90,13 +91,14 @@ class ResponsePoint:
     coherence: float = field(default=math.nan, compare=False)
     periods_discarded: int = 0
     drift_per_s: float = field(default=math.nan, compare=False)
+    tolerance_percent: float = field(default=math.nan, compare=False)
 
     def __post_init__(self) -> None:
         def set_(name: str, value: object) -> None:
             object.__setattr__(self, name, value)
 
         for name in ("frequency_hz", "amplitude", "p", "q", "uncertainty", "uncertainty_1d", "thd", "coherence",
-                     "drift_per_s"):
+                     "drift_per_s", "tolerance_percent"):
             value = getattr(self, name)
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
                 raise ValueError(f"{name} must be a real number, got {value!r}")
@@ -108,7 +110,7 @@ class ResponsePoint:
         for name in ("p", "q"):
             if math.isinf(getattr(self, name)):
                 raise ValueError(f"{name} must be finite or NaN, got {getattr(self, name)!r}")
-        for name in ("uncertainty", "uncertainty_1d", "thd"):
+        for name in ("uncertainty", "uncertainty_1d", "thd", "tolerance_percent"):
             if not (math.isnan(getattr(self, name)) or getattr(self, name) >= 0.0):
                 raise ValueError(f"{name} must be >= 0 or NaN, got {getattr(self, name)!r}")
         if not (math.isnan(self.coherence) or 0.0 <= self.coherence <= 1.0):

@@ -49,6 +49,8 @@ COLUMN_DOCS: dict[str, str] = {
                          "highest harmonic, touched them (not among periods)",
     "drift_per_s": "the channel's linear drift over the analysed periods, estimated and taken off every period's "
                    "coefficients, output units per second (nan: not estimated, as offline)",
+    "tolerance_percent": "the tolerance the point was measured to, percent: within_eps and converged are against "
+                         "it (it may differ from the configuration's where it was changed during the sweep)",
 }
 
 

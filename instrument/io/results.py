@@ -81,13 +81,15 @@ CSV_COLUMNS: tuple[str, ...] = (
     "coherence",
     "periods_discarded",
     "drift_per_s",
+    "tolerance_percent",
 )
-#: Columns of a version-1 to -4 response.csv (read; the added columns take their defaults).
+#: Columns of a version-1 to -5 response.csv (read; the added columns take their defaults).
 _CSV_COLUMNS_V1 = CSV_COLUMNS[:16]
 _CSV_COLUMNS_V2 = CSV_COLUMNS[:19]
 _CSV_COLUMNS_V3 = CSV_COLUMNS[:21]
 _CSV_COLUMNS_V4 = CSV_COLUMNS[:22]
-_OLDER_COLUMNS = (_CSV_COLUMNS_V1, _CSV_COLUMNS_V2, _CSV_COLUMNS_V3, _CSV_COLUMNS_V4)
+_CSV_COLUMNS_V5 = CSV_COLUMNS[:23]
+_OLDER_COLUMNS = (_CSV_COLUMNS_V1, _CSV_COLUMNS_V2, _CSV_COLUMNS_V3, _CSV_COLUMNS_V4, _CSV_COLUMNS_V5)
 _DERIVED_COLUMNS: tuple[str, ...] = ("gain", "gain_db", "phase_deg", "gain_ci", "gain_db_ci", "phase_ci_deg")
 _DERIVED_RTOL = 1e-9
 _DEFAULT_STYLE = CsvStyle()
@@ -208,6 +210,7 @@ def _point_row(point: ResponsePoint, style: CsvStyle = _DEFAULT_STYLE) -> str:
         "coherence": num(point.coherence),
         "periods_discarded": str(point.periods_discarded),
         "drift_per_s": num(point.drift_per_s),
+        "tolerance_percent": num(point.tolerance_percent),
     }
     for name in _DERIVED_COLUMNS:
         values[name] = num(getattr(point, name))
@@ -346,6 +349,7 @@ def _parse_row(path: Path, lineno: int, row: dict[str, str], decimal_comma: bool
             coherence=number("coherence") if "coherence" in row else math.nan,
             periods_discarded=integer("periods_discarded") if "periods_discarded" in row else 0,
             drift_per_s=number("drift_per_s") if "drift_per_s" in row else math.nan,
+            tolerance_percent=number("tolerance_percent") if "tolerance_percent" in row else math.nan,
         )
     except ResultsError:
         raise
