@@ -32,7 +32,6 @@ import random
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any, cast
 
@@ -60,11 +59,12 @@ from bodebench.drivers.cia402 import (
 from bodebench.drivers.codec import COUNTER
 from bodebench.drivers.device_profile import CIA402, CIA408, DeviceProfile
 from bodebench.sim.controller import SimulatedController
+from bodebench.sim.faults import CanopenFaults
 
 if TYPE_CHECKING:
     import canopen
 
-__all__ = ["CanopenFaults", "ServingCanopen", "SimulatedCia402Drive", "SimulatedCia408Device", "serve_canopen"]
+__all__ = ["ServingCanopen", "SimulatedCia402Drive", "SimulatedCia408Device", "serve_canopen"]
 
 SAMPLE_COUNTER = 0x2000
 """The shipped EDS's sample counter (UNSIGNED16): control periods stepped."""
@@ -76,44 +76,6 @@ CONTROL_MODE = 0x6043
 HEARTBEAT_ERROR = 0x8130
 """EMCY error code of a heartbeat event (CiA 301: life guard error or heartbeat error)."""
 _ABORT_NAMES = {0: "no action", **{code: name for name, code in ABORT_CONNECTION_OPTIONS.items()}}
-
-
-@dataclass(frozen=True)
-class CanopenFaults:
-    """Faults of the simulated CANopen device (times in s of controller time; 0: never).
-
-    refuse_enable: the drive stays "switched on" when told to enable operation (CiA 408: in HOLD when told ACTIVE).
-    enable_input: (CiA 408) the hardware enable input is set; False: the device stays DISABLED. emcy_at_s, emcy_code:
-    from then on the drive is in fault, having sent an EMCY with this error code. heartbeat_stops_at_s: its heartbeat
-    stops (the PDOs go on). silent_at_s: it answers nothing more (no heartbeat, PDO or SDO). sync_miss, tpdo_drop,
-    tpdo_late: probabilities per SYNC that the drive misses it (no new setpoint taken, no TPDO; the plant goes on), that
-    its TPDOs are not sent, that they are sent late (after the next SYNC arrived, before that SYNC's own); seed: of
-    these draws.
-    """
-
-    refuse_enable: bool = field(default=False, metadata={"doc": "never reach operation enabled (CiA 408: ACTIVE)"})
-    enable_input: bool = field(default=True, metadata={"doc": "CiA 408: the hardware enable input is set (false: "
-                                                              "the device stays DISABLED)"})
-    emcy_at_s: float = field(default=0.0, metadata={"min": 0, "doc": "EMCY and fault at this controller time, s"})
-    emcy_code: int = field(default=0x2310, metadata={"min": 0x1000, "max": 0xFFFF,
-                                                     "doc": "error code of that EMCY (0x2310: continuous "
-                                                            "overcurrent)"})
-    heartbeat_stops_at_s: float = field(default=0.0, metadata={"min": 0, "doc": "heartbeat stops, s"})
-    silent_at_s: float = field(default=0.0, metadata={"min": 0, "doc": "the drive falls silent, s"})
-    sync_miss: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per SYNC that the "
-                                                                               "drive misses it"})
-    tpdo_drop: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per SYNC that its "
-                                                                               "TPDOs are not sent"})
-    tpdo_late: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per SYNC that its "
-                                                                               "TPDOs go out after the next SYNC"})
-    seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of sync_miss, tpdo_drop and tpdo_late"})
-
-    @property
-    def any(self) -> bool:
-        """True when any fault is configured."""
-        return self.refuse_enable or not self.enable_input or bool(
-            self.emcy_at_s or self.heartbeat_stops_at_s or self.silent_at_s or self.sync_miss or self.tpdo_drop
-            or self.tpdo_late)
 
 
 class SimulatedCia402Drive:

@@ -212,3 +212,41 @@ class FaultyPort(FramePort):
 
     def _close(self) -> None:
         self.inner.close()
+
+
+@dataclass(frozen=True)
+class CanopenFaults:
+    """Faults of the simulated CANopen device (times in s of controller time; 0: never).
+
+    refuse_enable: the drive stays "switched on" when told to enable operation (CiA 408: in HOLD when told ACTIVE).
+    enable_input: (CiA 408) the hardware enable input is set; False: the device stays DISABLED. emcy_at_s, emcy_code:
+    from then on the drive is in fault, having sent an EMCY with this error code. heartbeat_stops_at_s: its heartbeat
+    stops (the PDOs go on). silent_at_s: it answers nothing more (no heartbeat, PDO or SDO). sync_miss, tpdo_drop,
+    tpdo_late: probabilities per SYNC that the drive misses it (no new setpoint taken, no TPDO; the plant goes on), that
+    its TPDOs are not sent, that they are sent late (after the next SYNC arrived, before that SYNC's own); seed: of
+    these draws.
+    """
+
+    refuse_enable: bool = field(default=False, metadata={"doc": "never reach operation enabled (CiA 408: ACTIVE)"})
+    enable_input: bool = field(default=True, metadata={"doc": "CiA 408: the hardware enable input is set (false: "
+                                                              "the device stays DISABLED)"})
+    emcy_at_s: float = field(default=0.0, metadata={"min": 0, "doc": "EMCY and fault at this controller time, s"})
+    emcy_code: int = field(default=0x2310, metadata={"min": 0x1000, "max": 0xFFFF,
+                                                     "doc": "error code of that EMCY (0x2310: continuous "
+                                                            "overcurrent)"})
+    heartbeat_stops_at_s: float = field(default=0.0, metadata={"min": 0, "doc": "heartbeat stops, s"})
+    silent_at_s: float = field(default=0.0, metadata={"min": 0, "doc": "the drive falls silent, s"})
+    sync_miss: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per SYNC that the "
+                                                                               "drive misses it"})
+    tpdo_drop: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per SYNC that its "
+                                                                               "TPDOs are not sent"})
+    tpdo_late: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per SYNC that its "
+                                                                               "TPDOs go out after the next SYNC"})
+    seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of sync_miss, tpdo_drop and tpdo_late"})
+
+    @property
+    def any(self) -> bool:
+        """True when any fault is configured."""
+        return self.refuse_enable or not self.enable_input or bool(
+            self.emcy_at_s or self.heartbeat_stops_at_s or self.silent_at_s or self.sync_miss or self.tpdo_drop
+            or self.tpdo_late)

@@ -19,9 +19,9 @@ from typing import TYPE_CHECKING, Any, Protocol
 from bodebench.drivers.canopen_link import CanopenSetup
 from bodebench.drivers.layout import Layout
 from bodebench.drivers.ports import CanPort, Frame, FramePort, SerialPort
-from bodebench.sim.canopen_device import CanopenFaults, ServingCanopen, serve_canopen
+from bodebench.sim.canopen_device import ServingCanopen, serve_canopen
 from bodebench.sim.controller import ControllerTiming, FeedbackSensing, SimulatedController
-from bodebench.sim.faults import FaultConfig, FaultyPort, ValueFaults
+from bodebench.sim.faults import CanopenFaults, FaultConfig, FaultyPort, ValueFaults
 from bodebench.sim.models import plant_from_config
 from bodebench.sim.pty_link import POSIX_ONLY, FdStream, Pty, PtyUnavailable, SlcanAdapterPort, pty_available
 

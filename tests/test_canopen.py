@@ -35,8 +35,9 @@ from bodebench.drivers.errors import DriveFaultError
 from bodebench.drivers.ports import CanPort
 from bodebench.io.config import ConfigError, parse_config
 from bodebench.io.results import load_response
-from bodebench.sim.canopen_device import CanopenFaults, serve_canopen
+from bodebench.sim.canopen_device import serve_canopen
 from bodebench.sim.controller import ControllerTiming, SimulatedController
+from bodebench.sim.faults import CanopenFaults
 from bodebench.sim.models import plant_from_config
 from bodebench.status import FaultKind
 

@@ -16,8 +16,9 @@ from bodebench.drivers.canopen_link import CanopenDriver
 from bodebench.drivers.ports import CanPort
 from bodebench.drivers.sync_dating import SyncMatcher
 from bodebench.io.config import ConfigError, parse_config
-from bodebench.sim.canopen_device import CanopenFaults, serve_canopen
+from bodebench.sim.canopen_device import serve_canopen
 from bodebench.sim.controller import ControllerTiming, SimulatedController
+from bodebench.sim.faults import CanopenFaults
 from bodebench.sim.models import plant_from_config
 
 PERIOD = 1e-3

@@ -8,15 +8,16 @@ resources to close when the worker ends).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bodebench.drivers.canopen_link import CanopenDriver, CanopenSetup
 from bodebench.drivers.driver import Driver
 from bodebench.drivers.layout import Layout
 from bodebench.drivers.ports import CanPort, FramePort, SerialPort
 from bodebench.io.config import CaseConfig, ConfigError
-from bodebench.sim.controller import ControllerTiming, FeedbackSensing
-from bodebench.sim.serve import ControllerPort, SimulatorProcess, SimulatorSpec, serve_can
+
+if TYPE_CHECKING:  # the simulator is imported only where a simulated drive is run
+    from bodebench.sim.serve import SimulatorSpec
 
 SLCAN_DEFAULTS = {"sleep_after_open": 0.0}
 
@@ -38,6 +39,8 @@ class CanLink:
     def __call__(self) -> tuple[FramePort, Layout, list[Any]]:
         resources: list[Any] = []
         if self.simulator is not None:
+            from bodebench.sim.serve import serve_can
+
             resources.append(serve_can(self.simulator))
         try:
             port = CanPort.open(self.interface, self.channel, self.bitrate, self.options, fd=self.fd,
@@ -107,6 +110,8 @@ class DirectLink:
     transport: str = "can"
 
     def __call__(self) -> tuple[FramePort, Layout, list[Any]]:
+        from bodebench.sim.serve import ControllerPort
+
         return ControllerPort(self.simulator.controller(), self.transport), self.simulator.layout, []
 
 
@@ -133,6 +138,9 @@ def simulator_spec(case: CaseConfig, *, wire_faults: bool = True) -> SimulatorSp
     bench, sim, serial, can = tables.bench, case.simulator, case.serial, case.can
     if case.plant is None:
         raise ConfigError(f"{case.source}: plant: missing: the simulated drive needs a [plant] table", "plant")
+    from bodebench.sim.controller import ControllerTiming, FeedbackSensing
+    from bodebench.sim.serve import SimulatorSpec
+
     timing = ControllerTiming(bench.rate_hz, bench.clock, sim.jitter if sim else 0.0,
                               sim.seed if sim else 0, bench.pacing_cpu)
     sensing = FeedbackSensing(sim.noise, sim.quantization, sim.seed, sim.hum, sim.hum_hz) if sim else None
@@ -186,6 +194,8 @@ def plan_link(case: CaseConfig, *, direct: bool = False, log: str = "") -> LinkP
         if can.interface == "slcan":
             options = {**SLCAN_DEFAULTS, **options}
         if simulated and can.interface == "slcan" and not can.channel:
+            from bodebench.sim.serve import SimulatorProcess
+
             proc = SimulatorProcess(simulator_spec(case), "slcan")
             link = CanLink("slcan", proc.path, can.bitrate, options, layout, fd=can.fd, log=log)
             return LinkPlan(link, layout, [proc], where=f"slcan adapter on {proc.path}")
@@ -201,6 +211,8 @@ def plan_link(case: CaseConfig, *, direct: bool = False, log: str = "") -> LinkP
     assert serial is not None  # the loader made sure: transport "serial" needs a [serial] table
     budget = stall_budget(case)
     if simulated and not serial.port:
+        from bodebench.sim.serve import SimulatorProcess
+
         proc = SimulatorProcess(simulator_spec(case), "serial")
         return LinkPlan(SerialLink(proc.path, serial.baudrate, serial.framing, layout, budget, log), layout, [proc],
                         where=f"serial {proc.path}")

@@ -18,8 +18,7 @@ from bodebench.core.summary import RESPONSE_KINDS
 from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS
 from bodebench.drivers.device_profile import PROFILES
 from bodebench.io.schema import FieldError
-from bodebench.sim.canopen_device import CanopenFaults
-from bodebench.sim.faults import FaultConfig
+from bodebench.sim.faults import CanopenFaults, FaultConfig
 
 DEFAULT_DISTURBANCE_HZ = (50.0,)
 """[analysis] disturbance_hz on a real drive when the configuration gives none: mains."""
