@@ -115,11 +115,14 @@ def test_simulate_plot_formats_and_bad_arguments(tmp_path: Path, capsys: pytest.
     cfg.write_text(CASES)
     assert main(["simulate", str(cfg), "--out", str(tmp_path / "none"), "--jobs", "1", "--plots", "none",
                  "--quiet"]) == 0
-    assert sorted(p.name for p in (tmp_path / "none" / "lag").iterdir()) == ["response.csv", "response.json"]
+    assert sorted(p.name for p in (tmp_path / "none" / "lag").iterdir()) == ["response.csv",
+                                                                             "response.csv-metadata.json",
+                                                                             "response.json"]
     assert main(["simulate", str(cfg), "--out", str(tmp_path / "vec"), "--jobs", "1", "--plots", "svg,pdf",
                  "--quiet"]) == 0
     names = sorted(p.name for p in (tmp_path / "vec" / "light").iterdir())
-    assert names == ["bode.pdf", "bode.svg", "periods.pdf", "periods.svg", "response.csv", "response.json"]
+    assert names == ["bode.pdf", "bode.svg", "periods.pdf", "periods.svg", "response.csv", "response.csv-metadata.json",
+                     "response.json"]
     assert (tmp_path / "vec" / "light" / "bode.pdf").read_bytes()[:5] == b"%PDF-"
     capsys.readouterr()
     with pytest.raises(SystemExit) as exc:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from bodebench.bench.events import CaseBegins, CaseSaved, Listener, PointFinished, PointStarted
+from bodebench.bench.events import CaseBegins, CaseSaved, Listener, PointFinished, PointStarted, SessionError
 from bodebench.bench.runinfo import RunClock, run_record
 from bodebench.bench.session import BenchSession, SessionResult, completed_frequencies
 from bodebench.core.response import FrequencyResponse, ResponsePoint
@@ -40,6 +40,7 @@ from bodebench.io.results import (
     verify_results,
 )
 from bodebench.io.samples import SAMPLES_DIR, samples_path
+from bodebench.status import FaultKind
 
 log = logging.getLogger("bodebench.sweep")
 
@@ -463,8 +464,14 @@ class SweepProcedure:
                                            "runs": [*outcome.earlier_runs, record]})
 
     def _finish(self, outcome: CaseOutcome) -> None:
-        self._summarize(outcome)
-        self._draw(outcome)
+        """The record, the summary and the plots of a case that ran to its end; SessionError (output) when the
+        disk will not take them (the points are on disk already)."""
+        try:
+            self._summarize(outcome)
+            self._draw(outcome)
+        except OSError as exc:
+            raise SessionError(FaultKind.OUTPUT, f"{outcome.directory}: cannot write the run's record, summary or "
+                                                 f"plots: {exc.strerror or exc}") from None
         self.listener(CaseSaved(outcome.index, outcome.response, outcome.directory, outcome.files))
 
 

@@ -227,9 +227,9 @@ def _file_head(style: CsvStyle) -> str:
 
 def _write_csv(directory: Path, style: CsvStyle, rows: list[str]) -> None:
     """response.csv (its header and ``rows``) and its description, response.csv-metadata.json, atomically."""
+    atomic_write_text(directory / CSV_NAME, _file_head(style) + "".join(row + "\n" for row in rows))
     metadata = csv_metadata(CSV_NAME, FORMAT_VERSION, CONFIDENCE, style, CSV_COLUMNS)
     atomic_write_text(directory / CSV_METADATA_NAME, json.dumps(metadata, indent=2) + "\n")
-    atomic_write_text(directory / CSV_NAME, _file_head(style) + "".join(row + "\n" for row in rows))
 
 
 def _header_index(lines: list[str]) -> int:
