@@ -45,9 +45,13 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bodebench.bench.connection import plan_link  # noqa: E402
-from bodebench.bench.events import BusStatus, PointFinished, SessionError  # noqa: E402
+from bodebench.bench.events import (  # noqa: E402
+    BusStatus,
+    PacingStats,  # noqa: E402
+    PointFinished,
+    SessionError,
+)
 from bodebench.bench.session import BenchSession  # noqa: E402
-from bodebench.bench.worker import PacingStats  # noqa: E402
 from bodebench.drivers.driver import BusHealth  # noqa: E402
 from bodebench.io.config import parse_config  # noqa: E402
 

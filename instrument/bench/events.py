@@ -13,12 +13,39 @@ from pathlib import Path
 
 import numpy as np
 
-from bodebench.bench.worker import Health
 from bodebench.core.autointegration import SeriesState
 from bodebench.core.eta import SweepTimer
 from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.drivers.driver import BusHealth
 from bodebench.status import FaultKind
 
+
+@dataclass(frozen=True)
+class PacingStats:
+    """Send-time error of paced setpoints against their schedule (s): p50, p99, max; overruns = ticks late by
+    more than one period; ``scheduling`` says what the OS granted the pacing loop (e.g. "SCHED_FIFO 20, CPU 1")."""
+
+    p50: float
+    p99: float
+    max: float
+    count: int
+    overruns: int
+    scheduling: str
+
+
+@dataclass(frozen=True)
+class Health:
+    """Bus health, round-trip delay (s; lockstep: setpoint to its sample), pacing, and samples dropped because
+    their time did not increase (bursts read at once on the receive time base)."""
+
+    bus: BusHealth
+    round_trip_s: float
+    pacing: PacingStats | None
+    tick: int
+    time_conflicts: int = 0
+    invalid_samples: int = 0
+    missed_replies: int = 0
+    counter_anomalies: int = 0
 
 @dataclass(frozen=True)
 class SessionStarted:

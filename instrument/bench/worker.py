@@ -26,8 +26,9 @@ from typing import Any
 
 import numpy as np
 
+from bodebench.bench.events import Health, PacingStats
 from bodebench.core.autointegration import MAX_COEFFICIENT
-from bodebench.drivers.driver import BusHealth, Driver, FeedbackSample
+from bodebench.drivers.driver import Driver, FeedbackSample
 from bodebench.drivers.errors import DriveFaultError, DriverError
 from bodebench.drivers.layout import SETPOINT_ECHO
 from bodebench.drivers.scheduling import keep_to, lower_timer_slack, pacing_cpu, request_fifo
@@ -95,34 +96,6 @@ class Samples:
     setpoint: np.ndarray
     last_tick: int
     held: tuple[tuple[float, float], ...] = ()
-
-
-@dataclass(frozen=True)
-class PacingStats:
-    """Send-time error of paced setpoints against their schedule (s): p50, p99, max; overruns = ticks late by
-    more than one period; ``scheduling`` says what the OS granted the pacing loop (e.g. "SCHED_FIFO 20, CPU 1")."""
-
-    p50: float
-    p99: float
-    max: float
-    count: int
-    overruns: int
-    scheduling: str
-
-
-@dataclass(frozen=True)
-class Health:
-    """Bus health, round-trip delay (s; lockstep: setpoint to its sample), pacing, and samples dropped because
-    their time did not increase (bursts read at once on the receive time base)."""
-
-    bus: BusHealth
-    round_trip_s: float
-    pacing: PacingStats | None
-    tick: int
-    time_conflicts: int = 0
-    invalid_samples: int = 0
-    missed_replies: int = 0
-    counter_anomalies: int = 0
 
 
 @dataclass(frozen=True)

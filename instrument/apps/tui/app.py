@@ -48,6 +48,7 @@ from bodebench.apps.tui.widgets import (
 from bodebench.bench.events import (
     CaseBegins,
     CaseSaved,
+    Health,
     PointFinished,
     PointStarted,
     SessionEnded,
@@ -57,7 +58,6 @@ from bodebench.bench.events import (
 )
 from bodebench.bench.procedure import CaseOutcome, SweepProcedure, case_directory, previous_run
 from bodebench.bench.session import completed_frequencies
-from bodebench.bench.worker import Health
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.summary import summarize_response
 from bodebench.io.config import AnalysisConfig, CaseConfig, ExperimentConfig

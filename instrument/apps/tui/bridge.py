@@ -16,8 +16,7 @@ from dataclasses import dataclass
 
 from textual.message import Message
 
-from bodebench.bench.events import BusStatus, PointProgress
-from bodebench.bench.worker import Health
+from bodebench.bench.events import BusStatus, Health, PointProgress
 from bodebench.core.autointegration import SeriesState
 
 #: progress summaries kept between two refreshes of the UI (older ones are dropped first)

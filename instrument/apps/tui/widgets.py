@@ -33,7 +33,7 @@ from bodebench.apps.tui.model import (
     Row,
     SeriesTrace,
 )
-from bodebench.bench.worker import Health
+from bodebench.bench.events import Health
 from bodebench.core.response import FrequencyResponse
 from bodebench.core.summary import ResponseSummary, summarize_response
 
