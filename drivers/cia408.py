@@ -73,6 +73,7 @@ RESET_BIT = 0x0008
 CONTROL_MODES: dict[str, int] = {
     "spool_open_loop": 1,  # spool position, open loop
     "spool": 2,            # spool position, closed loop
+    "pq": 5,               # pressure/flow (p/Q): the pressure set point swept
     "velocity": 7,         # axis velocity
     "position": 9,         # axis position
 }
@@ -81,6 +82,7 @@ CONTROL_MODES: dict[str, int] = {
 PROCESS_VALUES: dict[str, tuple[int, int]] = {
     "spool_open_loop": (0x6300, 0x6301),
     "spool": (0x6300, 0x6301),
+    "pq": (0x6380, 0x6381),
     "velocity": (0x6500, 0x6501),
     "position": (0x6600, 0x6601),
 }

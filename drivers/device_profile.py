@@ -124,7 +124,7 @@ CIA408 = DeviceProfile(
               (0x6043, "device control mode")),
     default_mode="spool",
     setpoints={mode: f"0x{pair[0]:04X}:1" for mode, pair in cia408.PROCESS_VALUES.items()},
-    actuals={mode: {"spool" if pair[1] == 0x6301 else mode: f"0x{pair[1]:04X}:1"}
+    actuals={mode: {{0x6301: "spool", 0x6381: "pressure"}.get(pair[1], mode): f"0x{pair[1]:04X}:1"}
              for mode, pair in cia408.PROCESS_VALUES.items()},
     decode=cia408.decode_statusword,
     running=_D408.ACTIVE,

@@ -205,6 +205,15 @@ def test_config_errors_name_the_key(change: dict[str, Any], message: str) -> Non
     assert "\n" not in str(info.value)
 
 
+def test_pressure_flow_control_sweeps_the_pressure_set_point() -> None:
+    data = bench(channel(), canopen={"mode": "pq"}, bench={"output_channels": ["pressure"]})
+    setup = parse_config(data, "pq.toml").cases[0].canopen_setup
+    assert setup is not None and setup.device_profile.modes[setup.mode] == 5
+    assert (setup.setpoint.index, setup.setpoint.subindex) == (0x6380, 1)
+    assert [(n, r.index, r.subindex) for n, r, _ in setup.actual] == [("pressure", 0x6381, 1)]
+    assert setup.setpoint_scale == 1.0  # prefix 0 in the shipped EDS
+
+
 def test_a_402_mode_on_a_402_drive_still_loads() -> None:
     data = bench(channel(), canopen={"profile": "402", "mode": "", "eds": str(SIMULATED_DRIVE_EDS),
                                      "setpoint_scale": 1e-9},

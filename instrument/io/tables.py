@@ -517,10 +517,10 @@ class CanopenConfig:
         "choices": ("", *dict.fromkeys(m for p in PROFILES.values() for m in p.modes)),
         "doc": "CiA 402 mode of operation: csp (default), csv, cst (cyclic synchronous position, velocity, torque), "
                "pv, tq (profile velocity, torque); CiA 408 control mode: spool (default, spool position closed "
-               "loop), spool_open_loop, velocity, position (axis)"})
+               "loop), spool_open_loop, pq (pressure/flow: the pressure set point), velocity, position (axis)"})
     setpoint: str = field(default="", metadata={
         "doc": "the object the RPDO carries: index[:subindex] or EDS name; empty: the mode's set point object "
-               "(CiA 402 0x607A, 0x60FF or 0x6071; CiA 408 0x6300:1, 0x6500:1 or 0x6600:1)"})
+               "(CiA 402 0x607A, 0x60FF or 0x6071; CiA 408 0x6300:1, 0x6380:1, 0x6500:1 or 0x6600:1)"})
     setpoint_scale: float | None = field(default=None, metadata={
         "nonzero": True, "doc": "setpoint units per count of the setpoint object (CiA 402 default 1; CiA 408 "
                                 "default: a spool value in % of its reference value 0x6311:1, any other process "
