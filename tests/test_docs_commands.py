@@ -1,5 +1,5 @@
-"""Every command the user documentation shows in a shell block runs as written, in a copy of the repository's
-configs, against the simulated drives: exit status 0 and no traceback.
+"""Every command the user documentation shows in a shell block, and every Python block, runs as written, in a copy of
+the repository's configs, against the simulated drives: exit status 0 and no traceback.
 
 A ``sh`` block is a script: each line is a command (``$ `` prompts marked; lines without one in a block that has
 them are the output shown). A command that serves a drive until stopped (``sim-controller`` without ``--seconds``)
@@ -121,6 +121,25 @@ def test_every_shell_command_of_the_docs_runs_as_written(tmp_path: Path, documen
     assert ran >= 1
 
 
+PYTHON_BLOCK = re.compile(r"^```python\n(.*?)^```", re.S | re.M)
+PYTHON_DOCUMENTS = tuple(str(p.relative_to(ROOT)) for p in sorted((ROOT / "docs").rglob("*.md"))
+                         if PYTHON_BLOCK.search(p.read_text(encoding="utf-8")))
+"""The pages that show Python code: each block runs as a script."""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("document", PYTHON_DOCUMENTS)
+def test_every_python_block_of_the_docs_runs_as_written(tmp_path: Path, document: str) -> None:
+    cwd = _workspace(tmp_path)
+    env = {**os.environ, "PYTHONWARNINGS": "ignore"}
+    for i, block in enumerate(PYTHON_BLOCK.findall((ROOT / document).read_text(encoding="utf-8"))):
+        script = cwd / f"block_{i}.py"
+        script.write_text(block, encoding="utf-8")
+        done = subprocess.run([sys.executable, str(script)], cwd=cwd, env=env, capture_output=True, text=True,
+                              timeout=900)
+        assert done.returncode == 0, f"{document} block {i}:\n{block}\n{done.stderr[-3000:]}"
+
+
 def test_the_site_home_page_shows_the_readme_commands() -> None:
     """docs/index.md starts with the README's two commands, so running README's block covers it."""
     assert shell_blocks("docs/index.md")[0] == shell_blocks("README.md")[0]
@@ -128,3 +147,4 @@ def test_the_site_home_page_shows_the_readme_commands() -> None:
 
 def test_the_documents_run_are_the_ones_with_commands() -> None:
     assert {"README.md", "docs/first-real-sweep.md", "docs/getting-started.md", "docs/canopen.md"} <= set(DOCUMENTS)
+    assert "docs/python-api.md" in PYTHON_DOCUMENTS
