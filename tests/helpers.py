@@ -4,10 +4,15 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import can
 
 from bodebench.drivers.layout import default_layout
+
+if TYPE_CHECKING:
+    from bodebench.bench.events import SessionError
+    from bodebench.bench.session import BenchSession
 
 
 class FrameRecorder:
@@ -69,3 +74,34 @@ def interrupt_after(directory: Path, rows: int) -> None:
     sidecar = json.loads((directory / SIDECAR_NAME).read_text())
     sidecar[CHECKSUMS]["rows"] = sidecar[CHECKSUMS]["rows"][:rows]
     (directory / SIDECAR_NAME).write_text(json.dumps(sidecar, indent=2) + "\n")
+
+
+def sdo_values(frames: list[can.Message], node: int, index: int, *, answers: bool = False) -> list[tuple[int, int]]:
+    """(frame position, value) of every expedited SDO transfer of object ``index`` of CANopen node ``node`` among
+    ``frames``, read as CiA 301 lays them out: downloads from the client (``answers`` False: the values written)
+    or upload answers from the node (True: the values read)."""
+    cob_id, command = (0x580, 0x43) if answers else (0x600, 0x23)
+    out = []
+    for i, m in enumerate(frames):
+        d = bytes(m.data)
+        if m.arbitration_id == cob_id + node and len(d) == 8 and d[0] & 0xE3 == command and \
+                int.from_bytes(d[1:3], "little") == index:
+            out.append((i, int.from_bytes(d[4:8 - ((d[0] >> 2) & 3)], "little")))
+    return out
+
+
+def run_session(data: dict[str, Any], source: str, out: Path | None = None) -> tuple[BenchSession, SessionError | None]:
+    """The bench session of the first case of configuration ``data`` (named ``source`` in errors), run to its end:
+    the session, and the error that stopped it (None when it completed)."""
+    from bodebench.bench.connection import plan_link
+    from bodebench.bench.events import SessionError
+    from bodebench.bench.session import BenchSession
+    from bodebench.io.config import parse_config
+
+    case = parse_config(data, source).cases[0]
+    session = BenchSession(case, plan_link(case), out)
+    try:
+        session.run()
+    except SessionError as exc:
+        return session, exc
+    return session, None

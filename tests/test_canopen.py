@@ -14,11 +14,11 @@ from pathlib import Path
 from typing import Any
 
 import can
+import helpers
 import numpy as np
 import pytest
-from helpers import FrameRecorder
+from helpers import FrameRecorder, sdo_values
 
-from bodebench.bench.connection import plan_link
 from bodebench.bench.events import SessionError
 from bodebench.bench.session import BenchSession
 from bodebench.drivers.canopen_link import CanopenDriver
@@ -69,27 +69,13 @@ def channel() -> str:
 
 
 def sdo_writes(frames: list[can.Message], index: int) -> list[tuple[int, int]]:
-    """(frame position, value) of every expedited SDO download to ``index`` of node 5 (client to server)."""
-    out = []
-    for i, m in enumerate(frames):
-        d = bytes(m.data)
-        if m.arbitration_id == 0x600 + NODE and len(d) == 8 and d[0] & 0xE3 == 0x23 and \
-                int.from_bytes(d[1:3], "little") == index:
-            size = 4 - ((d[0] >> 2) & 3)
-            out.append((i, int.from_bytes(d[4:4 + size], "little")))
-    return out
+    """(frame position, value) of every expedited SDO download to ``index`` of the node (client to server)."""
+    return sdo_values(frames, NODE, index)
 
 
 def sdo_reads(frames: list[can.Message], index: int) -> list[tuple[int, int]]:
-    """(frame position, value) of every expedited SDO upload answer from ``index`` of node 5 (server to client)."""
-    out = []
-    for i, m in enumerate(frames):
-        d = bytes(m.data)
-        if m.arbitration_id == 0x580 + NODE and len(d) == 8 and d[0] & 0xE3 == 0x43 and \
-                int.from_bytes(d[1:3], "little") == index:
-            size = 4 - ((d[0] >> 2) & 3)
-            out.append((i, int.from_bytes(d[4:4 + size], "little")))
-    return out
+    """(frame position, value) of every expedited SDO upload answer from ``index`` of the node."""
+    return sdo_values(frames, NODE, index, answers=True)
 
 
 def assert_left_safe(frames: list[can.Message], *, answered: bool = True) -> None:
@@ -256,13 +242,7 @@ def test_a_node_that_is_not_there_is_named_and_nothing_is_configured() -> None:
 
 
 def run_session(data: dict[str, Any], out: Path | None = None) -> tuple[BenchSession, SessionError | None]:
-    case = parse_config(data, "canopen.toml").cases[0]
-    session = BenchSession(case, plan_link(case), out)
-    try:
-        session.run()
-    except SessionError as exc:
-        return session, exc
-    return session, None
+    return helpers.run_session(data, "canopen.toml", out)
 
 
 def test_a_drive_that_refuses_to_enable_stops_the_session_with_the_reason(tmp_path: Path) -> None:

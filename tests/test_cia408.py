@@ -18,9 +18,10 @@ from pathlib import Path
 from typing import Any
 
 import can
+import helpers
 import numpy as np
 import pytest
-from helpers import FrameRecorder
+from helpers import FrameRecorder, sdo_values
 from scipy.signal import cont2discrete
 
 from bodebench.bench.connection import plan_link
@@ -68,24 +69,12 @@ def bench(name: str, **tables: dict[str, Any]) -> dict[str, Any]:
 
 def sdo_writes(frames: list[can.Message], index: int) -> list[tuple[int, int]]:
     """(frame position, value) of every expedited SDO download to ``index`` of the node (client to server)."""
-    out = []
-    for i, m in enumerate(frames):
-        d = bytes(m.data)
-        if m.arbitration_id == 0x600 + NODE and len(d) == 8 and d[0] & 0xE3 == 0x23 and \
-                int.from_bytes(d[1:3], "little") == index:
-            out.append((i, int.from_bytes(d[4:8 - ((d[0] >> 2) & 3)], "little")))
-    return out
+    return sdo_values(frames, NODE, index)
 
 
 def sdo_reads(frames: list[can.Message], index: int) -> list[tuple[int, int]]:
     """(frame position, value) of every expedited SDO upload answer from ``index`` of the node."""
-    out = []
-    for i, m in enumerate(frames):
-        d = bytes(m.data)
-        if m.arbitration_id == 0x580 + NODE and len(d) == 8 and d[0] & 0xE3 == 0x43 and \
-                int.from_bytes(d[1:3], "little") == index:
-            out.append((i, int.from_bytes(d[4:8 - ((d[0] >> 2) & 3)], "little")))
-    return out
+    return sdo_values(frames, NODE, index, answers=True)
 
 
 def assert_left_disabled(frames: list[can.Message], *, safe: tuple[State, ...] = (State.DISABLED,)) -> None:
@@ -317,13 +306,7 @@ def test_a_device_in_fault_is_refused_or_reset_by_the_edge_of_bit_3() -> None:
 
 
 def run_session(data: dict[str, Any], out: Path | None = None) -> tuple[BenchSession, SessionError | None]:
-    case = parse_config(data, "valve.toml").cases[0]
-    session = BenchSession(case, plan_link(case), out)
-    try:
-        session.run()
-    except SessionError as exc:
-        return session, exc
-    return session, None
+    return helpers.run_session(data, "valve.toml", out)
 
 
 def test_a_sweep_of_the_shipped_valve_config_is_within_its_tolerance_of_the_exact_response(tmp_path: Path) -> None:
