@@ -15,6 +15,8 @@ __all__ = ["EXTRAS", "MissingDependency", "missing", "require"]
 EXTRAS: dict[str, tuple[str, str]] = {
     "canopen": ("canopen", "canopen"),
     "msgpack": ("msgpack", "rehearse"),
+    "control": ("control", "export"),
+    "pandas": ("pandas", "export"),
 }
 """Module -> (the package pip installs it from, the extra of bodebench that installs it), as pyproject.toml lists."""
 

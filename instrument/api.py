@@ -12,7 +12,7 @@ from __future__ import annotations
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bodebench.bench.events import Listener
 from bodebench.core.response import FrequencyResponse
@@ -24,6 +24,10 @@ __all__ = ["ConfigSource", "Response", "configure", "load", "run", "simulate"]
 
 ConfigSource = str | Path | Mapping[str, Any] | ExperimentConfig
 """What the sweeps accept as a configuration: a TOML path, a dict shaped like the file, or a loaded config."""
+
+
+if TYPE_CHECKING:
+    from bodebench.core.fit import TransferFit
 
 
 class Response(FrequencyResponse):
@@ -45,6 +49,16 @@ class Response(FrequencyResponse):
     def to_dataframe(self) -> Any:
         """One pandas row per point; see :func:`export.to_dataframe`."""
         return export.to_dataframe(self)
+
+    def fit(self, order: tuple[int, int] | None = None, *, max_order: int = 4, harmonic: int = 1,
+            channel: str | None = None, integrator: bool = False, delay: bool = False) -> TransferFit:
+        """A rational transfer function fitted to one harmonic and channel, each point weighted by its interval:
+        of ``order`` (numerator, denominator degrees), or the stable order of least BIC up to ``max_order``; see
+        :mod:`bodebench.core.fit`. ValueError saying why when there is nothing to fit."""
+        from bodebench.analysis.fitting import fit_response
+
+        return fit_response(self, order, max_order=max_order, harmonic=harmonic, channel=channel,
+                            integrator=integrator, delay=delay)[0]
 
 
 def configure(config: ConfigSource) -> ExperimentConfig:

@@ -102,7 +102,8 @@ def test_to_dataframe_has_a_row_per_point(response: bodebench.Response) -> None:
 
 def test_a_missing_exporter_library_is_named(response: bodebench.Response, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "control", None)  # import control now raises ImportError
-    with pytest.raises(bodebench.MissingDependency, match="to_frd needs control: pip install control"):
+    with pytest.raises(bodebench.MissingDependency,
+                       match=r"to_frd needs the control package: pip install 'bodebench\[export\]'"):
         response.to_frd()
     monkeypatch.setitem(sys.modules, "pandas", None)
     with pytest.raises(bodebench.MissingDependency, match="pip install pandas"):

@@ -17,6 +17,7 @@ from bodebench.apps.commands.check import _check
 from bodebench.apps.commands.common import _ArgumentError, _cause, _chain_options, _jobs, _override, _plot_formats
 from bodebench.apps.commands.dbc import _dbc
 from bodebench.apps.commands.example import _example
+from bodebench.apps.commands.fit import _fit
 from bodebench.apps.commands.identify import _identify
 from bodebench.apps.commands.plot import _plot
 from bodebench.apps.commands.ports import _ports
@@ -235,6 +236,21 @@ def build_parser() -> argparse.ArgumentParser:
                      help="worker processes (default: all cores; 1 runs in this process)")
     cal.add_argument("--executor", default=None, metavar="SCHEDULER", help=EXECUTOR_HELP)
     cal.set_defaults(handler=_calibrate)
+    fit = add("fit", help="fit a rational transfer function to a measured response, weighted by each point's "
+                          "interval")
+    fit.add_argument("results", metavar="RESULTS_DIR", help="directory holding response.csv and response.json")
+    fit.add_argument("--order", default=None, metavar="NUM/DEN",
+                     help="numerator and denominator degrees (the integrator counted), e.g. 0/2 (default: each "
+                          "order up to --max-order, the stable one of least BIC)")
+    fit.add_argument("--max-order", type=int, default=4, help="highest denominator degree compared (default 4)")
+    fit.add_argument("--integrator", action="store_true", help="a pole at s = 0 (a position loop's plant)")
+    fit.add_argument("--fit-delay", action="store_true", help="fit a transport delay as well")
+    fit.add_argument("--harmonic", type=int, default=1, help="measured harmonic to fit (default 1)")
+    fit.add_argument("--channel", default=None, help="output channel (default: the first)")
+    fit.add_argument("--json", action="store_true", help="print the fit as JSON (it is written to fit.json)")
+    _chain_options(fit)
+    fit.set_defaults(handler=_fit)
+
     ident = add("identify", help="identify the friction link (F_ct, m) from a measured response")
     ident.add_argument("results", metavar="RESULTS_DIR", help="directory holding response.csv and response.json")
     ident.add_argument("--json", action="store_true", help="print the report as JSON")

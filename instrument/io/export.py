@@ -8,15 +8,13 @@ magnitude is the gain (output units per input unit) and its angle the phase, so 
 
 from __future__ import annotations
 
-import importlib
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import numpy as np
 
 from bodebench.core.response import FrequencyResponse
-from bodebench.drivers.extras import MissingDependency
+from bodebench.drivers.extras import MissingDependency, require
 
 __all__ = ["MAT_COLUMNS", "MissingDependency", "mat_arrays", "save_mat", "to_dataframe", "to_frd"]
 
@@ -27,13 +25,6 @@ MAT_COLUMNS: tuple[str, ...] = (
     "uncertainty_1d", "gain_ci", "gain_db_ci", "phase_ci_deg", "periods", "converged", "within_eps",
     "periods_needed", "periods_discarded", "thd", "coherence", "drift_per_s", "status",
 )
-
-
-def _require(module: str, package: str, what: str) -> ModuleType:
-    try:
-        return importlib.import_module(module)
-    except ImportError:
-        raise MissingDependency(f"{what} needs {package}: pip install {package}") from None
 
 
 def _series(response: FrequencyResponse, harmonic: int, channel: str | None) -> FrequencyResponse:
@@ -57,7 +48,7 @@ def to_frd(response: FrequencyResponse, harmonic: int = 1, channel: str | None =
 
     Frequencies are the excitation's, as angular frequencies (rad/s), in ascending order; the data are the complex
     responses. Raises :class:`MissingDependency` without python-control, ValueError for an empty selection."""
-    control = _require("control", "control", "to_frd")
+    control = require("control", "to_frd")
     chosen = _series(response, harmonic, channel)
     name = f"{chosen.case or 'response'}:{chosen.points[0].channel}:h{harmonic}"
     return control.frd(chosen.complex_response(), 2.0 * np.pi * chosen.frequency_hz, name=name)
@@ -107,7 +98,7 @@ def save_mat(response: FrequencyResponse, path: str | Path) -> Path:
     ``thd``, ``coherence``. ``series.<channel>_h<k>``
     is a struct per channel and harmonic, sorted by frequency: ``frequency_hz``, ``response``, ``gain``,
     ``phase_deg``, ``gain_ci``, ``phase_ci_deg``, ``status``. ``case`` names the case."""
-    sio = _require("scipy.io", "scipy", "to_mat")
+    import scipy.io as sio
     path = Path(path)
     sio.savemat(str(path), mat_arrays(response), oned_as="column", do_compression=True)
     return path
@@ -116,7 +107,7 @@ def save_mat(response: FrequencyResponse, path: str | Path) -> Path:
 def to_dataframe(response: FrequencyResponse) -> Any:
     """A pandas ``DataFrame`` with one row per point (columns :data:`MAT_COLUMNS` and the complex ``response``).
     Raises :class:`MissingDependency` without pandas."""
-    pandas = _require("pandas", "pandas", "to_dataframe")
+    pandas = require("pandas", "to_dataframe")
     data = {name: _column(response, name) for name in MAT_COLUMNS}
     data["response"] = response.complex_response()
     return pandas.DataFrame(data)

@@ -12,7 +12,6 @@ from bodebench.apps.commands.common import _chain_taken_off, _print_summary
 log = logging.getLogger("bodebench")
 
 
-
 def _analyse(args: argparse.Namespace) -> int:
     from bodebench.analysis.reanalyse import reanalyse
     from bodebench.io.results import CSV_NAME, ResultsError, load_response, save_response, verify_results

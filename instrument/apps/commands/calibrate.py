@@ -11,7 +11,6 @@ from pathlib import Path
 log = logging.getLogger("bodebench")
 
 
-
 def _calibrate(args: argparse.Namespace) -> int:
     from bodebench.analysis import calibration
     from bodebench.bench.offline import ExecutorError, offline_executor

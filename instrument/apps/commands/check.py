@@ -10,7 +10,6 @@ from bodebench.apps.commands.common import _load
 log = logging.getLogger("bodebench")
 
 
-
 def _check(args: argparse.Namespace) -> int:
     from bodebench.apps.check import check_lines
 

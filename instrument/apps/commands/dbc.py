@@ -10,7 +10,6 @@ from bodebench.apps.commands.common import _load, _write_new
 log = logging.getLogger("bodebench")
 
 
-
 def _dbc(args: argparse.Namespace) -> int:
     from bodebench.drivers.dbc import layout_database
     from bodebench.io.config import ConfigError

@@ -10,7 +10,6 @@ from bodebench.apps.commands.common import _ArgumentError, _write_new
 log = logging.getLogger("bodebench")
 
 
-
 def _example(args: argparse.Namespace) -> int:
     from bodebench.io.examples import ExampleError, example, examples
 

@@ -12,7 +12,6 @@ from bodebench.apps.commands.common import _chain_taken_off
 log = logging.getLogger("bodebench")
 
 
-
 def _identify(args: argparse.Namespace) -> int:
     import dataclasses
     import json

@@ -10,7 +10,6 @@ from pathlib import Path
 log = logging.getLogger("bodebench")
 
 
-
 def _plot(args: argparse.Namespace) -> int:
     from bodebench.apps.plots import plot_comparison
     from bodebench.io.results import CSV_NAME, ResultsError, load_response

@@ -10,7 +10,6 @@ from bodebench.apps.commands.common import _ArgumentError
 log = logging.getLogger("bodebench")
 
 
-
 def _ports(args: argparse.Namespace) -> int:
     import json
 

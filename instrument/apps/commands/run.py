@@ -11,7 +11,6 @@ from bodebench.apps.commands.common import _bench_sweeps, _existing, _load, _plo
 log = logging.getLogger("bodebench")
 
 
-
 def _run(args: argparse.Namespace) -> int:
     from bodebench.io.config import ConfigError
 

@@ -16,7 +16,6 @@ from bodebench.apps.commands.common import _ArgumentError, _load
 log = logging.getLogger("bodebench")
 
 
-
 def _sim_controller(args: argparse.Namespace) -> int:
     from bodebench.bench.connection import simulator_spec
     from bodebench.io.config import ConfigError

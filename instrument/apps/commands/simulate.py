@@ -18,7 +18,6 @@ from bodebench.apps.commands.common import _also, _bench_sweeps, _existing, _loa
 log = logging.getLogger("bodebench")
 
 
-
 def _simulate(args: argparse.Namespace) -> int:
     from bodebench.bench.events import CaseBegins, PointFinished
     from bodebench.bench.offline import ExecutorError, offline_executor
