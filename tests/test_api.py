@@ -65,6 +65,13 @@ def test_to_frd_agrees_with_python_control(response: bodebench.Response) -> None
     fmag, fphase, _ = frd.frequency_response(omega)
     assert np.allclose(np.asarray(fmag), np.asarray(mag), rtol=1e-4, atol=0)
     assert np.allclose(np.unwrap(np.asarray(fphase)), np.unwrap(np.asarray(phase)), atol=1e-4)
+    # each point's interval goes along, in frequency order, and the exact model lies within it
+    first = response.select(harmonic=1)
+    assert np.array_equal(frd.gain_ci, [p.gain_ci for p in first.points])
+    assert np.array_equal(frd.phase_ci_deg, [p.phase_ci_deg for p in first.points])
+    exact = np.array([complex(model(1j * w)) for w in omega])
+    assert np.all(np.abs(evaluated - exact) <= frd.interval_95 + 1e-12 * np.abs(exact))
+    assert list(frd.converged) == [p.converged for p in first.points]
     second = response.to_frd(harmonic=2)
     assert np.array_equal(np.array([complex(second(1j * w)) for w in omega]),
                           response.select(harmonic=2).complex_response())

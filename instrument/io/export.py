@@ -47,11 +47,22 @@ def to_frd(response: FrequencyResponse, harmonic: int = 1, channel: str | None =
     """python-control's ``FrequencyResponseData`` of one harmonic and channel (default: the first channel).
 
     Frequencies are the excitation's, as angular frequencies (rad/s), in ascending order; the data are the complex
-    responses. Raises :class:`MissingDependency` without python-control, ValueError for an empty selection."""
+    responses. Each point's interval goes with them as attributes of the object, in the same order:
+    ``interval_95`` the 95 % half-width of the complex response along one direction (relative to the input
+    amplitude, the response's units), ``gain_ci`` and ``phase_ci_deg`` the 95 % half-widths of the gain (per unit
+    input) and of the phase (degrees), ``converged`` and ``status`` each point's verdict. Raises
+    :class:`MissingDependency` without python-control, ValueError for an empty selection."""
     control = require("control", "to_frd")
     chosen = _series(response, harmonic, channel)
     name = f"{chosen.case or 'response'}:{chosen.points[0].channel}:h{harmonic}"
-    return control.frd(chosen.complex_response(), 2.0 * np.pi * chosen.frequency_hz, name=name)
+    system = control.frd(chosen.complex_response(), 2.0 * np.pi * chosen.frequency_hz, name=name)
+    half = np.array([p.uncertainty_1d if np.isfinite(p.uncertainty_1d) else p.uncertainty for p in chosen.points])
+    system.interval_95 = half / np.array([p.amplitude for p in chosen.points])
+    system.gain_ci = np.array([p.gain_ci for p in chosen.points])
+    system.phase_ci_deg = np.array([p.phase_ci_deg for p in chosen.points])
+    system.converged = np.array([p.converged for p in chosen.points])
+    system.status = [str(p.status) for p in chosen.points]
+    return system
 
 
 def _column(response: FrequencyResponse, name: str) -> np.ndarray:
