@@ -74,7 +74,8 @@ def main() -> int:
               + (" with an integrator" if how["integrator"] else "") + (" and a delay" if how["delay"] else "")
               + f", {args.seeds} seeds")
         shares = ", ".join(f"{n} {r:.3f}" for n, r in zip(fit.names, rate, strict=True))
-        print(f"  coverage of the 95 % intervals: {shares}  (target 0.95 +- {spread:.3f}: {'met' if ok_cover else 'NOT met'})")
+        print(f"  coverage of the 95 % intervals: {shares}  (target 0.95 +- {spread:.3f}: "
+              f"{'met' if ok_cover else 'NOT met'})")
         print(f"  chi-square per degree of freedom: mean {np.mean(chi2):.3f} (about 1 when the model holds)")
         print(f"  CPU time of a fit: least {min(times) * 1e3:.1f} ms, median {np.median(times) * 1e3:.1f} ms, "
               f"largest {max(times) * 1e3:.1f} ms  (target: median < {MEDIAN_TARGET_S * 1e3:.0f} ms: "
