@@ -128,6 +128,11 @@ def test_the_command_fits_an_offline_sweep_of_a_lag(tmp_path: Path, capsys: pyte
     assert abs(b0 - 40.0) <= Q95 * data["standard_errors"]["b0"] + 1e-9
     assert data["den"] == pytest.approx([1.0, 20.0]) and data["stable"] is True
     assert data["chi2"] / data["dof"] < 1.5
+    assert (out / "fit.png").stat().st_size > 0  # the fit over the data, and the residuals
+    (out / "fit.png").unlink()
+    assert main(["fit", str(out), "--order", "0/1", "--no-plot", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["den"] == pytest.approx([1.0, 20.0])
+    assert not (out / "fit.png").exists()
     assert main(["fit", str(out), "--order", "3/1"]) == 2
     assert "need 0 <= NUM <= DEN" in capsys.readouterr().err
 

@@ -4,6 +4,7 @@ each weighted by its stated interval, given to :mod:`bodebench.core.fit`; the re
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -12,10 +13,10 @@ from scipy.stats import chi2
 from bodebench.core.fit import Q95, TransferFit, fit_transfer_function, select_order
 from bodebench.core.response import PHASE_UNDEFINED_STATUSES, FrequencyResponse
 
-__all__ = ["fit_response", "fit_to_json", "fit_lines", "to_control"]
+__all__ = ["fit_data", "fit_lines", "fit_response", "fit_to_json", "plot_fit", "to_control"]
 
 
-def _data(response: FrequencyResponse, harmonic: int, channel: str | None) -> tuple[np.ndarray, np.ndarray,
+def fit_data(response: FrequencyResponse, harmonic: int, channel: str | None) -> tuple[np.ndarray, np.ndarray,
                                                                                     np.ndarray, str]:
     """(frequency Hz, complex response, standard deviation, channel) of the points that state an interval."""
     sel = response.select(harmonic=harmonic)
@@ -45,7 +46,7 @@ def fit_response(response: FrequencyResponse, order: tuple[int, int] | None = No
     """The fit of one harmonic and channel of ``response`` (default harmonic 1, the first channel): of
     ``order`` (numerator, denominator), or the order of least BIC up to ``max_order``. (the fit, every
     fit compared, the channel). ValueError saying why when there is nothing to fit."""
-    f, h, sd, name = _data(response, harmonic, channel)
+    f, h, sd, name = fit_data(response, harmonic, channel)
     if order is not None:
         fit = fit_transfer_function(f, h, sd, order[0], order[1], integrator=integrator, delay=delay)
         return fit, [fit], name
@@ -128,3 +129,50 @@ def to_control(fit: TransferFit) -> Any:
 
     den = np.concatenate([fit.den, [0.0]]) if fit.integrator else fit.den
     return control.tf(fit.num, den)
+
+
+def plot_fit(fit: TransferFit, response: np.ndarray, sigma: np.ndarray, stem: Path, title: str = "",
+             points: int = 300) -> list[Path]:
+    """The measured points (with their 95 % intervals) and the fitted G over them, gain (dB) and phase (degrees),
+    and below them each point's residual in standard deviations (real and imaginary parts). Writes
+    ``stem``.png; returns the path."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8.0, 8.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax_g, ax_p, ax_r = fig.subplots(3, 1, sharex=True)
+    f = fit.frequency_hz
+    grid = np.geomspace(f.min(), f.max(), points)
+    model = fit.evaluate(grid)
+    relative = Q95 * sigma / np.abs(response)
+    ax_g.errorbar(f, 20 * np.log10(np.abs(response)), yerr=20 / math.log(10) * relative, fmt="o", ms=4, color="k",
+                  label="measured (95 %)")
+    ax_g.plot(grid, 20 * np.log10(np.abs(model)), "-", color="tab:blue", label=f"fit, order {fit.order[0]}/"
+                                                                                 f"{fit.order[1]}")
+    unwrap = np.degrees(np.unwrap(np.angle(model)))
+    measured_phase = np.degrees(np.angle(response))
+    # the measured phases on the model's branch, point by point
+    at = np.interp(np.log(f), np.log(grid), unwrap)
+    measured_phase = measured_phase + 360.0 * np.round((at - measured_phase) / 360.0)
+    ax_p.errorbar(f, measured_phase, yerr=np.degrees(np.minimum(relative, 1.0)), fmt="o", ms=4, color="k")
+    ax_p.plot(grid, unwrap, "-", color="tab:blue")
+    ax_r.plot(f, fit.residuals.real, "o", ms=4, color="tab:green", label="real part")
+    ax_r.plot(f, fit.residuals.imag, "s", ms=4, mfc="none", color="tab:purple", label="imaginary part")
+    for level in (-2.0, 2.0):
+        ax_r.axhline(level, color="0.6", lw=0.8, ls="--")
+    ax_r.axhline(0.0, color="0.3", lw=0.8)
+    ax_g.set_xscale("log")
+    ax_g.set_ylabel("Gain (dB)")
+    ax_p.set_ylabel("Phase (deg)")
+    ax_r.set_ylabel("Residual (sd)")
+    ax_r.set_xlabel("Frequency (Hz)")
+    ax_g.legend(fontsize="small")
+    ax_r.legend(fontsize="small")
+    for ax in (ax_g, ax_p, ax_r):
+        ax.grid(True, which="both", alpha=0.4)
+    if title:
+        fig.suptitle(title)
+    path = Path(f"{stem}.png")
+    fig.savefig(path)
+    return [path]

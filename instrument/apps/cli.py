@@ -248,6 +248,8 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--harmonic", type=int, default=1, help="measured harmonic to fit (default 1)")
     fit.add_argument("--channel", default=None, help="output channel (default: the first)")
     fit.add_argument("--json", action="store_true", help="print the fit as JSON (it is written to fit.json)")
+    fit.add_argument("--no-plot", action="store_true", help="do not write fit.png (the fit over the data and the "
+                                                            "residuals)")
     _chain_options(fit)
     fit.set_defaults(handler=_fit)
 

@@ -28,7 +28,7 @@ def _order(text: str) -> tuple[int, int]:
 def _fit(args: argparse.Namespace) -> int:
     import json
 
-    from bodebench.analysis.fitting import fit_lines, fit_response, fit_to_json
+    from bodebench.analysis.fitting import fit_data, fit_lines, fit_response, fit_to_json, plot_fit
     from bodebench.io.results import ResultsError, atomic_write_text, load_response
 
     directory = Path(args.results)
@@ -45,5 +45,13 @@ def _fit(args: argparse.Namespace) -> int:
         atomic_write_text(directory / FIT_NAME, json.dumps(data, indent=2, allow_nan=False) + "\n")
     except OSError as exc:
         raise ResultsError(f"{directory / FIT_NAME}: cannot write: {exc.strerror or exc}") from None
+    status = 0
+    if not args.no_plot:
+        _, h, sd, _ = fit_data(response, args.harmonic, channel)
+        try:
+            plot_fit(fit, h, sd, directory / "fit", title=f"{response.case or directory.name}: {channel}")
+        except OSError as exc:
+            print(f"bodebench: {directory}: cannot write the fit's plot: {exc.strerror or exc}", file=sys.stderr)
+            status = 1
     print(json.dumps(data, indent=2, allow_nan=False) if args.json else "\n".join(fit_lines(fit, fits, channel)))
-    return 0
+    return status
