@@ -22,6 +22,9 @@ def test_periods_to_go_follows_a_power_law() -> None:
     assert periods_to_go(n, 500.0 / n) == pytest.approx(500 - 100, rel=1e-6)
     assert periods_to_go(n, 0.5 / n) == 0.0
     assert periods_to_go(n, 3.0 + 0.0 * n) is None  # not falling
+    # a transient still settling (falling as n**-0.05 over the last decade, ratio 2 at the last period) is
+    # followed at the n**-1/2 of steady periods: ratio 2 at n = 100 reaches 1 at 400, not at 100 * 2**20
+    assert periods_to_go(n, 2.0 * (n / n[-1]) ** -0.05) == pytest.approx(400 - 100, rel=1e-6)
     assert periods_to_go(n[:3], 10 / n[:3]) is None
     assert periods_to_go([], []) is None
 

@@ -27,6 +27,9 @@ MAX_LOG_GROWTH = 30.0
 """A power law that reaches the tolerance only beyond e**30 times the periods so far tells nothing."""
 NEAREST = 3
 """Measured points whose median predicts a frequency beyond them."""
+STEADY_SLOPE = -0.5
+"""The slowest a confidence half-width falls with the periods averaged once the periods are steady (noise alone:
+n**-1/2); a shallower fitted slope is extrapolated at this one."""
 KEEP_VALUES = 256
 """Values a series keeps for the fit; beyond, every other one of the older half is dropped."""
 
@@ -35,7 +38,8 @@ def periods_to_go(periods: Sequence[float], ratio: Sequence[float]) -> float | N
     """Periods left until ``ratio`` (a series' confidence half-width over its rule's stopping half-width,
     per period in ``periods``, increasing) falls to 1, from a power law ``ratio = C n**b`` fitted (least squares
     in log-log) to the finite positive values of the last decade of periods and followed from its value at the
-    last period; 0 when already at or below 1; None when unknown (fewer than 4 values, or not falling)."""
+    last period, b at most :data:`STEADY_SLOPE`; 0 when already at or below 1; None when unknown (fewer than 4
+    values, or not falling)."""
     n = np.asarray(periods, dtype=float)
     r = np.asarray(ratio, dtype=float)
     ok = np.isfinite(n) & np.isfinite(r) & (n > 0) & (r > 0)
@@ -52,6 +56,9 @@ def periods_to_go(periods: Sequence[float], ratio: Sequence[float]) -> float | N
     if not slope < -1e-3:
         return None
     log_r_last = intercept + slope * math.log(n[-1])
+    # an average's half-width falls at least as n**-1/2 once the periods are steady (noise alone); a shallower
+    # fall on the last decade is a transient still settling, which would extrapolate to any number of periods
+    slope = min(slope, STEADY_SLOPE)
     if log_r_last <= 0.0:
         return 0.0
     growth = -log_r_last / slope  # log of n_reach / n_last
