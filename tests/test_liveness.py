@@ -79,3 +79,18 @@ def test_a_host_that_stalled_is_not_a_drive_that_stopped() -> None:
     moving = FlatWatch(("position",), f)
     moving.add(t, frozen, driven=np.ones(t.size, dtype=bool))
     assert moving.stuck().startswith("position held 0 for")
+
+
+def test_a_host_that_stalls_now_and_then_neither_hides_a_drive_that_stopped_nor_is_blamed_for_its_stalls() -> None:
+    """On a loaded host a tick now and then goes out late (the setpoint does not move there). The drive's output
+    held still throughout: the driven time still adds up to a verdict, a stall only pauses the count; the held time
+    stated is the driven time, not the wall time."""
+    f = 10.0
+    t = np.arange(0, 100) / 100.0  # 10 periods
+    frozen = np.zeros((t.size, 1))
+    driven = np.arange(t.size) % 10 != 0  # one tick in ten stalled
+    watch = FlatWatch(("position",), f)
+    for part in np.array_split(np.arange(t.size), 7):
+        watch.add(t[part], frozen[part], driven=driven[part])
+    line = watch.stuck()
+    assert line.startswith("position held 0 for 0.9 s (9 periods)"), line  # 90 of the 99 intervals driven

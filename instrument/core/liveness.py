@@ -25,7 +25,7 @@ FLAT_PERIODS = 2.0
 
 
 class FlatWatch:
-    """Tracks, per channel, since when (s) it has held its current value.
+    """Tracks, per channel, how long (s) it has held its current value while the host drove the sine.
 
     channels: the names of the columns fed (outputs, and the setpoint echo where the drive sends one);
     frequency_hz: the excitation frequency f (Hz); periods: how many periods of f a held value may last.
@@ -36,31 +36,38 @@ class FlatWatch:
         self.frequency_hz = frequency_hz
         self.limit_s = periods / frequency_hz
         self._value = np.full(len(self.channels), math.nan)
-        self._since = np.full(len(self.channels), math.nan)  # time (s) of the first sample of the held value
+        self._held = np.zeros(len(self.channels))  # driven time (s) the current value has been held
         self._last_t = math.nan
 
     def add(self, t: np.ndarray, values: np.ndarray, driven: np.ndarray | None = None) -> None:
         """Samples: times (n,) in s, increasing, and values (n, channels); driven: (n,) False where the host's
-        setpoint did not move (a host that stalled, a sine not yet started): no drive is blamed for holding still
-        then, so those samples count as changed."""
+        setpoint did not move (a host that stalled, a sine not yet started). The interval up to a sample counts
+        towards a held value only where the host drove it: no drive is blamed for holding still while the host
+        did, and a stall neither restarts nor lengthens the count."""
         if t.size == 0:
             return
+        t = np.asarray(t, dtype=np.float64)
         v = np.asarray(values, dtype=np.float64)
-        changed = np.vstack((v[:1] != self._value, v[1:] != v[:-1]))  # (n, channels): differs from the sample before
+        dt = np.diff(t, prepend=t[0] if math.isnan(self._last_t) else self._last_t)
         if driven is not None:
-            changed |= ~np.asarray(driven, dtype=bool)[:, None]
+            dt = np.where(np.asarray(driven, dtype=bool), dt, 0.0)
+        counted = np.cumsum(dt[::-1])[::-1]  # driven time from each sample's interval to the last sample
+        changed = np.vstack((v[:1] != self._value, v[1:] != v[:-1]))  # (n, channels): differs from the sample before
         for c in range(v.shape[1]):
             moves = np.flatnonzero(changed[:, c])
-            if moves.size:
-                self._since[c] = t[moves[-1]]
+            if moves.size:  # held since that sample: the driven time after it
+                k = moves[-1]
+                self._held[c] = counted[k + 1] if k + 1 < t.size else 0.0
+            else:
+                self._held[c] += counted[0]
         self._value = v[-1].copy()
         self._last_t = float(t[-1])
 
     def stuck(self) -> str:
         """'' while every channel moves; else one line naming the first channel that has held one value for longer
-        than the limit, with the value and for how long."""
+        than the limit (driven time), with the value and for how long."""
         for c, name in enumerate(self.channels):
-            held = self._last_t - self._since[c]
+            held = self._held[c]
             if held > self.limit_s:
                 return (f"{name} held {self._value[c]:g} for {held:.3g} s ({held * self.frequency_hz:.3g} periods) "
                         "while the sine ran")
