@@ -5,7 +5,6 @@ benchmarks from their own docstrings."""
 from __future__ import annotations
 
 import ast
-import shutil
 from pathlib import Path
 
 import mkdocs_gen_files
@@ -13,18 +12,6 @@ import mkdocs_gen_files
 from bodebench.io.reference import configuration_reference
 
 ROOT = Path(__file__).resolve().parent.parent
-
-# the API reference reads the source as the installed package lays it out (bodebench/ = instrument/,
-# bodebench/drivers = drivers/, bodebench/sim = sim/): a tree of links to its modules, for mkdocstrings' paths
-PACKAGE = ROOT / "build" / "docs-package" / "bodebench"
-if PACKAGE.exists():
-    shutil.rmtree(PACKAGE)
-for source, target in ((ROOT / "instrument", PACKAGE), (ROOT / "drivers", PACKAGE / "drivers"),
-                       (ROOT / "sim", PACKAGE / "sim")):
-    for module in source.rglob("*.py"):  # real folders, linked files: the finder walks no linked folder
-        link = target / module.relative_to(source)
-        link.parent.mkdir(parents=True, exist_ok=True)
-        link.symlink_to(module)
 
 protocol = (ROOT / "drivers" / "PROTOCOL.md").read_text(encoding="utf-8")
 with mkdocs_gen_files.open("protocol.md", "w") as page:
