@@ -1,6 +1,6 @@
 """Does a point that says `converged` hold its eps, and does its interval mean 95 %? A battery against exact answers.
 
-Run: python benchmarks/bench_accuracy.py [--quick] [--bench [--folds move]]
+Run: python benchmarks/bench_accuracy.py [--quick] [--bench [--folds move|bound]]
 
 Battery (noise-free), every case simulated from rest exactly as the offline experiment does (step 1/(K_f f),
 K_f = 200), harmonics 1 to 3, the default rule replayed period by period through the Autointegrator's own order
@@ -517,8 +517,9 @@ def run_bench(task: tuple[str, int, float, str]) -> list[BenchRow]:
     kind, index, eps, folds = task
     sc = scenario(kind, index, folds)
     rng = np.random.default_rng((BENCH_SEED, BENCH_KINDS.index(kind), index, int(round(eps * 1e4))))
-    analysis = AnalysisConfig(harmonics=HARMONICS, tolerance_percent=eps, max_periods=BENCH_MAX_PERIODS)
-    sampler = Autointegrator(sc.frequency_hz, sc.amplitude, ("y",), analysis, t0=sc.t0, grid_steps_per_period=0)
+    analysis = AnalysisConfig(harmonics=HARMONICS, tolerance_percent=eps, max_periods=BENCH_MAX_PERIODS, folds=folds)
+    sampler = Autointegrator(sc.frequency_hz, sc.amplitude, ("y",), analysis, t0=sc.t0, grid_steps_per_period=0,
+                             samples_per_period=sc.rate_hz / sc.frequency_hz)
     limit = (BENCH_MAX_PERIODS + 10) * sc.rate_hz / sc.frequency_hz
     watch = FlatWatch(("y",), sc.frequency_hz)
     n = 0

@@ -23,6 +23,10 @@ class PointStatus(StrEnum):
     DISTURBED = "disturbed"
     """A periodic disturbance line ([analysis] disturbance_hz) lies within the point's resolution of its harmonic:
     whatever of it reached the output is in the value, and the interval cannot show it; not converged."""
+    ALIAS_LIMITED = "alias_limited"
+    """The sample rate folds content of the response above the measured harmonics onto this one, the same in every
+    period, and the bound on it the record gives (bodebench.core.benchgrid.fold_bound) does not fit in the tolerance:
+    the interval includes that bound; not converged."""
     UNTIED = "untied"
     """Realtime clock, and the drive gives no way to date the sine on its own clock (no setpoint echo, no SYNC):
     the host's latency is in the phase; the gain stands, the phase does not; not converged."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import uuid
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -220,3 +221,127 @@ def test_the_loader_moves_a_bench_plan_off_folds_only_when_asked() -> None:
     assert new[1] == 1000.0 / 97.382 and new[0] != 5.0 and new[2] != 40.0  # 200 and 25 samples a period moved
     assert all(fold_beat(1000.0, f) >= FOLD_TURN for f in new)
     assert any("2 of 3 frequencies moved" in note for note in moved.plan_notes)
+
+
+def _clipped_sine(t: np.ndarray, f: float, level: float = 0.6) -> np.ndarray:
+    """A saturating response: sin(2 pi f t) clipped at +-level (odd: its even harmonics are exactly zero)."""
+    return np.clip(np.sin(2 * np.pi * f * t), -level, level)
+
+
+def _harmonics_of_clipped_sine(orders: list[int], level: float = 0.6, points: int = 1 << 16) -> np.ndarray:
+    """P + jQ (P multiplies sin, Q cos) of the clipped sine's harmonics, from the DFT of 2^16 samples of a period
+    (its harmonics fall as 1/j^2: what that grid folds onto order 3 is below 1e-9)."""
+    u = np.arange(points) / points
+    spectrum = np.fft.rfft(np.clip(np.sin(2 * np.pi * u), -level, level)) * 2 / points
+    return np.array([-spectrum[j].imag + 1j * spectrum[j].real for j in orders])
+
+
+def test_a_wider_basis_takes_harmonics_above_the_measured_ones_exactly_on_a_jittered_grid() -> None:
+    """Harmonics 1 .. 8 on a grid that fits no period (2.7 % jitter): solved with the measured 1 .. 3 alone, the
+    others leak into them by the trapezoid's error; with the basis up to 8 every coefficient is exact, the measured
+    ones and the eight above (kept in ``high``)."""
+    from bodebench.core.fourier import ExactPeriodIntegrator
+
+    rng = np.random.default_rng(7)
+    f, rate = 3.7, 3.7 * 41.37
+    z = rng.normal(size=8) + 1j * rng.normal(size=8)
+    t = (np.arange(int(40 * rate / f)) + rng.uniform(-0.027, 0.027, int(40 * rate / f))) / rate - 0.5 / rate
+    y = sum(z[j - 1].real * np.sin(2 * np.pi * j * f * t) + z[j - 1].imag * np.cos(2 * np.pi * j * f * t)
+            for j in range(1, 9))
+    narrow = ExactPeriodIntegrator(f, (1, 2, 3), 1, 0.0)
+    p, q = narrow.feed(t, y)
+    assert np.max(np.abs(p[:, 0] + 1j * q[:, 0] - z[:3])) > 1e-6  # the leak the wider basis removes
+    wide = ExactPeriodIntegrator(f, (1, 2, 3), 1, 0.0, fit_order=8)
+    p, q = wide.feed(t, y)
+    assert wide.high_harmonics == (4, 5, 6, 7, 8)
+    assert np.max(np.abs(p[:, 0] + 1j * q[:, 0] - z[:3])) < 1e-9
+    assert np.max(np.abs(wide.high[:, 0] - z[3:])) < 1e-9
+
+
+def test_a_fold_the_record_shows_widens_the_interval_and_ends_alias_limited() -> None:
+    """A clipped sine sampled at 69 samples a period: harmonics 67 and 71 fold onto harmonic 2 (truly zero) the same
+    in every period. Without the rate the sampler cannot know it and says converged with an interval that misses;
+    with it and ``folds = "bound"``, the bound read from harmonics 6 .. 8 covers the fold and the point claims
+    nothing (with the default ``keep`` it stays as it was)."""
+    f, n_per = 2.3, 69
+    t = np.arange(60 * n_per + 1) / (n_per * f)
+    y = _clipped_sine(t, f)[:, None]
+    truth = _harmonics_of_clipped_sine([1, 2, 3])
+    analysis = AnalysisConfig(harmonics=(1, 2, 3), tolerance_percent=0.01)
+    blind = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0)
+    blind.feed(t, y)
+    second = blind.points()[1]
+    assert second.converged and abs(complex(second.p, second.q) - truth[1]) > second.uncertainty
+    kept = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=n_per)  # folds = "keep"
+    kept.feed(t, y)
+    kept_second = kept.points()[1]
+    assert kept_second.converged and abs(complex(kept_second.p, kept_second.q) - truth[1]) > kept_second.uncertainty
+    told = Autointegrator(f, 1.0, ("y",), replace(analysis, folds="bound"), t0=0.0, samples_per_period=n_per)
+    told.feed(t, y)
+    for point, exact in zip(told.points(), truth, strict=True):
+        assert abs(complex(point.p, point.q) - exact) <= point.uncertainty
+    assert told.points()[1].status == PointStatus.ALIAS_LIMITED and not told.points()[1].converged
+
+
+def test_a_linear_response_with_noise_gets_no_fold_bound() -> None:
+    """Nothing above the measured harmonics but noise: what the noise leaves in their average keeps the bound far
+    inside the tolerance, and the point converges as before."""
+    rng = np.random.default_rng(3)
+    f, rate = 4.1, 4.1 * 57.3
+    t = np.arange(int(300 * rate / f)) / rate
+    y = (np.sin(2 * np.pi * f * t + 0.3) + 1e-3 * rng.normal(size=t.size))[:, None]
+    analysis = AnalysisConfig(harmonics=(1,), tolerance_percent=0.1, folds="bound")
+    sampler = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=rate / f)
+    sampler.feed(t, y)
+    assert sampler.fold_bounds().max() < 0.01 * 1e-3  # 1 % of the tolerance's half-width, 0.1 % of |Z| = 1
+    assert sampler.points()[0].status == PointStatus.CONVERGED
+
+
+@pytest.mark.slow
+def test_folds_bound_on_the_virtual_bus_marks_the_whole_grid_points_and_reanalysis_agrees(tmp_path: Path) -> None:
+    """The friction link at 20 Hz sampled at 1 kHz (50 samples a period: its high harmonics fold exactly onto 1 and
+    3) with ``folds = "bound"``: the sweep over the virtual bus ends its points ``alias_limited`` with the bound in
+    their intervals, and the analysis again from the samples, which reads the rate from the run's configuration,
+    gives the same statuses and intervals."""
+    from bodebench.analysis.reanalyse import reanalyse
+    from bodebench.bench.procedure import SweepProcedure
+    from bodebench.io.results import load_response
+
+    data = {
+        "plant": {"model": "coulomb", "mass": 2.533e-4, "stiffness": 1.0, "friction": 0.008},
+        "excitation": {"amplitude": 0.01, "frequencies_hz": [20.0]},
+        "analysis": {"harmonics": [1, 3], "tolerance_percent": 0.01, "folds": "bound", "max_periods": 400},
+        "bench": {"transport": "can", "rate_hz": 1000, "clock": "lockstep", "timebase": "counter"},
+        "can": {"interface": "virtual", "channel": f"folds-{uuid.uuid4().hex[:8]}"},
+        "safety": {"max_amplitude": 0.02, "max_rate": 5.0, "watchdog_s": 5.0},
+        "simulator": {},
+    }
+    config = parse_config(data, "folds.toml")
+    assert not any("folds exactly" in note for note in config.cases[0].plan_notes)  # the intervals carry it
+    SweepProcedure(config, tmp_path).run()
+    measured = load_response(tmp_path).points
+    assert {p.status for p in measured} == {PointStatus.ALIAS_LIMITED}
+    assert not any(p.converged or p.within_eps for p in measured)
+    again = reanalyse(tmp_path).response.points
+    assert [p.status for p in again] == [p.status for p in measured]
+    assert [p.uncertainty for p in again] == pytest.approx([p.uncertainty for p in measured], rel=1e-9)
+
+
+def test_a_period_too_sparse_for_the_wider_basis_is_solved_for_the_measured_harmonics_alone() -> None:
+    """A 60 ms gap in every second at 5 Hz: the periods it cuts cannot resolve harmonics up to 8, so they are solved
+    for the measured harmonic alone, exactly as without the wider basis, and keep no coefficients above it."""
+    from bodebench.core.fourier import ExactPeriodIntegrator
+
+    f, rate = 5.0, 1000.0
+    t = np.arange(0, 20, 1 / rate)
+    t = t[((t - 0.5) % 1.0) >= 0.06]
+    y = (0.01 * np.sin(2 * np.pi * f * t + 0.3))[:, None]
+    narrow = ExactPeriodIntegrator(f, (1,), 1, 0.0)
+    wide = ExactPeriodIntegrator(f, (1,), 1, 0.0, fit_order=8)
+    p_n, q_n, whole_n = narrow.feed_marked(t, y)
+    p_w, q_w, whole_w = wide.feed_marked(t, y)
+    assert whole_w.all() and whole_n.all()
+    assert np.max(np.abs(p_w + 1j * q_w - (p_n + 1j * q_n))) < 1e-15
+    assert np.max(np.abs(p_w[:, 0, 0] + 1j * q_w[:, 0, 0] - 0.01 * np.exp(0.3j))) < 1e-15
+    cut = np.isnan(wide.high).any(axis=(1, 2))
+    assert 15 <= cut.sum() <= 25 and np.isfinite(wide.high[~cut]).all()

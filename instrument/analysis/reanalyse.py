@@ -45,13 +45,15 @@ def _grid_steps_per_period(samples: PointSamples) -> int:
     return round((t.size - 1) / (samples.frequency_hz * (t[-1] - t[0])))
 
 
-def reanalyse_point(samples: PointSamples, analysis: AnalysisSettings) -> tuple[list[ResponsePoint], bool]:
-    """The points of one frequency from its samples; True when the record ended before every series stopped.
-    ValueError saying why when too many of its periods had gaps."""
+def reanalyse_point(samples: PointSamples, analysis: AnalysisSettings, rate_hz: float = 0.0
+                    ) -> tuple[list[ResponsePoint], bool]:
+    """The points of one frequency from its samples (a bench's taken at ``rate_hz``, 0 if unknown); True when the
+    record ended before every series stopped. ValueError saying why when too many of its periods had gaps."""
     grid = _grid_steps_per_period(samples) if samples.source == "offline" else 0
     sampler = Autointegrator(samples.frequency_hz, samples.amplitude, samples.channels, analysis, t0=samples.t0,
                              reference=samples.reference or None, grid_steps_per_period=grid,
-                             reference_phase=samples.reference_phase)
+                             reference_phase=samples.reference_phase,
+                             samples_per_period=rate_hz / samples.frequency_hz if not grid else 0.0)
     for t, y in samples.batches:
         if sampler.done:
             break
@@ -81,6 +83,7 @@ def reanalyse(directory: str | Path, **overrides: Any) -> Reanalysis:
     ended: list[float] = []
     failed: list[tuple[float, str]] = []
     lines = disturbance_lines_of(stored.config, analysis)
+    rate_hz = float(stored.config.get("bench", {}).get("rate_hz", 0.0) or 0.0)
     for f in dict.fromkeys(p.frequency_hz for p in stored.points):
         # a frequency measured to another tolerance than the table's (changed during the sweep) keeps its own
         recorded = {p.tolerance_percent for p in stored.points if p.frequency_hz == f}
@@ -88,7 +91,7 @@ def reanalyse(directory: str | Path, **overrides: Any) -> Reanalysis:
         if "tolerance_percent" not in overrides and len(recorded) == 1 and math.isfinite(tol := recorded.pop()):
             at_f = replace(analysis, tolerance_percent=tol)
         try:
-            found, short = reanalyse_point(load_samples(samples_path(directory, f)), at_f)
+            found, short = reanalyse_point(load_samples(samples_path(directory, f)), at_f, rate_hz)
         except GapsError as exc:
             failed.append((f, str(exc)))
             continue

@@ -20,10 +20,12 @@ from typing import Protocol
 
 import numpy as np
 
+from bodebench.core.benchgrid import alias_fit_order, fold_bound
 from bodebench.core.fourier import ExactPeriodIntegrator, GridPeriodIntegrator
 from bodebench.core.quality import coherence, coherence_periods, total_harmonic_distortion
 from bodebench.core.response import ResponsePoint
 from bodebench.core.rules import MIN_NOISE_EVIDENCE, RESOLUTION, SeriesHistory, StoppingRule, Verdict, make_rule
+from bodebench.status import PointStatus
 
 
 class AnalysisSettings(Protocol):
@@ -52,6 +54,8 @@ class AnalysisSettings(Protocol):
     def max_gap_cycles(self) -> float: ...
     @property
     def max_discarded_percent(self) -> float: ...
+    @property
+    def fold_policy(self) -> str: ...
 
 class GapsError(ValueError):
     """A point of which too many periods were discarded for gaps in its samples; the message says how many."""
@@ -134,13 +138,21 @@ class Autointegrator:
     (:class:`~bodebench.core.fourier.ExactPeriodIntegrator`: exact for a constant plus the harmonics up to the
     highest integrated, whatever the grid).
 
+    samples_per_period: the bench's sample rate over f (0: unknown). With it, the integrator also solves the
+    harmonics above the measured ones up to :func:`~bodebench.core.benchgrid.alias_fit_order` (so they leak into
+    none of the measured ones on any grid), and with ``fold_policy == "bound"`` each point's interval carries the
+    bound :func:`~bodebench.core.benchgrid.fold_bound` puts on what the rate folds onto it from higher up: a series
+    the bound pushes past its tolerance goes on while more periods can make room for it, and ends ``alias_limited``
+    where they cannot.
+
     periods: whole periods integrated; discarded: periods a gap in the samples touched, up to the period at which
     the rules stopped (see the module docstring); failure: why the point is not a measurement ("" while it is).
     """
 
     def __init__(self, frequency_hz: float, amplitude: float, channels: Sequence[str],
                  analysis: AnalysisSettings, t0: float = 0.0, reference: str | None = None,
-                 check_gaps: bool = True, grid_steps_per_period: int = 0, reference_phase: float = 0.0) -> None:
+                 check_gaps: bool = True, grid_steps_per_period: int = 0, reference_phase: float = 0.0,
+                 samples_per_period: float = 0.0) -> None:
         self.frequency_hz = frequency_hz
         self.amplitude = amplitude
         self.channels = tuple(channels)
@@ -162,7 +174,14 @@ class Autointegrator:
             GridPeriodIntegrator(frequency_hz, harmonics, columns, grid_steps_per_period, t0)
             if grid_steps_per_period else
             ExactPeriodIntegrator(frequency_hz, harmonics, columns, t0,
-                                  max_gap=self.max_gap_periods if check_gaps else math.inf))
+                                  max_gap=self.max_gap_periods if check_gaps else math.inf,
+                                  fit_order=alias_fit_order(samples_per_period, max(harmonics))))
+        self.samples_per_period = samples_per_period
+        # each whole period's coefficients of the harmonics above the measured ones, (channel, harmonic), while a
+        # rule is open
+        self._high: list[np.ndarray] = []
+        self._high_count = len(getattr(self._integrator, "high_harmonics", ())) \
+            if analysis.fold_policy == "bound" else 0
         self._histories = [[SeriesHistory() for _ in self.harmonics] for _ in self.channels]
         self._series = [hist for row in self._histories for hist in row]  # channel by channel, harmonic by harmonic
         self._rules: list[list[StoppingRule]] = [
@@ -210,6 +229,8 @@ class Autointegrator:
             drift = self._integrator.drift[whole, : len(self.channels)]
             self._drift_sum += drift.sum(axis=0)
             self._drift_periods += drift.shape[0]
+            if self._high_count:
+                self._take_high(self._integrator.high, p, q, whole)
         if m <= _FEW_PERIODS and self.reference is None and all(whole.tolist()):
             values = list(map(complex, p.ravel().tolist(), q.ravel().tolist()))
             sizes = list(map(abs, values))
@@ -231,6 +252,69 @@ class Autointegrator:
             return m
         self._integrate(p, q)
         return m
+
+    def _take_high(self, high: np.ndarray, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> None:
+        """Keep the whole periods' coefficients of the harmonics above the measured ones (high: (m, columns, n)); in
+        two-channel mode relative to each period's reference fundamental, as the measured ones."""
+        z = high[:, : len(self.channels)]
+        if self.reference is not None:
+            z_ref = p[:, -1, self._ref_index] + 1j * q[:, -1, self._ref_index]
+            with np.errstate(all="ignore"):
+                powers = np.asarray(self._integrator.high_harmonics)  # type: ignore[union-attr]
+                z = z * (self.amplitude / np.abs(z_ref))[:, None, None] \
+                    * (np.conj(z_ref) / np.abs(z_ref))[:, None, None] ** powers[None, None, :]
+        keep = whole & np.isfinite(z).all(axis=(1, 2)) & (np.abs(z) <= MAX_COEFFICIENT).all(axis=(1, 2))
+        if keep.any():
+            self._high.append(z[keep])
+
+    def fold_bounds(self) -> np.ndarray:
+        """(channels, harmonics) the bound :func:`~bodebench.core.benchgrid.fold_bound` puts on what the sample rate
+        folds onto each series and its periods keep (output units; 0 where the record gives none)."""
+        out = np.zeros((len(self.channels), len(self.harmonics)))
+        for c, verdicts in enumerate(self._verdicts):
+            for k, verdict in enumerate(verdicts):
+                out[c, k] = self._fold(c, k, verdict.period if verdict is not None else self.periods)[0]
+        return out
+
+    def _fold(self, c: int, k: int, periods: int) -> tuple[float, bool]:
+        """The fold bound on series (channel c, harmonic index k) after ``periods`` periods, and whether the content
+        above the measured harmonics it is read from has settled. That content is the mean of the last quarter of
+        the periods, after most of a transient (what is left of one counts as content); it has settled when that
+        mean differs from the previous quarter's by less than half its size."""
+        if not self._high:
+            return 0.0, True
+        if len(self._high) > 1:
+            self._high = [np.concatenate(self._high)]  # (period, channel, harmonic above)
+        high = self._high[0]
+        periods = min(periods, high.shape[0])
+        quarter = periods // 4
+        if quarter < 2:
+            return 0.0, True
+        last = high[periods - quarter: periods, c].mean(axis=0)
+        before = high[periods - 2 * quarter: periods - quarter, c].mean(axis=0)
+        settled = bool(np.max(np.abs(last - before)) <= 0.5 * np.max(np.abs(last)))
+        orders = self._integrator.high_harmonics  # type: ignore[union-attr]
+        return fold_bound(last, orders, self.samples_per_period, self.harmonics[k], periods), settled
+
+    def _reopen_for_folds(self, n: int, references: list[float]) -> None:
+        """Every series just converged whose fold bound pushes it past its tolerance, where more periods can help:
+        the bound alone is within the tolerance (the interval has to shrink to make room for it), or the content
+        above the measured harmonics is still fading (a transient, not a fold). Reopened, to be judged again with
+        the next period, until it fits, the bound alone exceeds the tolerance with that content settled (it ends
+        ``alias_limited``), or the period budget ends."""
+        if n >= self.max_periods or not self._high_count:
+            return
+        for c, verdicts in enumerate(self._verdicts):
+            for k, v in enumerate(verdicts):
+                if v is None or not v.converged:
+                    continue
+                bound, settled = self._fold(c, k, n)
+                if not bound:
+                    continue
+                tolerance = self._rules[c][k].tolerance(complex(v.p, v.q), references[c])
+                if v.uncertainty + bound > tolerance and (bound < tolerance or not settled):
+                    verdicts[k] = None
+                    self._pending += 1
 
     def _usable(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
         """(m,) periods with coefficients within MAX_COEFFICIENT whose reference fundamental, in two-channel mode,
@@ -318,6 +402,8 @@ class Autointegrator:
                     if verdict is not None:
                         verdicts[k] = verdict
                         self._pending -= 1
+            if self._pending == 0 and self._high:
+                self._reopen_for_folds(n, references[i])
             if self.discarded and (self._pending == 0 or n + self.discarded >= max_periods):
                 self._judge_gaps(n)
             if self.done:
@@ -366,6 +452,7 @@ class Autointegrator:
         if self.failure:
             raise GapsError(self.failure)
         pts = []
+        folds = self.fold_bounds()
         drift = self._drift_sum / self._drift_periods * self.frequency_hz if self._drift_periods else \
             np.full(len(self.channels), math.nan)
         for c, name in enumerate(self.channels):
@@ -382,10 +469,15 @@ class Autointegrator:
                 v = verdicts[k]
                 assert v is not None
                 start, stop = coherence_periods(self.skip_periods, v.period)
+                converged, status, within_eps = v.converged, v.status, v.within_eps
+                fold = float(folds[c, k])
+                if fold and converged and v.uncertainty + fold > self._rules[c][k].tolerance(
+                        complex(v.p, v.q), self._last_references[c]):
+                    converged, status, within_eps = False, PointStatus.ALIAS_LIMITED, False
                 pts.append(ResponsePoint(frequency_hz=self.frequency_hz, harmonic=harmonic, channel=name,
                                          amplitude=self.amplitude, p=v.p, q=v.q, periods=v.period,
-                                         converged=v.converged, status=v.status, uncertainty=v.uncertainty,
-                                         uncertainty_1d=v.uncertainty_1d, within_eps=v.within_eps,
+                                         converged=converged, status=status, uncertainty=v.uncertainty + fold,
+                                         uncertainty_1d=v.uncertainty_1d + fold, within_eps=within_eps,
                                          periods_needed=v.periods_needed, periods_discarded=self.discarded,
                                          thd=thd if harmonic == 1 else math.nan,
                                          coherence=coherence(self._histories[c][k].values[start:stop]),

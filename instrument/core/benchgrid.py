@@ -17,6 +17,11 @@ the stated interval shrinks while the value is off:
   through the first ``FOLD_IMAGES`` images of the rate turn against its harmonic: the folded content then differs
   from period to period, the average thins it, and the spread and the stated interval see what is left.
 
+  What folds exactly cannot be told apart from the response, but the record shows what lies above the measured
+  harmonics: the bench's integrator solves harmonics up to :func:`alias_fit_order` (which also stops them leaking
+  into the measured ones on any grid), and :func:`fold_bound` extends their level to the harmonics the rate folds,
+  for a point to carry in its interval or to end ``alias_limited``.
+
 Pure numerics: no I/O.
 """
 
@@ -26,12 +31,14 @@ import math
 from collections.abc import Sequence
 from dataclasses import replace
 
+import numpy as np
+
 from bodebench.core.response import ResponsePoint
 from bodebench.status import PointStatus
 
-__all__ = ["DISTURBANCE_HARMONICS", "FOLD_IMAGES", "FOLD_ORDER", "FOLD_TURN", "MIN_BEAT_PERIODS", "disturbance_lines",
-           "flag_disturbed", "fold_beat", "folding_harmonic", "folding_notes", "mark_untied", "move_off_disturbances",
-           "move_off_folds", "nearest_line"]
+__all__ = ["DISTURBANCE_HARMONICS", "FIT_ORDER_MAX", "FOLD_IMAGES", "FOLD_ORDER", "FOLD_TURN", "MIN_BEAT_PERIODS",
+           "alias_fit_order", "disturbance_lines", "flag_disturbed", "fold_beat", "fold_bound", "folding_harmonic",
+           "folding_notes", "mark_untied", "move_off_disturbances", "move_off_folds", "nearest_line"]
 
 DISTURBANCE_HARMONICS = 3
 """Each listed disturbance frequency counts with its harmonics up to this one (mains: 50, 100, 150 Hz)."""
@@ -168,7 +175,8 @@ def folding_notes(rate_hz: float, frequencies_hz: Sequence[float], harmonics: Se
         if fold is not None:
             notes.append(f"{f:g} Hz: at {rate_hz / f:.6g} samples a period, harmonic {fold[0]} of a nonlinear "
                          f"response folds exactly onto measured harmonic {fold[1]} in every period, where no interval "
-                         "can see it; a frequency a little off this one spreads it over the periods instead")
+                         "can see it; a frequency a little off this one spreads it over the periods instead "
+                         "([analysis] folds = \"move\"), and folds = \"bound\" bounds it in every interval")
     return tuple(notes)
 
 
@@ -189,3 +197,42 @@ def folding_harmonic(rate_hz: float, frequency_hz: float, harmonics: Sequence[in
                 if j > max(harmonics) and j <= order and j != k and (best is None or j < best[0]):
                     best = (j, k)
     return best
+
+
+FIT_ORDER_MAX = 8
+"""The highest harmonic the bench's integrator solves for (:func:`alias_fit_order`)."""
+
+
+def alias_fit_order(samples_per_period: float, highest: int) -> int:
+    """K': the harmonics the bench's integrator solves for at ``samples_per_period`` samples a period: up to a quarter
+    of them (each solved harmonic keeps four samples a cycle, so the per-period solve stays well conditioned on a
+    jittered grid), at most :data:`FIT_ORDER_MAX`, at least the ``highest`` measured one."""
+    if not math.isfinite(samples_per_period) or samples_per_period <= 0:
+        return highest
+    return max(highest, min(FIT_ORDER_MAX, int(samples_per_period // 4)))
+
+
+def fold_bound(mean: np.ndarray, high_harmonics: Sequence[int], samples_per_period: float, harmonic: int,
+               periods: int) -> float:
+    """A bound (output units) on what the sampling folds onto measured ``harmonic`` and the average of ``periods``
+    periods keeps: the content of the harmonics the rate folds onto it without their turning once within the point.
+
+    mean: the averaged coefficient of each of ``high_harmonics`` (the solved harmonics above the measured ones). Their
+    sizes over the upper half of them are extended as C / j**2 (C the largest size times its harmonic squared): the
+    spectrum of a continuous output falls at least that fast. What noise or a transient leaves in the average counts
+    as content (a bound errs large, never small): noise adds about ``(K' / N)**2`` of its own average to the bound.
+    At N samples a period harmonic j folds onto ``|j - m N|``; each j = m N -+ k (m = 1 .. :data:`FOLD_IMAGES`, as
+    the plan's moves) within ``1 / periods`` of a whole number counts with C / j**2. Not covered: folds through
+    higher images, and a discontinuous output (a step in every period), whose spectrum falls only as 1 / j."""
+    n = len(high_harmonics)
+    if not n or not math.isfinite(samples_per_period) or samples_per_period <= 0 or periods < 1:
+        return 0.0
+    top = slice(n // 2, n)
+    orders = np.asarray(high_harmonics, dtype=float)[top]
+    envelope = float(np.max(np.abs(np.asarray(mean)[top]) * orders ** 2))
+    if not envelope > 0.0:
+        return 0.0
+    images = np.arange(1, FOLD_IMAGES + 1) * samples_per_period
+    folded = np.concatenate((images - harmonic, images + harmonic))
+    held = (np.abs(folded - np.round(folded)) * periods < 1.0) & (folded > orders[-1])
+    return envelope * float(np.sum(1.0 / np.round(folded[held]) ** 2))

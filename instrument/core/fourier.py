@@ -429,24 +429,41 @@ class ExactPeriodIntegrator:
     condition number of A above ``MAX_CONDITION``) is reported not whole, as a gap would be. The first whole period is
     returned with the second (its drift needs a neighbour).
 
-    Cost: the moments of n_channels + 2K + 2 columns against K + 1 harmonics per sample, and one (2K + 1)-square
+    **Content above K.** ``fit_order`` K' > K widens the basis to harmonics 1 .. K': content of a nonlinear response
+    up to K' then leaks into none of 1 .. K on any grid, and the coefficients of harmonics K + 1 .. K' of each period
+    (drift taken off and turned to t0's phase like the others) are kept in ``high``: the record's own view of what
+    lies above the measured harmonics, from which what the sampling folds onto them can be bounded
+    (:func:`bodebench.core.benchgrid.fold_bound`).
+
+    Cost: the moments of n_channels + 2K' + 2 columns against K' + 1 harmonics per sample, and one (2K' + 1)-square
     solve per period.
     """
 
     #: Largest condition number of a period's moment matrix A for which its coefficients are taken.
     MAX_CONDITION = 1e8
+    #: The same with harmonics above the measured ones in the basis: a period whose samples resolve those less well
+    #: (a gap bridged, a stall) is solved for the measured ones alone, as without them.
+    WIDE_MAX_CONDITION = 1e3
 
     def __init__(self, frequency_hz: float, harmonics: Sequence[int], n_channels: int, t0: float = 0.0,
-                 max_gap: float = math.inf) -> None:
+                 max_gap: float = math.inf, fit_order: int = 0) -> None:
         front = PeriodIntegrator(frequency_hz, harmonics, n_channels, t0, max_gap)  # checks the arguments
         self.frequency_hz: float = front.frequency_hz
         self.harmonics: tuple[int, ...] = front.harmonics
         self.n_channels: int = front.n_channels
         self.t0: float = front.t0
         self.max_gap: float = front.max_gap
-        self.fit_order: int = max(self.harmonics)
-        """K: the coefficients are exact for a constant, a drift and harmonics 1 .. K."""
+        self.fit_order: int = max(max(self.harmonics), int(fit_order))
+        """K': the coefficients are exact for a constant, a drift and harmonics 1 .. K' (at least the highest
+        measured one)."""
+        self.high_harmonics: tuple[int, ...] = tuple(range(max(self.harmonics) + 1, self.fit_order + 1))
+        """The harmonics above the measured ones that the basis holds (K + 1 .. K'), whose coefficients go to
+        ``high``."""
+        self.high: np.ndarray = np.zeros((0, n_channels, len(self.high_harmonics)), dtype=complex)
+        """(m, n_channels, len(high_harmonics)) each period's coefficients of the harmonics above the measured ones,
+        of the last call's output (channel units)."""
         k = self.fit_order
+        out = (*self.harmonics, *self.high_harmonics)
         self._basis_size = 2 * k + 1
         # columns: the channels, the ramp (t - t0') f, then the basis; made once t0' (the first sample at or after
         # t0) is known, the samples before it held meanwhile
@@ -454,10 +471,10 @@ class ExactPeriodIntegrator:
         self._waiting: list[tuple[np.ndarray, np.ndarray]] = []
         self.start: float = math.nan
         """t0': the first sample time at or after t0 (s), where period 1 starts (NaN until one has come)."""
-        self._turn = np.ones(len(self.harmonics), dtype=complex)  # exp(-j 2 pi k f (t0' - t0))
+        self._turn = np.ones(len(out), dtype=complex)  # exp(-j 2 pi k f (t0' - t0))
         self._scale = np.ones(self._basis_size)
         self._scale[0] = 2.0  # the constant's moment against the constant: 2 f * integral of 1 over a period
-        self._sin_rows = np.asarray(self.harmonics)
+        self._sin_rows = np.asarray(out)
         self._cos_rows = self._sin_rows + k
         self.drift: np.ndarray = np.zeros((0, self.n_channels))
         """(m, n_channels) the slope (channel units per period) taken off each period of the last call's output."""
@@ -490,29 +507,58 @@ class ExactPeriodIntegrator:
             t_arr, y_arr = self._until_start(t_arr, y_arr)
         assert self._moments is not None or t_arr.shape[0] == 0
         nc = self.n_channels
+        n_out = len(self.harmonics) + len(self.high_harmonics)
         if self._moments is None:
             self.drift = np.zeros((0, nc))
+            self.high = np.zeros((0, nc, len(self.high_harmonics)), dtype=complex)
             shape = (0, nc, len(self.harmonics))
             return np.zeros(shape), np.zeros(shape), np.zeros(0, dtype=bool)
         columns = np.concatenate((y_arr, self._ramp_and_basis(t_arr)), axis=1) if t_arr.ndim == 1 else y_arr
         p, q, whole = self._moments.feed_marked(t_arr, columns)
         if p.shape[0] == 0:
             self.drift = np.zeros((0, nc))
-            return self._release(np.zeros((0, nc, len(self.harmonics))), np.zeros((0, nc, len(self.harmonics))),
-                                 whole)
+            return self._split(*self._release(np.zeros((0, nc, n_out)), np.zeros((0, nc, n_out)), whole))
         # moments (period, column, test): the constant's, then sin 1 .. K, then cos 1 .. K
         moments = np.concatenate((q[..., :1], p[..., 1:], q[..., 1:]), axis=-1)
         a = np.swapaxes(moments[:, nc + 1:, :], 1, 2)  # (period, test, basis)
         b = np.swapaxes(moments[:, : nc + 1, :], 1, 2)  # (period, test, channels and the ramp)
         with np.errstate(all="ignore"):
-            resolved = np.isfinite(a).all(axis=(1, 2))
-            resolved[resolved] = np.linalg.cond(a[resolved]) <= self.MAX_CONDITION
-        whole = whole & resolved
+            finite = np.isfinite(a).all(axis=(1, 2))
+            resolved = finite.copy()
+            limit = self.WIDE_MAX_CONDITION if self.high_harmonics else self.MAX_CONDITION
+            resolved[finite] = np.linalg.cond(a[finite]) <= limit
+        narrow = np.flatnonzero(finite & ~resolved) if self.high_harmonics else np.zeros(0, dtype=np.int64)
+        sparse = moments[narrow]  # a is a view of moments
         a[~resolved] = np.diag(self._scale)  # unresolved periods are discarded: anything invertible will do
         c = np.linalg.solve(a, b)  # (period, basis, channels and the ramp)
+        if narrow.size:  # a period too sparse for the harmonics above the measured ones: the measured ones alone
+            resolved[narrow] = self._solve_measured(sparse, c, narrow)
+        whole = whole & resolved
         out_p = np.swapaxes(c[:, self._sin_rows, :], 1, 2)  # (period, channels and the ramp, harmonic)
         out_q = np.swapaxes(c[:, self._cos_rows, :], 1, 2)
-        return self._release(out_p, out_q, whole, c[:, 0, :])
+        return self._split(*self._release(out_p, out_q, whole, c[:, 0, :]))
+
+    def _solve_measured(self, moments: np.ndarray, c: np.ndarray, periods: np.ndarray) -> np.ndarray:
+        """Solve ``periods`` (rows of c) for the constant and harmonics 1 .. K alone, from their moments (period,
+        column, test); the rows of the harmonics above are NaN. Returns which of them that resolves."""
+        k, wide = max(self.harmonics), self.fit_order
+        rows = np.concatenate(([0], np.arange(1, k + 1), np.arange(wide + 1, wide + k + 1)))
+        nc = self.n_channels
+        a = np.swapaxes(moments[:, nc + 1:, :], 1, 2)[:, rows][:, :, rows]
+        b = np.swapaxes(moments[:, : nc + 1, :], 1, 2)[:, rows]
+        with np.errstate(all="ignore"):
+            resolved = np.linalg.cond(a) <= self.MAX_CONDITION
+        a[~resolved] = np.diag(self._scale[rows])
+        solved = np.full((periods.size, c.shape[1], c.shape[2]), np.nan)
+        solved[:, rows] = np.linalg.solve(a, b)
+        c[periods] = solved
+        return resolved
+
+    def _split(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The measured harmonics' coefficients returned, those above them kept in ``high``."""
+        n = len(self.harmonics)
+        self.high = p[:, :, n:] + 1j * q[:, :, n:]
+        return np.ascontiguousarray(p[:, :, :n]), np.ascontiguousarray(q[:, :, :n]), whole
 
     def _release(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray, means: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -572,7 +618,7 @@ class ExactPeriodIntegrator:
         k = self.fit_order
         self._moments = _MomentIntegrator(self.frequency_hz, tuple(range(k + 1)),
                                           self.n_channels + 1 + self._basis_size, self.start, self.max_gap)
-        self._turn = np.exp(-2j * math.pi * self.frequency_hz * (self.start - self.t0) * np.asarray(self.harmonics))
+        self._turn = np.exp(-2j * math.pi * self.frequency_hz * (self.start - self.t0) * self._sin_rows)
         held = self._waiting
         self._waiting = []
         if len(held) == 1:

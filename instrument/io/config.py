@@ -265,7 +265,7 @@ def _build_case(
         if moves:
             built["excitation"] = replace(excitation, frequencies_hz=frequencies, frequencies=None)
             notes += moves
-    if built["bench"] is not None:
+    if built["bench"] is not None and built["analysis"].fold_policy != "bound":  # bound: each interval carries it
         notes += folding_notes(built["bench"].rate_hz, built["excitation"].frequencies_hz, built["analysis"].harmonics)
         assert layout is not None
         notes += _check_setpoint_resolution(layout, built["excitation"], key)

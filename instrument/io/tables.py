@@ -24,7 +24,7 @@ DEFAULT_DISTURBANCE_HZ = (50.0,)
 """[analysis] disturbance_hz on a real drive when the configuration gives none: mains."""
 DISTURBANCE_POLICIES = ("flag", "move")
 """What a bench does with a frequency whose measured harmonic lies on a disturbance line ([analysis] disturbances)."""
-FOLD_POLICIES = ("keep", "move")
+FOLD_POLICIES = ("keep", "move", "bound")
 """What a bench does with a frequency at which its sample rate folds harmonics exactly onto measured ones
 ([analysis] folds)."""
 
@@ -391,7 +391,10 @@ class AnalysisConfig:
                "harmonics up to 32 exactly onto measured ones; move: each frequency at which the rate would fold "
                "high harmonics of a nonlinear response onto measured ones, every period alike, is moved by the "
                "least that makes each fold turn (a fraction of a percent), saying so: such content then shows in "
-               "the spread of the periods and the point ends capped or noise-limited instead of converged to it"})
+               "the spread of the periods and the point ends capped or noise-limited instead of converged to it; "
+               "bound: the frequencies as given, and each point's interval carries a bound on what the rate folds "
+               "onto it, read from the record's content above the measured harmonics (a point goes on while more "
+               "periods can make room for it, and ends alias_limited where the bound alone exceeds the tolerance)"})
     response: str | None = field(default=None, metadata={
         "choices": RESPONSE_KINDS,
         "doc": "what the measured response is, for its summary: system (default), closed_loop, or open_loop "

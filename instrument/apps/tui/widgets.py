@@ -20,6 +20,7 @@ from textual.widgets._footer import FooterKey
 
 from bodebench.apps.tui.braille import Axis, HLine, PlotError, Trace, auto_axis, render_plot
 from bodebench.apps.tui.model import (
+    ALIASED,
     CAPPED,
     CONVERGED,
     DISTURBED,
@@ -41,7 +42,8 @@ from bodebench.core.summary import ResponseSummary, summarize_response
 PALETTE = ("cyan", "yellow", "magenta", "green", "bright_blue", "bright_red", "white", "bright_green")
 
 STATE_STYLES = {PENDING: "bright_black", SETTLING: "yellow", INTEGRATING: "bold cyan", CONVERGED: "green",
-                CAPPED: "magenta", NOISE_LIMITED: "yellow", DISTURBED: "yellow", UNTIED: "yellow", FAILED: "bold red",
+                CAPPED: "magenta", NOISE_LIMITED: "yellow", DISTURBED: "yellow", ALIASED: "yellow",
+                UNTIED: "yellow", FAILED: "bold red",
                 SKIPPED: "bright_black"}
 
 #: sweep table columns: (key, label, width in cells)
