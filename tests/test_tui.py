@@ -749,6 +749,24 @@ def test_under_an_input_dialog_keys_are_typed_and_ctrl_q_quits(tmp_path: Path) -
     asyncio.run(check())
 
 
+@pytest.mark.parametrize("size,keys", [((80, 24), ("2",)), ((160, 48), ()), ((160, 45), ())])
+def test_every_column_of_the_sweep_table_fits_its_panel(tmp_path: Path, size: tuple[int, int],
+                                                        keys: tuple[str, ...]) -> None:
+    """The table is no wider than its panel (no horizontal scroll bar drawn over its rows, no column cut)."""
+    async def check() -> None:
+        app = loaded_app(tmp_path)
+        async with app.run_test(size=size) as pilot:
+            await pilot.pause(0.1)
+            for key in keys:
+                await pilot.press(key)
+            await pilot.pause(0.1)
+            table = app.w_table
+            assert 0 < table.virtual_size.width <= table.scrollable_content_region.width
+            assert not table.show_horizontal_scrollbar
+
+    asyncio.run(check())
+
+
 @pytest.mark.parametrize("size,keys", [((80, 24), ("2",)), ((80, 24), ("3",)), ((160, 45), ())],
                          ids=["sweep-80x24", "bode-80x24", "all-160x45"])
 def test_snapshots_of_the_main_screens(snap_compare, tmp_path: Path, size: tuple[int, int],

@@ -46,9 +46,10 @@ STATE_STYLES = {PENDING: "bright_black", SETTLING: "yellow", INTEGRATING: "bold 
                 UNTIED: "yellow", FAILED: "bold red",
                 SKIPPED: "bright_black"}
 
-#: sweep table columns: (key, label, width in cells)
-COLUMNS = (("f", "f Hz", 7), ("k", "k", 2), ("ch", "channel", 9), ("state", "state", 11), ("gain", "gain dB", 8),
-           ("phase", "phase °", 7), ("periods", "periods", 7), ("thd", "THD %", 6), ("coh", "coh", 5))
+#: sweep table columns: (key, label, width in cells); with a cell of padding each side 76 cells, within the
+#: sweep panel's 78 at 160 x 48 (no horizontal scroll bar)
+COLUMNS = (("f", "f Hz", 7), ("k", "k", 2), ("ch", "channel", 8), ("state", "state", 11), ("gain", "gain dB", 7),
+           ("phase", "phase °", 7), ("periods", "periods", 7), ("thd", "THD %", 5), ("coh", "coh", 4))
 
 
 def _number(value: float, fmt: str) -> str:
