@@ -222,7 +222,9 @@ def fold_bound(mean: np.ndarray, high_harmonics: Sequence[int], samples_per_peri
     spectrum of a continuous output falls at least that fast. What noise or a transient leaves in the average counts
     as content (a bound errs large, never small): noise adds about ``(K' / N)**2`` of its own average to the bound.
     At N samples a period harmonic j folds onto ``|j - m N|``; each j = m N -+ k (m = 1 .. :data:`FOLD_IMAGES`, as
-    the plan's moves) within ``1 / periods`` of a whole number counts with C / j**2. Not covered: folds through
+    the plan's moves) counts with C / j**2 times what an average of ``periods`` periods keeps of a phasor turning
+    d cycles a period against the harmonic (d: the distance of m N -+ k from a whole number), at most
+    ``min(1, 1 / (2 periods d))``: whole where the fold stands still, less where it turns. Not covered: folds through
     higher images, and a discontinuous output (a step in every period), whose spectrum falls only as 1 / j."""
     n = len(high_harmonics)
     if not n or not math.isfinite(samples_per_period) or samples_per_period <= 0 or periods < 1:
@@ -234,5 +236,7 @@ def fold_bound(mean: np.ndarray, high_harmonics: Sequence[int], samples_per_peri
         return 0.0
     images = np.arange(1, FOLD_IMAGES + 1) * samples_per_period
     folded = np.concatenate((images - harmonic, images + harmonic))
-    held = (np.abs(folded - np.round(folded)) * periods < 1.0) & (folded > orders[-1])
-    return envelope * float(np.sum(1.0 / np.round(folded[held]) ** 2))
+    turn = np.abs(folded - np.round(folded))  # cycles a period the fold turns against the harmonic
+    kept = np.minimum(1.0, 1.0 / np.maximum(2.0 * periods * turn, 1e-300))  # what the average of the periods keeps
+    above = folded > orders[-1]
+    return envelope * float(np.sum(kept[above] / np.round(folded[above]) ** 2))
