@@ -258,11 +258,9 @@ class Autointegrator:
         two-channel mode relative to each period's reference fundamental, as the measured ones."""
         z = high[:, : len(self.channels)]
         if self.reference is not None:
-            z_ref = p[:, -1, self._ref_index] + 1j * q[:, -1, self._ref_index]
             with np.errstate(all="ignore"):
-                powers = np.asarray(self._integrator.high_harmonics)  # type: ignore[union-attr]
-                z = z * (self.amplitude / np.abs(z_ref))[:, None, None] \
-                    * (np.conj(z_ref) / np.abs(z_ref))[:, None, None] ** powers[None, None, :]
+                z = self._relative_to_reference(z, p[:, -1, self._ref_index] + 1j * q[:, -1, self._ref_index],
+                                                self._integrator.high_harmonics)  # type: ignore[union-attr]
         keep = whole & np.isfinite(z).all(axis=(1, 2)) & (np.abs(z) <= MAX_COEFFICIENT).all(axis=(1, 2))
         if keep.any():
             self._high.append(z[keep])
@@ -352,13 +350,8 @@ class Autointegrator:
         m = p.shape[0]
         z = p + 1j * q  # (m, channel, harmonic)
         if self.reference is not None:
-            z_ref = z[:, -1, self._ref_index]
-            rotation = np.conj(z_ref) / np.abs(z_ref)
-            powers = np.array(self.harmonics)
-            z = z[:, :-1, : len(self.harmonics)] * (self.amplitude / np.abs(z_ref))[:, None, None] \
-                * rotation[:, None, None] ** powers[None, None, :]
-            if self.reference_phase:
-                z = z * np.exp(1j * self.reference_phase * powers)[None, None, :]
+            z = self._relative_to_reference(z[:, :-1, : len(self.harmonics)], z[:, -1, self._ref_index],
+                                            self.harmonics)
         if m <= _FEW_PERIODS:
             values = z.ravel().tolist()
             self._take(values, list(map(abs, values)))
@@ -368,6 +361,17 @@ class Autointegrator:
                 hist.extend(z[:, c, k])
         # each channel's scale: its largest coefficient of the period (output units)
         self._judge(m, np.max(np.abs(z), axis=2).tolist())
+
+    def _relative_to_reference(self, z: np.ndarray, z_ref: np.ndarray, harmonics: Sequence[int]) -> np.ndarray:
+        """Output coefficients z (m, channel, harmonic) of ``harmonics`` relative to each period's reference
+        fundamental z_ref (m,): ``Z_k * A_i * (conj(Z_r)/|Z_r|)**k / |Z_r|``, turned by k times ``reference_phase``
+        (see the class docstring)."""
+        powers = np.asarray(harmonics)
+        z = z * (self.amplitude / np.abs(z_ref))[:, None, None] \
+            * (np.conj(z_ref) / np.abs(z_ref))[:, None, None] ** powers[None, None, :]
+        if self.reference_phase:
+            z = z * np.exp(1j * self.reference_phase * powers)[None, None, :]
+        return z
 
     def _take(self, values: list[complex], sizes: list[float]) -> None:
         """A few whole periods' coefficients (output units), period by period, channel by channel, harmonic by

@@ -215,7 +215,7 @@ def alias_fit_order(samples_per_period: float, highest: int) -> int:
 def fold_bound(mean: np.ndarray, high_harmonics: Sequence[int], samples_per_period: float, harmonic: int,
                periods: int) -> float:
     """A bound (output units) on what the sampling folds onto measured ``harmonic`` and the average of ``periods``
-    periods keeps: the content of the harmonics the rate folds onto it without their turning once within the point.
+    periods keeps of it.
 
     mean: the averaged coefficient of each of ``high_harmonics`` (the solved harmonics above the measured ones). Their
     sizes over the upper half of them are extended as C / j**2 (C the largest size times its harmonic squared): the

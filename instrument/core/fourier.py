@@ -518,41 +518,35 @@ class ExactPeriodIntegrator:
         if p.shape[0] == 0:
             self.drift = np.zeros((0, nc))
             return self._split(*self._release(np.zeros((0, nc, n_out)), np.zeros((0, nc, n_out)), whole))
-        # moments (period, column, test): the constant's, then sin 1 .. K, then cos 1 .. K
+        # moments (period, column, test): the constant's, then sin 1 .. K', then cos 1 .. K'
         moments = np.concatenate((q[..., :1], p[..., 1:], q[..., 1:]), axis=-1)
-        a = np.swapaxes(moments[:, nc + 1:, :], 1, 2)  # (period, test, basis)
-        b = np.swapaxes(moments[:, : nc + 1, :], 1, 2)  # (period, test, channels and the ramp)
-        with np.errstate(all="ignore"):
-            finite = np.isfinite(a).all(axis=(1, 2))
-            resolved = finite.copy()
-            limit = self.WIDE_MAX_CONDITION if self.high_harmonics else self.MAX_CONDITION
-            resolved[finite] = np.linalg.cond(a[finite]) <= limit
-        narrow = np.flatnonzero(finite & ~resolved) if self.high_harmonics else np.zeros(0, dtype=np.int64)
-        sparse = moments[narrow]  # a is a view of moments
-        a[~resolved] = np.diag(self._scale)  # unresolved periods are discarded: anything invertible will do
-        c = np.linalg.solve(a, b)  # (period, basis, channels and the ramp)
+        wide = bool(self.high_harmonics)
+        c, resolved = self._solve(moments, np.arange(self._basis_size),
+                                  self.WIDE_MAX_CONDITION if wide else self.MAX_CONDITION)
+        narrow = np.flatnonzero(~resolved) if wide else np.zeros(0, dtype=np.int64)
         if narrow.size:  # a period too sparse for the harmonics above the measured ones: the measured ones alone
-            resolved[narrow] = self._solve_measured(sparse, c, narrow)
+            k, top = max(self.harmonics), self.fit_order
+            rows = np.concatenate(([0], np.arange(1, k + 1), np.arange(top + 1, top + k + 1)))
+            solved, resolved[narrow] = self._solve(moments[narrow], rows, self.MAX_CONDITION)
+            c[narrow] = np.nan  # no coefficients above the measured ones
+            c[narrow[:, None], rows] = solved
         whole = whole & resolved
         out_p = np.swapaxes(c[:, self._sin_rows, :], 1, 2)  # (period, channels and the ramp, harmonic)
         out_q = np.swapaxes(c[:, self._cos_rows, :], 1, 2)
         return self._split(*self._release(out_p, out_q, whole, c[:, 0, :]))
 
-    def _solve_measured(self, moments: np.ndarray, c: np.ndarray, periods: np.ndarray) -> np.ndarray:
-        """Solve ``periods`` (rows of c) for the constant and harmonics 1 .. K alone, from their moments (period,
-        column, test); the rows of the harmonics above are NaN. Returns which of them that resolves."""
-        k, wide = max(self.harmonics), self.fit_order
-        rows = np.concatenate(([0], np.arange(1, k + 1), np.arange(wide + 1, wide + k + 1)))
+    def _solve(self, moments: np.ndarray, rows: np.ndarray, max_condition: float) -> tuple[np.ndarray, np.ndarray]:
+        """Each period's ``A c = b`` on the basis functions and test functions ``rows`` (indices into 1, sin 1 ..
+        K', cos 1 .. K'), from its moments (period, column, test): c (period, len(rows), channels and the ramp),
+        and which periods resolve them (A finite, its condition number at most ``max_condition``)."""
         nc = self.n_channels
-        a = np.swapaxes(moments[:, nc + 1:, :], 1, 2)[:, rows][:, :, rows]
-        b = np.swapaxes(moments[:, : nc + 1, :], 1, 2)[:, rows]
+        a = np.swapaxes(moments[:, nc + 1:, :], 1, 2)[:, rows][:, :, rows]  # (period, test, basis)
+        b = np.swapaxes(moments[:, : nc + 1, :], 1, 2)[:, rows]  # (period, test, channels and the ramp)
         with np.errstate(all="ignore"):
-            resolved = np.linalg.cond(a) <= self.MAX_CONDITION
-        a[~resolved] = np.diag(self._scale[rows])
-        solved = np.full((periods.size, c.shape[1], c.shape[2]), np.nan)
-        solved[:, rows] = np.linalg.solve(a, b)
-        c[periods] = solved
-        return resolved
+            resolved = np.isfinite(a).all(axis=(1, 2))
+            resolved[resolved] = np.linalg.cond(a[resolved]) <= max_condition
+        a[~resolved] = np.diag(self._scale[rows])  # unresolved periods are discarded: anything invertible will do
+        return np.linalg.solve(a, b), resolved
 
     def _split(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The measured harmonics' coefficients returned, those above them kept in ``high``."""
