@@ -5,6 +5,7 @@ whole chain with a simulated drive whose sensor picks up hum."""
 from __future__ import annotations
 
 import math
+import tomllib
 import uuid
 from dataclasses import replace
 from pathlib import Path
@@ -301,8 +302,9 @@ def test_a_linear_response_with_noise_gets_no_fold_bound() -> None:
 def test_folds_bound_on_the_virtual_bus_marks_the_whole_grid_points_and_reanalysis_agrees(tmp_path: Path) -> None:
     """The friction link at 20 Hz sampled at 1 kHz (50 samples a period: its high harmonics fold exactly onto 1 and
     3) with ``folds = "bound"``: the sweep over the virtual bus ends its points ``alias_limited`` with the bound in
-    their intervals, and the analysis again from the samples, which reads the rate from the run's configuration,
-    gives the same statuses and intervals."""
+    their intervals (a bound that errs large here: what folds is 0.2 to 0.3 x eps, see the fine-grid test below), and
+    the analysis again from the samples, which reads the rate from the run's configuration, gives the same statuses
+    and intervals."""
     from bodebench.analysis.reanalyse import reanalyse
     from bodebench.bench.procedure import SweepProcedure
     from bodebench.io.results import load_response
@@ -345,3 +347,64 @@ def test_a_period_too_sparse_for_the_wider_basis_is_solved_for_the_measured_harm
     assert np.max(np.abs(p_w[:, 0, 0] + 1j * q_w[:, 0, 0] - 0.01 * np.exp(0.3j))) < 1e-15
     cut = np.isnan(wide.high).any(axis=(1, 2))
     assert 15 <= cut.sum() <= 25 and np.isfinite(wide.high[~cut]).all()
+
+
+def _friction_link_on_a_fine_grid(frequency_hz: float, rate_hz: float, harmonics: list[int],
+                                  fine: int = 32) -> np.ndarray:
+    """What a sweep of ``configs/sim_can.toml``'s plant should give: the setpoint held over each controller period
+    (as the simulated drive holds it), the plant's output taken ``fine`` times a period of the rate, settled for
+    30 s, and its coefficients ``c_k = q_k - i p_k`` over a whole number of samples (a few periods where the
+    rate/frequency ratio is a fraction): with ``fine`` x more samples a period, what folds onto the harmonics is
+    negligible. The same held samples at the rate alone give what a bench sees, folds and all."""
+    from fractions import Fraction
+
+    from bodebench.sim.models import plant_from_config
+
+    plant = plant_from_config("coulomb", mass=2.533e-4, stiffness=1.0, friction=0.008)
+    state = plant.initial_state()
+    ratio = Fraction(rate_hz).limit_denominator() / Fraction(frequency_hz).limit_denominator()
+    samples = ratio.numerator  # ratio.denominator periods are this many samples
+    step = 1.0 / rate_hz
+    k = 0
+    while True:
+        held = 0.01 * np.sin(2 * np.pi * frequency_hz * step * np.arange(k, k + samples))
+        y = plant.run_held(state, np.repeat(held, fine), step / fine)[:, 0]
+        k += samples
+        if k * step >= 30.0:
+            break
+    t = step * ((k - samples) + np.arange(1, samples * fine + 1) / fine)  # each output at the end of its sub-step
+    return np.array([2.0 / len(y) * np.sum(y * np.exp(-2j * np.pi * h * frequency_hz * t)) for h in harmonics])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rate_hz, frequencies_hz", [(2000.0, [20.0, 30.0, 50.0]), (1000.0, [20.0, 25.0])])
+def test_the_shipped_friction_link_on_awkward_grids_is_within_its_tolerance_of_a_fine_grid_and_bound_covers_it(
+        rate_hz: float, frequencies_hz: list[float]) -> None:
+    """``configs/sim_can.toml`` at 40 to 100 samples a period (66 2/3 at 30 Hz), where the friction link's high
+    harmonics fold onto 1 and 3 every period alike: each converged point is within its tolerance of the plant's
+    response taken on a grid 32 x finer (so the folds the default ``folds = "keep"`` leaves in are, on this plant,
+    below the tolerance), and with ``folds = "bound"`` every point's interval covers that response (a bound that
+    errs large: its points may end alias_limited though right)."""
+    from bodebench.bench.connection import plan_link
+    from bodebench.bench.session import BenchSession
+
+    raw = tomllib.loads((Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml").read_text())
+    raw["excitation"]["frequencies_hz"] = frequencies_hz
+    raw["bench"]["rate_hz"] = rate_hz
+    harmonics = raw["analysis"]["harmonics"]
+    truth = {f: _friction_link_on_a_fine_grid(f, rate_hz, harmonics) for f in frequencies_hz}
+    for folds in ("keep", "bound"):
+        raw["analysis"]["folds"] = folds
+        case = parse_config(raw, "sim_can.toml").cases[0]
+        session = BenchSession(case, plan_link(case, direct=True), None, None)
+        session.run()
+        points = [p for p in session.response.points if p.channel == "position"]
+        assert len(points) == len(frequencies_hz) * len(harmonics)
+        for p in points:
+            exact = truth[p.frequency_hz]
+            error = abs(complex(p.q, -p.p) - exact[harmonics.index(p.harmonic)])
+            scale = abs(exact[0])  # the tolerance is relative to harmonic 1
+            if folds == "keep":
+                assert p.converged and error <= p.tolerance_percent / 100 * scale, (p, error / scale)
+            else:
+                assert error <= p.uncertainty, (p, error, p.uncertainty)
