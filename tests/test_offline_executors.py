@@ -259,6 +259,34 @@ def test_the_pool_compiles_the_kernels_once_into_an_empty_cache(tmp_path: Path, 
     assert list(cache.rglob("*.nbi"))
 
 
+@pytest.mark.slow
+def test_the_first_run_says_it_compiles_and_later_runs_do_not(tmp_path: Path) -> None:
+    """``bodebench simulate`` into an empty numba cache says, before its first point, that it compiles the plant's
+    step loops and about how long that takes; the same run again, the cache now filled by the first, says nothing
+    of it (and a quiet run never does)."""
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+    root = Path(__file__).resolve().parents[1]
+
+    def simulate(out: str, *extra: str) -> list[str]:
+        proc = subprocess.run([sys.executable, "-m", "bodebench", "simulate", str(root / "configs" / "sim_can.toml"),
+                               "--set", "excitation.frequencies_hz=[5]", "--plots", "none", "--out",
+                               str(tmp_path / out), *extra], capture_output=True, text=True, timeout=900, env=env)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stderr.splitlines()
+
+    quiet = simulate("quiet", "-q")
+    assert not any("compiling" in line for line in quiet), quiet
+    assert list(cache.rglob("*.nbi"))  # the quiet run compiled, silently
+    for path in cache.rglob("*.nb*"):
+        path.unlink()
+    first = simulate("first")
+    assert first[0].startswith("bodebench: compiling the step loops of the simulated plant (coulomb): about 3 s"), first
+    again = simulate("again")
+    assert not any("compiling" in line for line in again), again
+
+
 SLOW_AND_FAST = """
 title = "one fast point, one that never settles"
 [plant]

@@ -54,6 +54,16 @@ def _existing(args: argparse.Namespace) -> str:
     return "resume_changed" if getattr(args, "accept_changes", False) else "resume"
 
 
+def say_compiling(config: ExperimentConfig, quiet: bool) -> None:
+    """Say, before a sweep of a simulated plant starts, that its step loops are compiled first where numba's cache
+    does not hold them yet (the first run after installing)."""
+    from bodebench.sim.models import compile_note
+
+    note = compile_note({case.plant.model for case in config.cases if case.plant is not None})
+    if note and not quiet:
+        print(f"bodebench: {note}", file=sys.stderr)
+
+
 def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: bool, existing: str = "refuse",
                   plots: PlotWriter | None = None, log_bus: Path | None = None, keep_samples: bool = True) -> int:
     """Run every case of a bench config (``direct``: the simulated drive without a bus); the exit status."""
@@ -65,6 +75,7 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
     from bodebench.io.results import ResultsError
     from bodebench.sim.serve import SimulatorStartError
 
+    say_compiling(config, quiet)
     printer: ProgressPrinter | None = None
 
     def listener(event: object) -> None:

@@ -13,7 +13,15 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from bodebench.io.config import ExperimentConfig
 
-from bodebench.apps.commands.common import _also, _bench_sweeps, _existing, _load, _plot_writer, _print_summary
+from bodebench.apps.commands.common import (
+    _also,
+    _bench_sweeps,
+    _existing,
+    _load,
+    _plot_writer,
+    _print_summary,
+    say_compiling,
+)
 
 log = logging.getLogger("bodebench")
 
@@ -43,6 +51,7 @@ def _simulate(args: argparse.Namespace) -> int:
                   file=sys.stderr)
 
     models = {case.plant.model for case in config.cases if case.plant is not None}
+    say_compiling(config, args.quiet)
     try:
         with contextlib.ExitStack() as stack:
             drawer = None
