@@ -295,3 +295,19 @@ def test_ports_lists_serial_ports_and_can_configurations() -> None:
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and 'interface = "virtual", channel = "' in done.stdout
     assert done.stdout.startswith("serial ports (pyserial):")
+
+
+def test_log_bus_makes_its_directory_and_names_what_it_cannot_use(tmp_path: Path) -> None:
+    """``--log-bus results/x.asc`` on a fresh checkout makes ``results`` (as ``--out`` makes its directory); a
+    directory, or a path under a file, is one line naming the option's value."""
+    from bodebench.apps.commands.run import _log_bus
+    from bodebench.io.results import ResultsError
+
+    log = tmp_path / "results" / "deeper" / "bus.asc"
+    assert _log_bus(str(log)) == log and log.parent.is_dir() and not log.exists()
+    with pytest.raises(ResultsError, match=r"^--log-bus .*results: is a directory$"):
+        _log_bus(str(tmp_path / "results"))
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    with pytest.raises(ResultsError, match=r"^--log-bus .*a_file/bus.asc: cannot make its directory .*a_file: "):
+        _log_bus(str(blocker / "bus.asc"))

@@ -91,34 +91,97 @@ def _workspace(tmp_path: Path) -> Path:
     return tmp_path
 
 
+PRODUCES = ("--out", "--write-config", "--log-bus")
+"""Options whose value is a file or directory a command writes, for a later command to read."""
+
+
+def _is_served(command: str) -> bool:
+    """A standalone simulated drive that runs until stopped."""
+    return command.startswith("bodebench sim-controller") and "--seconds" not in command
+
+
+def _writes(words: list[str]) -> list[str]:
+    """The paths a command writes (the values of its ``PRODUCES`` options)."""
+    return [value for option, value in zip(words, words[1:], strict=False) if option in PRODUCES]
+
+
+def chains(document: str) -> list[list[str]]:
+    """The commands of ``document`` (``pip install`` and pytest lines left out: CI ran them to get here) grouped into
+    chains that need nothing from each other, each run in a workspace of its own: a command joins the chain of a
+    command of its block that wrote a path it names (``--out``, ``--write-config``, ``--log-bus``); the commands of
+    a block that write files (a config, a DBC: a name with a suffix, which another such file may name) share one
+    chain; a command on a ``/dev/pts/N`` port joins the chain of its block's served drive; a command shown again is
+    run once."""
+    found: list[list[str]] = []
+    seen: set[str] = set()
+    for block in shell_blocks(document):
+        owner: dict[str, int] = {}  # a path written in this block -> its chain
+        files = -1  # the chain of this block's commands that write files
+        served = -1
+        for command in (part.strip() for line in block for part in line.split("&&")):
+            if command.startswith("pip install") or "pytest" in command or command in seen:
+                continue
+            seen.add(command)
+            words = shlex.split(command)
+            needs = [owner[w] for w in words if w in owner]
+            if PTS.search(command) and served >= 0:
+                needs.append(served)
+            if files >= 0 and any(Path(w).suffix and not Path(w).parent.name for w in _writes(words)):
+                needs.append(files)
+            chain = needs[0] if needs else len(found)
+            if chain == len(found):
+                found.append([])
+            found[chain].append(command)
+            for value in _writes(words):
+                owner[value] = chain
+                if Path(value).suffix and not Path(value).parent.name and files < 0:
+                    files = chain
+            if _is_served(command):
+                served = chain
+    return found
+
+
+CHAINS = [(document, i) for document in DOCUMENTS for i in range(len(chains(document)))]
+"""Each chain of commands of the documents, a test of its own (so they spread over the test workers)."""
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("document", DOCUMENTS)
-def test_every_shell_command_of_the_docs_runs_as_written(tmp_path: Path, document: str) -> None:
+@pytest.mark.parametrize("document, chain", CHAINS, ids=[f"{d}-{i}" for d, i in CHAINS])
+def test_every_shell_command_of_the_docs_runs_as_written(tmp_path: Path, document: str, chain: int) -> None:
     cwd = _workspace(tmp_path)
     env = {**os.environ, "PYTHONWARNINGS": "ignore"}
-    ran = 0
-    done_before: set[str] = set()
-    for block in shell_blocks(document):
-        drive: subprocess.Popen[str] | None = None
-        port = ""
-        try:
-            for command in (part.strip() for line in block for part in line.split("&&")):
-                if command.startswith("pip install") or "pytest" in command or command in done_before:
-                    continue  # what CI ran to get here, or a command shown again in another section
-                if command.startswith("bodebench sim-controller") and "--seconds" not in command:
-                    drive, port = _serve(command, cwd, env)
-                    continue
-                if port:
-                    command = PTS.sub(port, command)
-                done = _run(command, cwd, env, timeout=900)
-                assert done.returncode == 0, f"{document}: {command}\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}"
-                assert "Traceback" not in done.stderr, f"{document}: {command}\n{done.stderr[-2000:]}"
-                done_before.add(command)
-                ran += 1
-        finally:
-            if drive is not None:
-                _stop(drive)
-    assert ran >= 1
+    drive: subprocess.Popen[str] | None = None
+    port = ""
+    try:
+        for command in chains(document)[chain]:
+            if _is_served(command):
+                drive, port = _serve(command, cwd, env)  # it announced its port: it runs
+                continue
+            if port:
+                command = PTS.sub(port, command)
+            done = _run(command, cwd, env, timeout=900)
+            assert done.returncode == 0, f"{document}: {command}\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}"
+            assert "Traceback" not in done.stderr, f"{document}: {command}\n{done.stderr[-2000:]}"
+    finally:
+        if drive is not None:
+            _stop(drive)
+
+
+def test_commands_that_read_what_another_wrote_run_in_its_chain() -> None:
+    """The chains of docs/getting-started.md: the re-analysis with the sweep that wrote its directory, the sweep of
+    a written config and the sweep on the served drive's port with that drive; every other command on its own."""
+    found = chains("docs/getting-started.md")
+    assert ["bodebench run configs/sim_can.toml --out results/sim_can_log --log-bus results/sim_can.asc",
+            "bodebench analyse results/sim_can_log --criterion full"] in found
+    rehearsal = next(c for c in found if c[0].endswith("--write-config bench.toml"))
+    assert rehearsal[1:] == ["bodebench run bench.toml --out results/rehearsal",
+                             "bodebench run configs/sim_serial.toml --port /dev/pts/3 --out results/rehearsal2"]
+    assert ["bodebench example real_can --out my_can_drive.toml", "bodebench example real_can.dbc --out real_can.dbc",
+            "bodebench check my_can_drive.toml", "bodebench dbc configs/sim_can.toml --out sim_can.dbc"] in found
+    commands = [c for block in shell_blocks("docs/getting-started.md") for c in block
+                if not c.startswith("pip install")]
+    assert sorted(c for chain in found for c in chain) == sorted(set(commands))
+    assert len(found) >= 10
 
 
 PYTHON_BLOCK = re.compile(r"^```python\n(.*?)^```", re.S | re.M)

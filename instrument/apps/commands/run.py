@@ -24,16 +24,19 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _log_bus(value: str | None) -> Path | None:
-    """The --log-bus file, checked before anything is sent: its directory must exist."""
+    """The --log-bus file, checked before anything is sent; its directory is made where it does not exist (as
+    ``--out`` makes the results directory)."""
     from bodebench.io.results import ResultsError
 
     if value is None:
         return None
     path = Path(value)
-    if not path.parent.is_dir():
-        raise ResultsError(f"--log-bus {value}: no directory {path.parent}")
     if path.is_dir():
         raise ResultsError(f"--log-bus {value}: is a directory")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ResultsError(f"--log-bus {value}: cannot make its directory {path.parent}: {exc.strerror}") from None
     return path
 
 
