@@ -51,6 +51,29 @@ def test_an_integrator_and_a_zero_are_recovered() -> None:
     assert fit.order == (1, 4) and fit.stable
 
 
+@pytest.mark.parametrize("integrator", [False, True])
+def test_the_matlab_variables_are_the_transfer_function_as_tf_reads_them(tmp_path: Path, integrator: bool) -> None:
+    """fit.mat written and read back by scipy.io: ``num`` and ``den`` (highest power first, the integrator's s in
+    ``den``) with ``exp(-s delay_s)``, evaluated as MATLAB's ``tf(num, den, 'InputDelay', delay_s)`` does, give the
+    exact response the data came from (a second order with a delay, and the same with an integrator)."""
+    import scipy.io as sio
+
+    from bodebench.analysis.fitting import fit_to_mat
+
+    g = second_order() / (S if integrator else 1.0)
+    fit = fit_transfer_function(F, g, 1e-3 * np.abs(g), 0, 2 + int(integrator), integrator=integrator, delay=True)
+    sio.savemat(str(tmp_path / "fit.mat"), fit_to_mat(fit, "position", 1), oned_as="column")
+    m = sio.loadmat(str(tmp_path / "fit.mat"), squeeze_me=True)
+    num, den, delay = np.atleast_1d(m["num"]), np.atleast_1d(m["den"]), float(m["delay_s"])
+    assert den.size == 3 + int(integrator) and (den[-1] == 0.0) == integrator and bool(m["integrator"]) == integrator
+    np.testing.assert_allclose(np.polyval(num, S) / np.polyval(den, S) * np.exp(-S * delay), g, rtol=1e-9)
+    assert list(m["parameter_names"]) == ["b0", "a1", "a0", "tau"]
+    np.testing.assert_allclose(m["parameters"], TRUE, rtol=1e-9)
+    [fn], [zeta] = np.atleast_1d(m["natural_frequency_hz"]), np.atleast_1d(m["damping_ratio"])
+    assert fn == pytest.approx(8.0, rel=1e-9) and zeta == pytest.approx(ZETA, rel=1e-9)
+    assert m["residuals"].shape == (F.size,) and np.iscomplexobj(m["residuals"]) and m["channel"] == "position"
+
+
 def test_the_95_percent_intervals_cover_the_truth_about_95_percent_of_the_time() -> None:
     """Gaussian noise of the stated standard deviation on each point, 200 seeds: each parameter's 95 % interval
     holds its true value in 95 % of the fits within the binomial spread (4 standard errors: 0.88 to 1)."""
@@ -129,6 +152,10 @@ def test_the_command_fits_an_offline_sweep_of_a_lag(tmp_path: Path, capsys: pyte
     assert data["den"] == pytest.approx([1.0, 20.0]) and data["stable"] is True
     assert data["chi2"] / data["dof"] < 1.5
     assert (out / "fit.png").stat().st_size > 0  # the fit over the data, and the residuals
+    import scipy.io as sio
+
+    mat = sio.loadmat(str(out / "fit.mat"), squeeze_me=True)
+    assert np.atleast_1d(mat["den"]) == pytest.approx(data["den"]) and float(mat["chi2"]) == pytest.approx(data["chi2"])
     (out / "fit.png").unlink()
     assert main(["fit", str(out), "--order", "0/1", "--no-plot", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["den"] == pytest.approx([1.0, 20.0])

@@ -13,7 +13,7 @@ from scipy.stats import chi2
 from bodebench.core.fit import Q95, TransferFit, fit_transfer_function, select_order
 from bodebench.core.response import PHASE_UNDEFINED_STATUSES, FrequencyResponse
 
-__all__ = ["fit_data", "fit_lines", "fit_response", "fit_to_json", "plot_fit", "to_control"]
+__all__ = ["fit_data", "fit_lines", "fit_response", "fit_to_json", "fit_to_mat", "plot_fit", "to_control"]
 
 
 def fit_data(response: FrequencyResponse, harmonic: int, channel: str | None) -> tuple[np.ndarray, np.ndarray,
@@ -117,6 +117,38 @@ def fit_to_json(fit: TransferFit, fits: list[TransferFit], channel: str, harmoni
         "residuals": [{"frequency_hz": float(f), "real": float(r.real), "imag": float(r.imag)}
                       for f, r in zip(fit.frequency_hz, fit.residuals, strict=True)],
         "compared": [{"order": list(f.order), "bic": f.bic, "chi2": f.chi2, "stable": f.stable} for f in fits],
+    }
+
+
+def fit_to_mat(fit: TransferFit, channel: str, harmonic: int) -> dict[str, Any]:
+    """The fit as MATLAB variables (for ``scipy.io.savemat``): ``G = tf(num, den, 'InputDelay', delay_s)`` is the
+    fitted transfer function (s in rad/s, highest power first, the integrator's s multiplied into ``den``);
+    ``den_rational`` is ``den`` without it. Also ``integrator`` and ``delay_fitted`` (logical), ``parameter_names``
+    (cell of char), ``parameters``, ``standard_errors`` (NaN where the data do not determine one), ``covariance``,
+    ``natural_frequency_hz`` and ``damping_ratio`` of each mode, ``frequency_hz`` and ``residuals`` (complex, in
+    standard deviations of each point), ``chi2``, ``dof``, ``bic``, ``stable``, ``channel``, ``harmonic``."""
+    modes = fit.modes()
+    return {
+        "num": fit.num.reshape(1, -1),
+        "den": (np.polymul(fit.den, [1.0, 0.0]) if fit.integrator else fit.den).reshape(1, -1),
+        "den_rational": fit.den.reshape(1, -1),
+        "integrator": fit.integrator,
+        "delay_s": fit.delay_s,
+        "delay_fitted": fit.delay_fitted,
+        "parameter_names": np.array(fit.names, dtype=object).reshape(-1, 1),
+        "parameters": fit.parameters.reshape(-1, 1),
+        "standard_errors": fit.standard_errors.reshape(-1, 1),
+        "covariance": fit.covariance,
+        "natural_frequency_hz": np.array([fn for fn, _ in modes], dtype=float).reshape(-1, 1),
+        "damping_ratio": np.array([zeta for _, zeta in modes], dtype=float).reshape(-1, 1),
+        "frequency_hz": np.asarray(fit.frequency_hz, dtype=float).reshape(-1, 1),
+        "residuals": np.asarray(fit.residuals, dtype=complex).reshape(-1, 1),
+        "chi2": fit.chi2,
+        "dof": fit.dof,
+        "bic": fit.bic,
+        "stable": fit.stable,
+        "channel": channel,
+        "harmonic": harmonic,
     }
 
 

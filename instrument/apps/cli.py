@@ -247,7 +247,8 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--fit-delay", action="store_true", help="fit a transport delay as well")
     fit.add_argument("--harmonic", type=int, default=1, help="measured harmonic to fit (default 1)")
     fit.add_argument("--channel", default=None, help="output channel (default: the first)")
-    fit.add_argument("--json", action="store_true", help="print the fit as JSON (it is written to fit.json)")
+    fit.add_argument("--json", action="store_true",
+                     help="print the fit as JSON (written to fit.json; fit.mat for MATLAB)")
     fit.add_argument("--no-plot", action="store_true", help="do not write fit.png (the fit over the data and the "
                                                             "residuals)")
     _chain_options(fit)

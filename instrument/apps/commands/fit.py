@@ -11,6 +11,8 @@ from bodebench.apps.commands.common import _ArgumentError, _chain_taken_off
 
 FIT_NAME = "fit.json"
 """Where ``bodebench fit`` writes its result, beside the response."""
+FIT_MAT_NAME = "fit.mat"
+"""The same result as MATLAB variables (:func:`~bodebench.analysis.fitting.fit_to_mat`)."""
 
 
 def _order(text: str) -> tuple[int, int]:
@@ -28,7 +30,9 @@ def _order(text: str) -> tuple[int, int]:
 def _fit(args: argparse.Namespace) -> int:
     import json
 
-    from bodebench.analysis.fitting import fit_data, fit_lines, fit_response, fit_to_json, plot_fit
+    import scipy.io as sio
+
+    from bodebench.analysis.fitting import fit_data, fit_lines, fit_response, fit_to_json, fit_to_mat, plot_fit
     from bodebench.io.results import ResultsError, atomic_write_text, load_response
 
     directory = Path(args.results)
@@ -45,6 +49,10 @@ def _fit(args: argparse.Namespace) -> int:
         atomic_write_text(directory / FIT_NAME, json.dumps(data, indent=2, allow_nan=False) + "\n")
     except OSError as exc:
         raise ResultsError(f"{directory / FIT_NAME}: cannot write: {exc.strerror or exc}") from None
+    try:
+        sio.savemat(str(directory / FIT_MAT_NAME), fit_to_mat(fit, channel, args.harmonic), oned_as="column")
+    except OSError as exc:
+        raise ResultsError(f"{directory / FIT_MAT_NAME}: cannot write: {exc.strerror or exc}") from None
     status = 0
     if not args.no_plot:
         _, h, sd, _ = fit_data(response, args.harmonic, channel)
