@@ -54,12 +54,17 @@ def _existing(args: argparse.Namespace) -> str:
     return "resume_changed" if getattr(args, "accept_changes", False) else "resume"
 
 
+def plant_models(config: ExperimentConfig) -> set[str]:
+    """The simulated plants' models of ``config``'s cases (none for a real drive)."""
+    return {case.plant.model for case in config.cases if case.plant is not None}
+
+
 def say_compiling(config: ExperimentConfig, quiet: bool) -> None:
     """Say, before a sweep of a simulated plant starts, that its step loops are compiled first where numba's cache
     does not hold them yet (the first run after installing)."""
     from bodebench.sim.models import compile_note
 
-    note = compile_note({case.plant.model for case in config.cases if case.plant is not None})
+    note = compile_note(plant_models(config))
     if note and not quiet:
         print(f"bodebench: {note}", file=sys.stderr)
 

@@ -20,6 +20,7 @@ from bodebench.apps.commands.common import (
     _load,
     _plot_writer,
     _print_summary,
+    plant_models,
     say_compiling,
 )
 
@@ -50,7 +51,7 @@ def _simulate(args: argparse.Namespace) -> int:
             print(f"{name}: {done}/{total}  f = {event.points[0].frequency_hz:g} Hz  {worst} periods",
                   file=sys.stderr)
 
-    models = {case.plant.model for case in config.cases if case.plant is not None}
+    models = plant_models(config)
     say_compiling(config, args.quiet)
     try:
         with contextlib.ExitStack() as stack:
