@@ -394,7 +394,9 @@ class AnalysisConfig:
                "the spread of the periods and the point ends capped or noise-limited instead of converged to it; "
                "bound: the frequencies as given, and each point's interval carries a bound on what the rate folds "
                "onto it, read from the record's content above the measured harmonics (a point goes on while more "
-               "periods can make room for it, and ends alias_limited where the bound alone exceeds the tolerance)"})
+               "periods can make room for it, and ends alias_limited where the bound alone exceeds the tolerance; "
+               "it assumes harmonics falling as 1/j^2, as an output with corners does (a saturated or rate-limited "
+               "signal), and errs large on a smoother one)"})
     response: str | None = field(default=None, metadata={
         "choices": RESPONSE_KINDS,
         "doc": "what the measured response is, for its summary: system (default), closed_loop, or open_loop "
