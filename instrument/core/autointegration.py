@@ -310,9 +310,14 @@ class Autointegrator:
                 if not bound:
                     continue
                 tolerance = self._rules[c][k].tolerance(complex(v.p, v.q), references[c])
-                if v.uncertainty + bound > tolerance and (bound < tolerance or not settled):
+                if not self._fits(v, bound, tolerance) and (bound < tolerance or not settled):
                     verdicts[k] = None
                     self._pending += 1
+
+    @staticmethod
+    def _fits(verdict: Verdict, fold: float, tolerance: float) -> bool:
+        """Whether a converged verdict's interval with the fold bound added still fits its tolerance."""
+        return verdict.uncertainty + fold <= tolerance
 
     def _usable(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
         """(m,) periods with coefficients within MAX_COEFFICIENT whose reference fundamental, in two-channel mode,
@@ -475,8 +480,8 @@ class Autointegrator:
                 start, stop = coherence_periods(self.skip_periods, v.period)
                 converged, status, within_eps = v.converged, v.status, v.within_eps
                 fold = float(folds[c, k])
-                if fold and converged and v.uncertainty + fold > self._rules[c][k].tolerance(
-                        complex(v.p, v.q), self._last_references[c]):
+                if fold and converged and not self._fits(
+                        v, fold, self._rules[c][k].tolerance(complex(v.p, v.q), self._last_references[c])):
                     converged, status, within_eps = False, PointStatus.ALIAS_LIMITED, False
                 pts.append(ResponsePoint(frequency_hz=self.frequency_hz, harmonic=harmonic, channel=name,
                                          amplitude=self.amplitude, p=v.p, q=v.q, periods=v.period,
