@@ -28,12 +28,13 @@ def _order(text: str) -> tuple[int, int]:
 
 
 def _fit(args: argparse.Namespace) -> int:
+    import io
     import json
 
     import scipy.io as sio
 
     from bodebench.analysis.fitting import fit_data, fit_lines, fit_response, fit_to_json, fit_to_mat, plot_fit
-    from bodebench.io.results import ResultsError, atomic_write_text, load_response
+    from bodebench.io.results import ResultsError, atomic_write_bytes, load_response
 
     directory = Path(args.results)
     response = _chain_taken_off(load_response(directory), args, directory)
@@ -45,14 +46,14 @@ def _fit(args: argparse.Namespace) -> int:
         print(f"bodebench: {directory}: {exc}", file=sys.stderr)
         return 2
     data = fit_to_json(fit, fits, channel, args.harmonic)
-    try:
-        atomic_write_text(directory / FIT_NAME, json.dumps(data, indent=2, allow_nan=False) + "\n")
-    except OSError as exc:
-        raise ResultsError(f"{directory / FIT_NAME}: cannot write: {exc.strerror or exc}") from None
-    try:
-        sio.savemat(str(directory / FIT_MAT_NAME), fit_to_mat(fit, channel, args.harmonic), oned_as="column")
-    except OSError as exc:
-        raise ResultsError(f"{directory / FIT_MAT_NAME}: cannot write: {exc.strerror or exc}") from None
+    mat = io.BytesIO()
+    sio.savemat(mat, fit_to_mat(fit, channel, args.harmonic), oned_as="column")
+    for name, content in ((FIT_NAME, (json.dumps(data, indent=2, allow_nan=False) + "\n").encode("utf-8")),
+                          (FIT_MAT_NAME, mat.getvalue())):
+        try:
+            atomic_write_bytes(directory / name, content)
+        except OSError as exc:
+            raise ResultsError(f"{directory / name}: cannot write: {exc.strerror or exc}") from None
     status = 0
     if not args.no_plot:
         _, h, sd, _ = fit_data(response, args.harmonic, channel)
