@@ -105,6 +105,11 @@ def _writes(words: list[str]) -> list[str]:
     return [value for option, value in zip(words, words[1:], strict=False) if option in PRODUCES]
 
 
+def _is_file_here(path: str) -> bool:
+    """A file written in the working directory (a config, a DBC), which another such file may name."""
+    return bool(Path(path).suffix) and not Path(path).parent.name
+
+
 def chains(document: str) -> list[list[str]]:
     """The commands of ``document`` (``pip install`` and pytest lines left out: CI ran them to get here) grouped into
     chains that need nothing from each other, each run in a workspace of its own: a command joins the chain of a
@@ -126,7 +131,7 @@ def chains(document: str) -> list[list[str]]:
             needs = [owner[w] for w in words if w in owner]
             if PTS.search(command) and served >= 0:
                 needs.append(served)
-            if files >= 0 and any(Path(w).suffix and not Path(w).parent.name for w in _writes(words)):
+            if files >= 0 and any(map(_is_file_here, _writes(words))):
                 needs.append(files)
             chain = needs[0] if needs else len(found)
             if chain == len(found):
@@ -134,7 +139,7 @@ def chains(document: str) -> list[list[str]]:
             found[chain].append(command)
             for value in _writes(words):
                 owner[value] = chain
-                if Path(value).suffix and not Path(value).parent.name and files < 0:
+                if _is_file_here(value) and files < 0:
                     files = chain
             if _is_served(command):
                 served = chain
