@@ -27,6 +27,10 @@ class PointStatus(StrEnum):
     """The sample rate folds content of the response above the measured harmonics onto this one, the same in every
     period, and the bound on it the record gives (bodebench.core.benchgrid.fold_bound) does not fit in the tolerance:
     the interval includes that bound; not converged."""
+    DIVISOR_LIMITED = "divisor_limited"
+    """Two-channel mode: the divisor's fundamental scatters from period to period by more than a quarter of its size
+    (bodebench.core.autointegration.MAX_DIVISOR_SCATTER), where a period's noise may come near the divisor itself
+    and the average of the periods' ratios is biased beyond what their spread shows; not converged."""
     UNTIED = "untied"
     """Realtime clock, and the drive gives no way to date the sine on its own clock (no setpoint echo, no SYNC):
     the host's latency is in the phase; the gain stands, the phase does not; not converged."""

@@ -24,6 +24,7 @@ from bodebench.sim.controller import ControllerTiming, FeedbackSensing, Simulate
 from bodebench.sim.faults import CanopenFaults, FaultConfig, FaultyPort, ValueFaults
 from bodebench.sim.models import plant_from_config
 from bodebench.sim.pty_link import POSIX_ONLY, FdStream, Pty, PtyUnavailable, SlcanAdapterPort, pty_available
+from bodebench.sim.servo_loop import LoopConfig
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection
@@ -53,11 +54,13 @@ class SimulatorSpec:
     sensing: FeedbackSensing | None = None
     canopen: CanopenSetup | None = None  # a CiA 402 drive (``layout`` is then ``canopen.layout()``)
     canopen_faults: CanopenFaults | None = None
+    loop: LoopConfig = field(default_factory=LoopConfig)  # the drive's own control loop around the plant
 
     def controller(self) -> SimulatedController:
-        """A new controller around a new plant."""
+        """A new controller around a new plant (inside the drive's loop where it has one)."""
         params = dict(self.plant)
-        return SimulatedController(plant_from_config(params.pop("model"), **params), self.layout, self.timing,
+        plant = self.loop.around(plant_from_config(params.pop("model"), **params))
+        return SimulatedController(plant, self.layout, self.timing,
                                    ValueFaults(self.faults) if self.faults is not None else None,
                                    sensing=self.sensing)
 

@@ -48,7 +48,7 @@ __all__ = [
 
 #: Status of a point whose measurement stopped at the period cap.
 _NOT_WITHIN_TOLERANCE = (PointStatus.CAPPED, PointStatus.NOISE_LIMITED, PointStatus.DISTURBED,
-                         PointStatus.ALIAS_LIMITED, PointStatus.UNTIED)
+                         PointStatus.ALIAS_LIMITED, PointStatus.DIVISOR_LIMITED, PointStatus.UNTIED)
 
 FORMATS = ("png", "svg", "pdf")
 """The file formats the plots can be written in (PNG raster at 120 dpi; SVG and PDF vector)."""

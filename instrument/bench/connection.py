@@ -140,6 +140,7 @@ def simulator_spec(case: CaseConfig, *, wire_faults: bool = True) -> SimulatorSp
         raise ConfigError(f"{case.source}: plant: missing: the simulated drive needs a [plant] table", "plant")
     from bodebench.sim.controller import ControllerTiming, FeedbackSensing
     from bodebench.sim.serve import SimulatorSpec
+    from bodebench.sim.servo_loop import LoopConfig
 
     timing = ControllerTiming(bench.rate_hz, bench.clock, sim.jitter if sim else 0.0,
                               sim.seed if sim else 0, bench.pacing_cpu)
@@ -152,7 +153,7 @@ def simulator_spec(case: CaseConfig, *, wire_faults: bool = True) -> SimulatorSp
     device_faults = sim.canopen if sim is not None and wire_faults and sim.canopen.any else None
     return SimulatorSpec(asdict(case.plant), tables.layout, timing, serial.framing if serial else "binary", can_map,
                          faults if faults is not None and faults.any else None, sensing, case.canopen_setup,
-                         device_faults)
+                         device_faults, sim.loop if sim is not None else LoopConfig())
 
 
 def plan_link(case: CaseConfig, *, direct: bool = False, log: str = "") -> LinkPlan:

@@ -424,8 +424,11 @@ class SweepProcedure:
 
     def _submit_plots(self, outcome: CaseOutcome) -> list[Future[list[Path]]]:
         """Draw ``outcome``'s plots on the drawer, else on the executor, each figure a task of its own, so that on a
-        pool the last case's figures are drawn side by side ([]: drawn here, now, or no plots wanted)."""
+        pool the last case's figures are drawn side by side ([]: drawn here, now, or no plots wanted, or no point
+        to draw)."""
         executor = self.drawer or self.executor
+        if not len(outcome.response):
+            return []
         if self.plots is None or executor is None:
             self._draw(outcome)
             return []

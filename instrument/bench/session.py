@@ -47,6 +47,7 @@ from bodebench.bench.worker import (
 from bodebench.core.autointegration import Autointegrator, period_budget
 from bodebench.core.benchgrid import flag_disturbed, mark_untied
 from bodebench.core.liveness import FlatWatch, no_fundamental
+from bodebench.core.measured import formed_columns
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.drivers.layout import SETPOINT_ECHO
 from bodebench.drivers.scheduling import pacing_cpu_left_alone
@@ -298,7 +299,8 @@ class BenchSession:
 
     def _absurd(self, points: list[ResponsePoint]) -> str:
         """Why the points of a frequency are refused ("" when they are not)."""
-        limits = self.safety.feedback_limits
+        # a ratio of channels (analysis.measured) is no feedback value: the windows hold for the samples only
+        limits = self.safety.feedback_limits if self.analysis.measurement == "output" else {}
         for p in points:
             window = limits.get(p.channel)
             reason = _absurd_point(p, (float(window[0]), float(window[1])) if window else None)
@@ -324,9 +326,14 @@ class BenchSession:
         analysis = self._analysis()
         amplitude = self.case.excitation.amplitude_at(f)
         settle = self.case.excitation.settle_at(f)  # whole periods at full amplitude before period 1
-        outputs = bench.output_channels
-        reference, reference_phase, untied = sine_dating(bench, self.channels, f)
-        columns = [self.channels.index(n) for n in outputs + ((reference,) if reference else ())]
+        if analysis.measurement == "output":
+            reference, reference_phase, untied = sine_dating(bench, self.channels, f)
+        else:  # a ratio of two channels: the host's clock never enters it
+            reference, reference_phase, untied = "", 0.0, False
+        formed = formed_columns(analysis.measurement, bench.output_channels, reference, bench.effort_channel,
+                                bench.control_channel)
+        outputs, reference = formed.outputs, formed.reference
+        columns = [self.channels.index(n) for n in formed.raw]
         # the drive's echo, where it sends one, is watched with the outputs: a drive that stopped applying the sine
         watched = columns + [self.channels.index(SETPOINT_ECHO)] \
             if SETPOINT_ECHO in self.channels and reference != SETPOINT_ECHO else columns
@@ -399,7 +406,7 @@ class BenchSession:
                 t = np.concatenate([[held[0]], t])
                 values = np.vstack([held[1][None, :], values])
                 held = (math.inf, held[1])
-            values = values[:, :len(columns)]
+            values = formed.combine(values)
             record.add(t, values)
             with np.errstate(all="ignore"):  # garbage that got this far is refused below, not warned about
                 sampler.feed(t, values)

@@ -89,6 +89,14 @@ def period_budget(analysis: AnalysisSettings, frequency_hz: float, on_bench: boo
                                          math.ceil(seconds * frequency_hz)))
 
 
+MAX_DIVISOR_SCATTER = 0.25
+"""Two-channel mode: the most the divisor's fundamental may scatter from period to period, relative to its size
+(:meth:`Autointegrator.divisor_scatter`), for the mean of the periods' ratios to be the ratio. The noise of a
+period's Fourier coefficient is circular, so its powers average to zero and the mean of 1 / (Z_r + n) is 1 / Z_r
+while |n| < |Z_r|; at a relative scatter s a period's noise exceeds the divisor with probability exp(-1 / s^2)
+(1e-7 at a quarter), and beyond that the ratios' mean is biased more than their spread shows. Above it the points
+end ``divisor_limited``."""
+
 MAX_COEFFICIENT = 1e100
 """Largest coefficient a period may have (output units): beyond any sensor's range in any unit, and far enough below
 the float range that the rules' squares and sums cannot overflow. A larger one is garbage, discarded as a
@@ -204,6 +212,9 @@ class Autointegrator:
         # returned while a rule was still open, and their count
         self._drift_sum = np.zeros(len(self.channels))
         self._drift_periods = 0
+        # two-channel mode: the sum of the reference fundamentals of the periods integrated, of their squared sizes,
+        # and their count, for the divisor's scatter
+        self._divisor_sum, self._divisor_power, self._divisor_periods = 0j, 0.0, 0
 
     @property
     def done(self) -> bool:
@@ -355,8 +366,11 @@ class Autointegrator:
         m = p.shape[0]
         z = p + 1j * q  # (m, channel, harmonic)
         if self.reference is not None:
-            z = self._relative_to_reference(z[:, :-1, : len(self.harmonics)], z[:, -1, self._ref_index],
-                                            self.harmonics)
+            divisor = z[:, -1, self._ref_index]
+            self._divisor_sum += complex(divisor.sum())
+            self._divisor_power += float(np.sum(np.abs(divisor) ** 2))
+            self._divisor_periods += m
+            z = self._relative_to_reference(z[:, :-1, : len(self.harmonics)], divisor, self.harmonics)
         if m <= _FEW_PERIODS:
             values = z.ravel().tolist()
             self._take(values, list(map(abs, values)))
@@ -454,6 +468,14 @@ class Autointegrator:
         """Per-period coefficients P(i) + jQ(i) of one series so far."""
         return self._histories[self.channels.index(channel)][self.harmonics.index(harmonic)].values
 
+    def divisor_scatter(self) -> float:
+        """Two-channel mode: the spread of the reference fundamental from period to period relative to its mean (the
+        standard deviation of the complex coefficient over its size; NaN without a reference or a period)."""
+        if not self._divisor_periods or not self._divisor_sum:
+            return math.nan
+        mean = self._divisor_sum / self._divisor_periods
+        return math.sqrt(max(0.0, self._divisor_power / self._divisor_periods - abs(mean) ** 2)) / abs(mean)
+
     def points(self) -> list[ResponsePoint]:
         """The measured points, one per series (requires ``done``); ValueError saying why for a failed point."""
         if not self.done:
@@ -464,6 +486,7 @@ class Autointegrator:
         folds = self.fold_bounds()
         drift = self._drift_sum / self._drift_periods * self.frequency_hz if self._drift_periods else \
             np.full(len(self.channels), math.nan)
+        noisy_divisor = self.divisor_scatter() > MAX_DIVISOR_SCATTER
         for c, name in enumerate(self.channels):
             verdicts = self._verdicts[c]
             thd = math.nan
@@ -483,6 +506,8 @@ class Autointegrator:
                 if fold and converged and not self._fits(
                         v, fold, self._rules[c][k].tolerance(complex(v.p, v.q), self._last_references[c])):
                     converged, status, within_eps = False, PointStatus.ALIAS_LIMITED, False
+                if noisy_divisor:
+                    converged, status, within_eps = False, PointStatus.DIVISOR_LIMITED, False
                 pts.append(ResponsePoint(frequency_hz=self.frequency_hz, harmonic=harmonic, channel=name,
                                          amplitude=self.amplitude, p=v.p, q=v.q, periods=v.period,
                                          converged=converged, status=status, uncertainty=v.uncertainty + fold,

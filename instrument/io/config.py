@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from bodebench.core.benchgrid import disturbance_lines, folding_notes, move_off_disturbances, move_off_folds
+from bodebench.core.measured import RATIO_MODES, FormError, formed_columns
 from bodebench.drivers import cia408
 from bodebench.drivers.canopen_link import CanopenSetup, ObjectRef, load_od, resolve_object
 from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS
@@ -436,6 +437,9 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
         for name in _BENCH_ONLY:
             if tables.get(name) is not None or (name == FRAMES and frames is not None):
                 raise _Fault(name, "needs a [bench] table")
+        if tables["analysis"].measurement != "output":
+            raise _Fault(key("analysis", "measured"), f'"{tables["analysis"].measurement}" needs a [bench] table (a '
+                                                      "drive's effort and control channels)")
         return None, None
     link = tables.get(bench.transport)
     if link is None:
@@ -546,12 +550,14 @@ def _check_channels(tables: Mapping[str, Any], bench: BenchConfig, safety: Safet
                     setup: CanopenSetup | None, key: Callable[[str, str], str]) -> None:
     """The channels and the time base a bench case names against its frame layout; raises :class:`_Fault`."""
     channels = set(layout.channels)
-    for name in (*bench.output_channels, *( [bench.reference_channel] if bench.reference_channel else [])):
-        if name not in channels:
-            raise _Fault(key("bench", "output_channels" if name in bench.output_channels
-                                     else "reference_channel"),
-                                 f"{name!r} is not a feedback channel of the frame layout "
-                                 f"({', '.join(layout.channels)})")
+    ratio = tables["analysis"].measurement in RATIO_MODES  # formed from the effort and control channels alone
+    for field_name in ("output_channels", "reference_channel", "effort_channel", "control_channel")[ratio:]:
+        value = getattr(bench, field_name)
+        for name in (value if isinstance(value, tuple) else (value,) if value else ()):
+            if name not in channels:
+                raise _Fault(key("bench", field_name), f"{name!r} is not a feedback channel of the frame layout "
+                                                       f"({', '.join(layout.channels)})")
+    _check_measured(tables["analysis"], bench, key)
     for name in safety.feedback_limits:
         if name not in channels:
             raise _Fault(key("safety", "feedback_limits"), f"{name!r} is not a feedback channel")
@@ -564,6 +570,23 @@ def _check_channels(tables: Mapping[str, Any], bench: BenchConfig, safety: Safet
                         if setup is not None else ""))
     if bench.timebase == "timestamp" and not layout.has_timestamp:
         raise _Fault(key("bench", "timebase"), "timestamp: the feedback frames carry no timestamp_us")
+
+
+def _check_measured(analysis: AnalysisConfig, bench: BenchConfig, key: Callable[[str, str], str]) -> None:
+    """What ``analysis.measured`` needs of the bench's channels and harmonics; raises :class:`_Fault`."""
+    measured = analysis.measurement
+    if measured == "output":
+        return
+    if bench.reference_channel:
+        raise _Fault(key("bench", "reference_channel"), f'not with analysis.measured = "{measured}": its '
+                                                        "divisor is the effort channel")
+    try:
+        formed_columns(measured, bench.output_channels, "", bench.effort_channel, bench.control_channel)
+    except FormError as exc:
+        raise _Fault(key("bench", exc.field), str(exc)) from None
+    if measured in RATIO_MODES and analysis.harmonics != (1,):
+        raise _Fault(key("analysis", "harmonics"), f'analysis.measured = "{measured}" is a ratio of fundamentals: '
+                                                   "harmonics = [1]")
 
 
 def _canopen_setup(table: CanopenConfig, simulated: bool, key: Callable[[str, str], str],

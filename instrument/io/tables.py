@@ -13,12 +13,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 from bodebench.core.autointegration import DEFAULT_BENCH_POINT_S, MIN_BUDGET_PERIODS
+from bodebench.core.measured import MEASURED
 from bodebench.core.rules import CRITERIA, MIN_NOISE_EVIDENCE
 from bodebench.core.summary import RESPONSE_KINDS
 from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS
 from bodebench.drivers.device_profile import PROFILES
 from bodebench.io.schema import FieldError
 from bodebench.sim.faults import CanopenFaults, FaultConfig
+from bodebench.sim.servo_loop import LoopConfig
 
 DEFAULT_DISTURBANCE_HZ = (50.0,)
 """[analysis] disturbance_hz on a real drive when the configuration gives none: mains."""
@@ -397,10 +399,17 @@ class AnalysisConfig:
                "periods can make room for it, and ends alias_limited where the bound alone exceeds the tolerance; "
                "it assumes harmonics falling as 1/j^2, as an output with corners does (a saturated or rate-limited "
                "signal), and errs large on a smoother one)"})
+    measured: str | None = field(default=None, metadata={
+        "choices": MEASURED,
+        "doc": "what the sweep measures (docs/loop.md): output (default: each output channel against the excitation), "
+               "plant (each output channel over bench.effort_channel), loop (-control/effort, the loop gain), "
+               "sensitivity (effort/(effort - control)) or complementary (-control/(effort - control)); the "
+               "ratios are taken period by period"})
     response: str | None = field(default=None, metadata={
         "choices": RESPONSE_KINDS,
-        "doc": "what the measured response is, for its summary: system (default), closed_loop, or open_loop "
-               "(adds the gain and phase margins)"})
+        "doc": "what the measured response is, for its summary: system, closed_loop, or open_loop (adds the gain "
+               "and phase margins); default: open_loop when measured = loop, closed_loop when complementary, else "
+               "system"})
 
     @property
     def disturbance_policy(self) -> str:
@@ -416,7 +425,12 @@ class AnalysisConfig:
     @property
     def response_kind(self) -> str:
         """The kind of response the summary reads (:data:`bodebench.core.summary.RESPONSE_KINDS`)."""
-        return self.response or "system"
+        return self.response or {"loop": "open_loop", "complementary": "closed_loop"}.get(self.measurement, "system")
+
+    @property
+    def measurement(self) -> str:
+        """What the sweep measures (:data:`bodebench.core.measured.MEASURED`)."""
+        return self.measured or MEASURED[0]
 
     def validate(self, where: Callable[[str], str]) -> None:
         """Cross-field checks; raises :class:`FieldError`."""
@@ -446,6 +460,12 @@ class BenchConfig:
     reference_channel: str = field(default="", metadata={
         "doc": "two-channel mode: gain and phase relative to this channel (e.g. setpoint_echo); "
                "empty: relative to the commanded sine"})
+    effort_channel: str = field(default="", metadata={
+        "doc": "the plant input after the excitation is added (a drive's torque or current demand), for "
+               "analysis.measured = plant, loop, sensitivity, complementary"})
+    control_channel: str = field(default="", metadata={
+        "doc": "the controller output before the excitation is added, for analysis.measured = loop, sensitivity, "
+               "complementary"})
     ramp_in_periods: int = field(default=2, metadata={"min": 0, "doc": "amplitude ramp before analysis, periods"})
     ramp_out_periods: int = field(default=1, metadata={"min": 0, "doc": "amplitude ramp after a point, periods"})
     worker: str = field(default="auto", metadata={
@@ -667,6 +687,8 @@ class SimulatorConfig:
         "doc": "fault injection on the wire and in the drive (docs/faults.md)"})
     canopen: CanopenFaults = field(default_factory=CanopenFaults, metadata={
         "doc": "faults of the simulated CiA 402 drive (transport canopen)"})
+    loop: LoopConfig = field(default_factory=LoopConfig, metadata={
+        "doc": "the simulated drive's own control loop around [plant] (docs/loop.md)"})
 
 
 @dataclass(frozen=True)

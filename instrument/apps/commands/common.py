@@ -253,6 +253,11 @@ def _chain_taken_off(response: FrequencyResponse, args: argparse.Namespace, dire
     rate = bench.get("rate_hz") if isinstance(bench, dict) else None
     if not isinstance(rate, (int, float)) or isinstance(rate, bool):
         raise ResultsError(f"{directory}: --without-chain: not a bench sweep (its configuration has no bench.rate_hz)")
+    analysis = response.config.get("analysis") if isinstance(response.config, dict) else None
+    measured = (analysis.get("measured") if isinstance(analysis, dict) else None) or "output"
+    if measured != "output":
+        raise ResultsError(f"{directory}: --without-chain: the sweep measured {measured}, a ratio of two of the "
+                           "drive's channels, which the bench's delays never enter")
     try:
         return without_chain(response, float(rate), args.delay, args.delay_uncertainty)
     except ValueError as exc:

@@ -16,11 +16,12 @@ from bodebench.core.response import ResponsePoint
 from bodebench.status import PointStatus
 
 #: states of a row in the sweep table
-PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, NOISE_LIMITED, DISTURBED, ALIASED, UNTIED, FAILED, SKIPPED = (
-    "pending", "settling", "integrating", "converged", "capped", "noise-limited", "disturbed", "aliased", "untied",
-    "failed", "skipped")
-ROW_STATES = (PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, NOISE_LIMITED, DISTURBED, ALIASED, UNTIED, FAILED,
-              SKIPPED)
+PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, NOISE_LIMITED, DISTURBED, ALIASED, DIVISOR_NOISY, UNTIED = (
+    "pending", "settling", "integrating", "converged", "capped", "noise-limited", "disturbed", "aliased",
+    "divisor-noisy", "untied")
+FAILED, SKIPPED = "failed", "skipped"
+ROW_STATES = (PENDING, SETTLING, INTEGRATING, CONVERGED, CAPPED, NOISE_LIMITED, DISTURBED, ALIASED, DIVISOR_NOISY,
+              UNTIED, FAILED, SKIPPED)
 ACTIVE_STATES = (SETTLING, INTEGRATING)
 
 
@@ -49,12 +50,13 @@ def row_key(position: int, harmonic: int, channel: str) -> str:
 
 _UNCONVERGED_STATES: dict[str, str] = {PointStatus.CAPPED: CAPPED, PointStatus.NOISE_LIMITED: NOISE_LIMITED,
                                        PointStatus.DISTURBED: DISTURBED, PointStatus.ALIAS_LIMITED: ALIASED,
-                                       PointStatus.UNTIED: UNTIED}
+                                       PointStatus.DIVISOR_LIMITED: DIVISOR_NOISY, PointStatus.UNTIED: UNTIED}
 
 
 def finished_state(converged: bool, status: str) -> str:
     """The row state of a finished point or series: converged, or why not (capped, noise-limited, disturbed: a
-    disturbance line on its harmonic, aliased: the rate folds more onto it than its tolerance, untied: its phase has
+    disturbance line on its harmonic, aliased: the rate folds more onto it than its tolerance, divisor-noisy: a
+    two-channel ratio whose divisor is too noisy a period to divide by, untied: its phase has
     the host's latency in it), failed otherwise."""
     if converged:
         return CONVERGED

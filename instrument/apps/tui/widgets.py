@@ -24,6 +24,7 @@ from bodebench.apps.tui.model import (
     CAPPED,
     CONVERGED,
     DISTURBED,
+    DIVISOR_NOISY,
     FAILED,
     INTEGRATING,
     NOISE_LIMITED,
@@ -43,7 +44,7 @@ PALETTE = ("cyan", "yellow", "magenta", "green", "bright_blue", "bright_red", "w
 
 STATE_STYLES = {PENDING: "bright_black", SETTLING: "yellow", INTEGRATING: "bold cyan", CONVERGED: "green",
                 CAPPED: "magenta", NOISE_LIMITED: "yellow", DISTURBED: "yellow", ALIASED: "yellow",
-                UNTIED: "yellow", FAILED: "bold red",
+                DIVISOR_NOISY: "yellow", UNTIED: "yellow", FAILED: "bold red",
                 SKIPPED: "bright_black"}
 
 #: sweep table columns: (key, label, width in cells); with a cell of padding each side 76 cells, within the
