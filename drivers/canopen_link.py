@@ -180,7 +180,10 @@ class CanopenSetup:
     host_heartbeat_ms); abort_connection: the code written to 0x6007 (1 fault, 2 disable voltage, 3 quick stop), where
     the EDS has it. timebase: as ``[bench] timebase``. profile: "402" or "408" (``drivers.device_profile``).
     assumed: (index, subindex, value, what) of device parameters the scales were derived from (a CiA 408 reference
-    value or decimal prefix, from the EDS): read at enable, and a device that disagrees is refused."""
+    value or decimal prefix, from the EDS): read at enable, and a device that disagrees is refused. operating_point:
+    where the RPDO carries another object than the mode's own target (an offset the drive adds inside its loop, such
+    as the torque offset 0x60B2), that target and the actual value it is set to before enabling (None: zero), so the
+    drive holds where it stands while the host excites the offset."""
 
     node_id: int
     eds: str
@@ -202,6 +205,7 @@ class CanopenSetup:
     timebase: str = "counter"
     profile: str = "402"
     assumed: tuple[tuple[int, int, int, str], ...] = ()
+    operating_point: tuple[ObjectRef, ObjectRef | None] | None = None
 
     @property
     def device_profile(self) -> DeviceProfile:
@@ -489,6 +493,11 @@ class CanopenDriver(Driver):
             self._write_confirmed(p.mode_object, mode, f"mode {s.mode}", s.state_timeout_s, p.mode_display)
             steps.append(f"mode {s.mode} ({mode})")
             self._sdo_write(s.setpoint.index, s.setpoint.subindex, 0, s.setpoint.name)
+            if s.operating_point is not None:
+                target, held = s.operating_point
+                point = self._sdo_read(held.index, held.subindex, held.name) if held is not None else 0
+                self._sdo_write(target.index, target.subindex, point, target.name)
+                steps.append(f"operating point {target} = {point}" + (f" ({held.name})" if held is not None else ""))
             self._nmt(0x01)
             if not self._wait_heartbeat(wait, NMT_OPERATIONAL):
                 raise DriveFaultError(f"{self._where()}: did not report NMT operational within {wait:g} s")

@@ -40,7 +40,8 @@ class DeviceProfile:
     fault reset (its control word written after 0) and the state it ends in; local_bit: the status word bit that
     says the device ignores the bus's control word (0: none); abort_connection: the profile has the abort
     connection option code 0x6007 (CiA 402), written for a lost host; without it the device's own fault reaction
-    applies.
+    applies. position_modes: the modes whose set point is a position, which the host sets to the actual value
+    (the mode's default actual object) where it excites an offset instead (``CanopenSetup.operating_point``).
     """
 
     number: int
@@ -62,6 +63,7 @@ class DeviceProfile:
     reset: Step
     local_bit: int = 0
     abort_connection: bool = False
+    position_modes: frozenset[str] = frozenset()
 
     @property
     def name(self) -> str:
@@ -108,6 +110,7 @@ CIA402 = DeviceProfile(
     reset=Step(str(cia402.Command.FAULT_RESET), cia402.CONTROLWORD[cia402.Command.FAULT_RESET],
                (_D402.SWITCH_ON_DISABLED,)),
     abort_connection=True,
+    position_modes=frozenset({"csp"}),
 )
 """CiA 402 drives: mode of operation 0x6060 (shown in 0x6061); shutdown, switch on, enable operation; quick stop
 and disable voltage on exit."""
@@ -139,6 +142,7 @@ CIA408 = DeviceProfile(
     faults=cia408.FAULT_STATES,
     reset=Step("reset fault", cia408.RESET_BIT, (_D408.DISABLED,)),
     local_bit=0x0010,
+    position_modes=frozenset({"position"}),
 )
 """CiA 408 valves and hydraulic drives: device mode 0x6042 = 1, control mode 0x6043; DISABLED, HOLD, ACTIVE; HOLD,
 DISABLED and no bit on exit."""

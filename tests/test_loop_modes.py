@@ -14,10 +14,14 @@ import numpy as np
 import pytest
 import scipy.signal as sg
 
-from bodebench.bench.connection import plan_link
+from bodebench.apps.check import _case_lines
+from bodebench.bench.connection import plan_link, simulator_spec
 from bodebench.bench.session import BenchSession
 from bodebench.core.measured import INJECTION, FormError, formed_columns
+from bodebench.drivers.canopen_link import CanopenDriver
+from bodebench.drivers.ports import CanPort
 from bodebench.io.config import ConfigError, parse_config
+from bodebench.sim.canopen_device import serve_canopen
 from bodebench.sim.plants import FirstOrderLag, LinearOscillator, LinearPlant
 from bodebench.sim.servo_loop import ServoLoop
 from bodebench.status import PointStatus
@@ -35,15 +39,15 @@ FLOAT32 = 1e-6  # a few float32 roundings of each channel, relative
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 
-def exact(plant: LinearPlant, gains: tuple[float, float, float], f: float) -> dict[str, complex]:
-    """The loop at f Hz in z over one control period: P from the input held over a period to the output at its end
-    (scipy's ZOH discretisation), C = kp + ki h/(1 - 1/z) + kd (1 - 1/z)/h, the error read one period late."""
+def exact(plant: LinearPlant, gains: tuple[float, float, float], f: float, h: float = H) -> dict[str, complex]:
+    """The loop at f Hz in z over one control period h (s): P from the input held over a period to the output at its
+    end (scipy's ZOH discretisation), C = kp + ki h/(1 - 1/z) + kd (1 - 1/z)/h, the error read one period late."""
     kp, ki, kd = gains
     ad, bd, cd, _, _ = sg.cont2discrete((plant.a, plant.b.reshape(-1, 1), plant.c, np.zeros((plant.c.shape[0], 1))),
-                                        H, "zoh")
-    z = np.exp(2j * math.pi * f * H)
+                                        h, "zoh")
+    z = np.exp(2j * math.pi * f * h)
     p = complex((cd @ np.linalg.solve(np.eye(ad.shape[0]) - ad / z, bd))[0, 0])
-    c = kp + ki * H / (1 - 1 / z) + kd * (1 - 1 / z) / H
+    c = kp + ki * h / (1 - 1 / z) + kd * (1 - 1 / z) / h
     loop = p * c / z
     return {"plant": p, "loop": loop, "sensitivity": 1 / (1 + loop), "complementary": loop / (1 + loop)}
 
@@ -234,3 +238,69 @@ def test_the_divisor_scatter_is_the_spread_of_its_fundamental_over_its_size() ->
         assert sampler.divisor_scatter() == pytest.approx(want, rel=2e-2)
         limited = {p.status == PointStatus.DIVISOR_LIMITED for p in sampler.points()}
         assert limited == {want > MAX_DIVISOR_SCATTER}
+
+
+def canopen_loop_case(measured: str) -> Any:
+    """The position PID drive as a simulated CiA 402 drive in csp: the host excites the torque offset 0x60B2; the
+    TPDO carries the torque demand 0x6074 (effort) and the drive's controller output 0x2002 (control)."""
+    data = load_config(CONFIGS / "sim_loop.toml")
+    del data["frames"]
+    data["analysis"]["measured"] = measured
+    data["excitation"]["frequencies_hz"] = [5.0, 17.0, 40.0]
+    data["bench"] = {"transport": "canopen", "rate_hz": 1000, "clock": "lockstep", "effort_channel": "effort",
+                     "control_channel": "control"}
+    data["can"]["channel"] = f"loop-{uuid.uuid4().hex[:8]}"
+    data["canopen"] = {"node_id": 5, "mode": "csp", "setpoint": "Torque offset", "setpoint_scale": 1e-4,
+                       "heartbeat_timeout_s": 1.0, "drive_heartbeat_timeout_ms": 2000,
+                       "actual": {"effort": "Torque demand", "control": "0x2002"},
+                       "actual_scale": {"effort": 1e-4, "control": 1e-4}}
+    data["safety"]["feedback_limits"] = {}
+    data["simulator"]["noise"] = 2e-4  # two counts: the quantization of a sine repeating every period is dithered
+    return parse_config(data, "loop402.toml").cases[0]
+
+
+@pytest.mark.slow
+def test_a_cia402_drive_excited_at_its_torque_offset_gives_its_loop_gain() -> None:
+    """Over CANopen: the host holds the drive's target position where the drive stands (0x607A from 0x6064) and
+    sweeps the torque offset; the loop gain and the sensitivity from the TPDO's torque demand and controller output
+    are the exact ones within each point's tolerance, and within its interval (noise on both channels)."""
+    plant, gains = PLANTS["position PID"]
+    for measured in ("loop", "sensitivity"):
+        case = canopen_loop_case(measured)
+        assert case.canopen_setup.operating_point is not None
+        target, held = case.canopen_setup.operating_point
+        assert (target.index, held.index if held else None) == (0x607A, 0x6064)
+        rate_hz = case.bench.rate_hz
+        result = BenchSession(case, plan_link(case)).run()
+        assert result.completed, result
+        for point in result.response.points:
+            want = exact(plant, gains, point.frequency_hz, 1.0 / rate_hz)[measured]
+            got = complex(point.p, point.q) / point.amplitude
+            assert point.converged, (measured, point)
+            assert abs(got - want) <= point.tolerance_percent / 100 * abs(want), (measured, point.frequency_hz)
+            assert abs(got - want) <= point.uncertainty / point.amplitude, (measured, point.frequency_hz, got, want)
+
+
+def test_the_host_holds_the_target_where_the_drive_stands_while_it_excites_an_offset() -> None:
+    """A csp drive excited at its torque offset: before enabling, the host reads the position actual value and
+    writes it to the target position, so the drive's position loop holds where it stands (on the drive's own
+    object dictionary, read back)."""
+    case = canopen_loop_case("loop")
+    setup = case.canopen_setup
+    assert setup is not None and case.layout is not None and case.can is not None
+    plan = [line for line in _case_lines(case) if "0x607A" in line]
+    assert len(plan) == 1 and "SDO write 0x607A:00 = 0x6064:00 (Position actual value) as read" in plan[0]
+    serving = serve_canopen(simulator_spec(case).controller(), setup,
+                            {"interface": "virtual", "channel": case.can.channel})
+    node = serving.drive.node
+    assert node is not None
+    node.sdo[0x6064].raw = 123456  # counts: the drive stands away from zero
+    host = CanopenDriver(CanPort.open("virtual", case.can.channel), setup, case.layout)
+    try:
+        host.enable()
+        assert node.sdo[0x607A].raw == 123456
+        assert "operating point 0x607A:00 (Target position) = 123456 (Position actual value)" in host.start_account
+        assert host.disable()
+    finally:
+        host.close()
+        serving.close()

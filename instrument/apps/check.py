@@ -284,6 +284,10 @@ def _canopen_lines(case: CaseConfig) -> Iterator[str]:
     start.append(sdo(profile.mode_object, 0, str(profile.modes[setup.mode]), f"mode: {setup.mode}")
                  + f", until 0x{profile.mode_display:04X} shows it")
     start.append(sdo(setup.setpoint.index, setup.setpoint.subindex, "0", setup.setpoint.name))
+    if setup.operating_point is not None:
+        target, held = setup.operating_point
+        start.append(sdo(target.index, target.subindex, f"{held} as read" if held is not None else "0",
+                         f"{target.name}: the operating point, held while the offset is excited"))
     start.append(nmt("OPERATIONAL"))
     start += [control(step) for step in profile.enable]
     sync = (f", then SYNC (id 0x{SYNC_COB_ID:X})" if setup.sync == "produce" else " (SYNC from another node)")

@@ -644,12 +644,19 @@ def _canopen_setup(table: CanopenConfig, simulated: bool, key: Callable[[str, st
     size = 2 + sum(ref.size for _, ref, _ in actual)
     if size > 8:
         raise _Fault(key("canopen", "actual"), f"the statusword and these objects take {size} bytes: a TPDO carries 8")
+    operating_point = None
+    target = resolve_object(od, profile.setpoints[mode])
+    if (setpoint.index, setpoint.subindex) != (target.index, target.subindex):
+        # an offset excited around the mode's target: the target holds the position where the drive stands
+        held = resolve_object(od, next(iter(profile.actuals[mode].values()))) if mode in profile.position_modes \
+            else None
+        operating_point = (target, held)
     return CanopenSetup(table.node_id, str(eds), mode, setpoint, setpoint_scale, tuple(actual),
                         table.rpdo, table.tpdo, table.sync, table.heartbeat_ms, table.heartbeat_timeout_s,
                         table.state_timeout_s, table.fault_reset, host_node_id=table.host_node_id,
                         host_heartbeat_ms=table.host_heartbeat_ms, drive_heartbeat_timeout_ms=table.consumer_ms,
                         abort_connection=ABORT_CONNECTION_OPTIONS[table.abort_connection], profile=table.profile,
-                        assumed=tuple(assumed.values()))
+                        assumed=tuple(assumed.values()), operating_point=operating_point)
 
 
 def _default_scale(od: Any, profile: int, ref: ObjectRef,

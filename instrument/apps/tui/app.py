@@ -58,6 +58,7 @@ from bodebench.bench.events import (
 )
 from bodebench.bench.procedure import CaseOutcome, SweepProcedure, case_directory, previous_run
 from bodebench.bench.session import completed_frequencies
+from bodebench.core.measured import formed_columns
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.summary import summarize_response
 from bodebench.io.config import AnalysisConfig, CaseConfig, ExperimentConfig
@@ -787,8 +788,13 @@ class BodeBenchApp(App[int]):
         panel.show_convergence(f, model.periods, model.traces, to_go, model.tolerance_percent, model.criterion)
         bridge = self.bridge
         latest = bridge.latest_progress if bridge is not None else None
-        if latest is not None and latest.index == model.current_index:
-            panel.show_scope(latest.scope, self.case.on_bench.bench.output_channels[0])
+        # between points and at the end the latest samples stay, also those of a point that began and ended
+        # between two refreshes
+        if latest is not None and (model.current_index is None or latest.index == model.current_index):
+            bench = self.case.on_bench.bench
+            shown = formed_columns(self.case.analysis.measurement, bench.output_channels, bench.reference_channel,
+                                   bench.effort_channel, bench.control_channel).raw[0]  # the session's scope channel
+            panel.show_scope(latest.scope, shown)
         elif model.current_index is not None and self._scope_index != model.current_index:
             panel.show_scope(None, "")  # a new point: its samples are yet to come (at the end the last stays)
         self._scope_index = model.current_index
