@@ -14,13 +14,13 @@ from __future__ import annotations
 import json
 import logging
 import math
-import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from bodebench.bench.controls import SweepControls
 from bodebench.bench.events import CaseBegins, CaseSaved, Listener, PointFinished, PointStarted, SessionError
 from bodebench.bench.runinfo import RunClock, run_record
 from bodebench.bench.session import BenchSession, SessionResult, completed_frequencies
@@ -198,50 +198,35 @@ class SweepProcedure:
         self.keep_samples = keep_samples
         self.outcomes: list[CaseOutcome] = []
         self.current: CaseOutcome | None = None
-        self._lock = threading.Lock()
-        self._abort = False
-        self._paused = False
-        self._tolerance_percent: float | None = None
+        self.controls = SweepControls()
+        """The user's requests, shared with every bench session of the sweep."""
 
     # --- requests (any thread)
     def request_abort(self) -> None:
-        with self._lock:
-            self._abort = True
-            session = self.current.session if self.current else None
-        if session is not None:
-            session.request_abort()
+        self.controls.abort.set()
 
     def set_paused(self, paused: bool) -> None:
-        with self._lock:
-            self._paused = paused
-            session = self.current.session if self.current else None
-        if session is not None:
-            session.set_paused(paused)
+        self.controls.set_paused(paused)
 
     def request_skip(self) -> None:
-        session = self.current.session if self.current else None
-        if session is not None:
-            session.request_skip()
+        """End the point being measured, without a result (nothing while no session runs)."""
+        if self.current is not None and self.current.session is not None:
+            self.controls.skip.set()
 
     def request_remeasure(self, frequency_hz: float) -> bool:
         """Measure ``frequency_hz`` again, next, in the running session; False when no session runs yet."""
-        session = self.current.session if self.current else None
-        if session is None:
+        if self.current is None or self.current.session is None:
             return False
-        session.request_remeasure(frequency_hz)
+        self.controls.remeasure.append(frequency_hz)
         return True
 
     def set_tolerance(self, tolerance_percent: float) -> None:
         """The stopping tolerance (percent) of every point not yet started."""
-        with self._lock:
-            self._tolerance_percent = tolerance_percent
-            session = self.current.session if self.current else None
-        if session is not None:
-            session.set_tolerance(tolerance_percent)
+        self.controls.tolerance_percent = tolerance_percent
 
     @property
     def aborted(self) -> bool:
-        return self._abort
+        return self.controls.aborted
 
     # --- the procedure
     def run(self, cases: Sequence[int] | None = None) -> list[CaseOutcome]:
@@ -256,7 +241,7 @@ class SweepProcedure:
             self._offline_cases(indices, previous)
             return self.outcomes
         for i in indices:
-            if self._abort:
+            if self.controls.aborted:
                 break
             self._run_case(i, previous[i])
         return self.outcomes
@@ -285,7 +270,7 @@ class SweepProcedure:
     def _case(self, index: int) -> CaseConfig:
         """Case ``index`` with the tolerance the user set since the start, if any (config and saved copy alike)."""
         case = self.config.cases[index]
-        tolerance = self._tolerance_percent
+        tolerance = self.controls.tolerance_percent
         if tolerance is None:
             return case
         raw = {**case.raw, "analysis": {**case.raw.get("analysis", {}), "tolerance_percent": tolerance}}
@@ -341,13 +326,9 @@ class SweepProcedure:
         if mode is None and self.direct:
             mode = outcome.case.on_bench.bench.worker_mode(in_process_setpoints=least_setpoints(outcome.case))
         session = BenchSession(outcome.case, plan, outcome.directory if write else None, self.listener,
-                               worker_mode=mode, resume=previous, keep_samples=self.keep_samples)
-        with self._lock:
-            outcome.session = session
-            if self._paused:
-                session.set_paused(True)
-            if self._abort:
-                session.request_abort()
+                               worker_mode=mode, resume=previous, keep_samples=self.keep_samples,
+                               controls=self.controls)
+        outcome.session = session
         outcome.result = session.run()
         return outcome.result
 
@@ -386,7 +367,7 @@ class SweepProcedure:
             while turn < len(outcomes) and (turn < 0 or remaining[turn] == 0):
                 if turn >= 0:
                     sort_points(outcomes[turn].response)
-                    self._summarize(outcomes[turn], completed=not self._abort)
+                    self._summarize(outcomes[turn], completed=not self.controls.aborted)
                     drawing.append((outcomes[turn], self._submit_plots(outcomes[turn])))
                 turn += 1
                 if turn < len(outcomes):
@@ -409,7 +390,7 @@ class SweepProcedure:
                 waiting[k].append(points)
             remaining[k] -= 1
             advance()
-            if self._abort:
+            if self.controls.aborted:
                 break
         for outcome, futures in drawing:
             if futures:

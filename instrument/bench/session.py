@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import contextlib
 import math
-import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from bodebench.bench.connection import LinkPlan
+from bodebench.bench.controls import SweepControls
 from bodebench.bench.events import (
     BusStatus,
     Listener,
@@ -30,6 +30,7 @@ from bodebench.bench.events import (
     SessionFault,
     SessionStarted,
 )
+from bodebench.bench.window import PointWindow
 from bodebench.bench.worker import (
     Credit,
     Fault,
@@ -76,25 +77,16 @@ class SessionResult:
     are among ``periods_discarded``)."""
 
 
-@dataclass
-class _Controls:
-    """Requests from the user, read by the session between batches (thread-safe flags)."""
-
-    abort: threading.Event = field(default_factory=threading.Event)
-    skip: threading.Event = field(default_factory=threading.Event)
-    pause: threading.Event = field(default_factory=threading.Event)
-    tolerance_percent: float | None = None
-    remeasure: list[float] = field(default_factory=list)
-
-
 class BenchSession:
     """A sweep of ``case`` on the drive ``plan`` reaches; points go to ``out_dir`` (None: memory only)."""
 
     def __init__(self, case: CaseConfig, plan: LinkPlan, out_dir: Path | None = None,
                  listener: Listener | None = None, worker_mode: str | None = None,
-                 resume: FrequencyResponse | None = None, keep_samples: bool = True) -> None:
+                 resume: FrequencyResponse | None = None, keep_samples: bool = True,
+                 controls: SweepControls | None = None) -> None:
         """resume: points of an interrupted sweep of the same case; their frequencies are not measured again.
-        keep_samples: save each frequency's raw samples in ``out_dir/samples/`` before its rows."""
+        keep_samples: save each frequency's raw samples in ``out_dir/samples/`` before its rows. controls: the
+        user's requests, shared with the procedure that runs this session (None: this session's own)."""
         self.case = case
         self.keep_samples = keep_samples
         self.plan = plan
@@ -106,7 +98,7 @@ class BenchSession:
         self.analysis: AnalysisConfig = case.analysis
         self.disturbance_lines = case.disturbance_lines
         self.worker_mode = worker_mode or tables.bench.worker_mode()
-        self.controls = _Controls()
+        self.controls = controls if controls is not None else SweepControls()
         self.response = FrequencyResponse(resume.points if resume else (), config=case.raw, case=case.name)
         self.period = 1.0 / tables.bench.rate_hz
         self.last_health: Health | None = None
@@ -127,7 +119,7 @@ class BenchSession:
         self.controls.skip.set()
 
     def set_paused(self, paused: bool) -> None:
-        (self.controls.pause.set if paused else self.controls.pause.clear)()
+        self.controls.set_paused(paused)
 
     def set_tolerance(self, tolerance_percent: float) -> None:
         """Tolerance for the points not yet started."""
@@ -351,12 +343,7 @@ class BenchSession:
 
         sampler, record = start(t0)
         ticks_per_period = max(1, math.ceil(1.0 / (f * self.period)))
-        held: tuple[float, np.ndarray] | None = None  # the last sample at or before t0
-        # realtime: stretches (s) in which the drive held a stale setpoint (one sent late, ticks skipped) longer
-        # than the longest gap a period may hold: their feedback answers no sine, so it is left out, and the periods
-        # it touches are discarded as for a gap in the feedback (a shorter one, like a shorter gap, is integrated)
-        stale: list[tuple[float, float]] = []
-        longest_gap_s = sampler.max_gap_periods / f
+        window = PointWindow(t0, f, sampler.max_gap_periods / f)
         scope = ScopeWindow(f)
         self.controls.skip.clear()
         while not sampler.done:
@@ -374,38 +361,20 @@ class BenchSession:
             if t.size:  # the samples of the analysed periods (a friction link may stick through the ramp), each
                 # with whether the host's setpoint moved at its tick
                 sent = np.asarray(message.setpoint, dtype=np.float64)
-                watch.add(t, values, (np.diff(sent, prepend=last_sent) != 0) & (t > t0))
+                watch.add(t, values, (np.diff(sent, prepend=last_sent) != 0) & (t > window.t0))
                 last_sent = float(sent[-1])
                 stopped = watch.stuck()
                 if stopped:
                     self._no_response(f, stopped)
             scope.add(t, message.setpoint, values[:, 0])
-            stale.extend((a, b) for a, b in message.held if b - a > longest_gap_s)
-            if stale and t.size:
-                stale = [(a, b) for a, b in stale if b >= t[0]]
-                fresh = outside(t, stale) | (t <= t0)  # before period 1 (the ramp) nothing is integrated
-                if not fresh.all():
-                    self.stale_samples += int(fresh.size - np.count_nonzero(fresh))
-                    t, values = t[fresh], values[fresh]
-            if held is None and t.size and t[0] > t0:
-                # the drive's first sample of the point came after t0 (it answered late): period 1 is the first
-                # whole period after it (t0 moves by whole periods, so the excitation's phase stays zero there)
-                t0 += math.ceil((t[0] - t0) * f) / f
-                sampler, record = start(t0)
-            keep = t > t0
-            if held is None or not np.all(keep):
-                before = np.flatnonzero(~keep)
-                if before.size:
-                    held = (float(t[before[-1]]), values[before[-1]])
-            t, values = t[keep], values[keep]
+            t, values, moved, stale = window.take(t, values, message.held)
+            self.stale_samples += stale
+            if moved:  # the drive answered late: period 1 is the first whole period after its first sample
+                sampler, record = start(window.t0)
             if t.size == 0:  # still before period 1 (the ramp, the settle periods): the drive goes on
                 if bench.clock == "lockstep":
                     self._tell(Credit(message.last_tick + ticks_per_period))
                 continue
-            if held is not None and held[0] <= t0:
-                t = np.concatenate([[held[0]], t])
-                values = np.vstack([held[1][None, :], values])
-                held = (math.inf, held[1])
             values = formed.combine(values)
             record.add(t, values)
             with np.errstate(all="ignore"):  # garbage that got this far is refused below, not warned about
@@ -467,14 +436,6 @@ def sine_dating(bench: BenchConfig, channels: tuple[str, ...], frequency_hz: flo
     if SETPOINT_ECHO in channels:
         return SETPOINT_ECHO, -2.0 * math.pi * frequency_hz / bench.rate_hz, False
     return "", 0.0, True
-
-
-def outside(t: np.ndarray, stretches: list[tuple[float, float]]) -> np.ndarray:
-    """(n,) True for each time of ``t`` (s) in none of the closed ``stretches`` [(start, end), ...] (s)."""
-    keep = np.ones(t.shape, dtype=bool)
-    for a, b in stretches:
-        keep &= (t < a) | (t > b)
-    return keep
 
 
 def _absurd_point(p: ResponsePoint, window: tuple[float, float] | None) -> str:

@@ -98,15 +98,20 @@ def load_results(path: Path) -> list[tuple[str, FrequencyResponse]]:
 
 @dataclass
 class RunControl:
-    """Shared between the UI and one sweep thread: the sweep procedure takes the user's requests (those made
-    before a session exists are applied when it starts). Plain attributes, each written by one side."""
+    """Shared between the UI and one sweep thread: the sweep procedure takes the user's requests (its
+    ``controls``, which every session of the sweep reads, those made before a session exists too). Plain
+    attributes, each written by one side."""
 
     run: int
     procedure: SweepProcedure
-    paused: bool = False
     done: threading.Event = field(default_factory=threading.Event)
     session_s: float = math.nan          # wall time of the last session.run(), s
     health: Health | None = None         # its last bus health
+
+    @property
+    def paused(self) -> bool:
+        """Whether the user paused the sweep."""
+        return self.procedure.controls.pause.is_set()
 
 
 class BodeBenchApp(App[int]):
@@ -394,10 +399,10 @@ class BodeBenchApp(App[int]):
         control = self.control
         if not self.running or control is None:
             return
-        control.paused = not control.paused
-        control.procedure.set_paused(control.paused)
-        (self.model.pause if control.paused else self.model.unpause)(time.monotonic())
-        self.state = "paused" if control.paused else "running"
+        paused = not control.paused
+        control.procedure.set_paused(paused)
+        (self.model.pause if paused else self.model.unpause)(time.monotonic())
+        self.state = "paused" if paused else "running"
         self._refresh_status()
         self._sync_bindings()
 

@@ -1,0 +1,32 @@
+"""The user's requests to a running sweep: :class:`SweepControls`, one object that the procedure and each of its
+bench sessions share, set from any thread (the terminal UI's, a signal handler) and read between batches."""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+
+__all__ = ["SweepControls"]
+
+
+@dataclass
+class SweepControls:
+    """abort: stop the sweep (every case); skip: end the point being measured without a result (cleared as each
+    point starts); pause: hold the analysis (the drive goes on); tolerance_percent: the tolerance of every point not
+    yet started (None: the configuration's); remeasure: frequencies (Hz) to measure again, next, in the running
+    session."""
+
+    abort: threading.Event = field(default_factory=threading.Event)
+    skip: threading.Event = field(default_factory=threading.Event)
+    pause: threading.Event = field(default_factory=threading.Event)
+    tolerance_percent: float | None = None
+    remeasure: list[float] = field(default_factory=list)
+
+    def set_paused(self, paused: bool) -> None:
+        """Pause or resume the analysis."""
+        (self.pause.set if paused else self.pause.clear)()
+
+    @property
+    def aborted(self) -> bool:
+        """Whether an abort was requested."""
+        return self.abort.is_set()
