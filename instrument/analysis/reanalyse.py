@@ -19,7 +19,7 @@ import numpy as np
 from bodebench.core.autointegration import AnalysisSettings, Autointegrator, GapsError
 from bodebench.core.benchgrid import flag_disturbed, mark_untied
 from bodebench.core.response import FrequencyResponse, ResponsePoint
-from bodebench.io.config import AnalysisConfig, ConfigError, build_table, disturbance_lines_of
+from bodebench.io.config import AnalysisConfig, ConfigError, build_table, disturbance_lines_of, measured_of
 from bodebench.io.results import SIDECAR_NAME, load_response
 from bodebench.io.samples import PointSamples, load_samples, samples_path
 
@@ -76,7 +76,7 @@ def reanalyse(directory: str | Path, **overrides: Any) -> Reanalysis:
     ConfigError (a bad override), SamplesError (a missing or bad samples file)."""
     directory = Path(directory)
     stored = load_response(directory)
-    measured = stored.config.get("analysis", {}).get("measured") or "output"
+    measured = measured_of(stored.config)
     if overrides.get("measured", measured) != measured:
         raise ConfigError(f"{directory / SIDECAR_NAME}: analysis.measured: the samples hold the columns of "
                           f"{measured!r}; measuring {overrides['measured']!r} takes a new sweep", "analysis.measured")

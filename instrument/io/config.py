@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from bodebench.core.benchgrid import disturbance_lines, folding_notes, move_off_disturbances, move_off_folds
-from bodebench.core.measured import RATIO_MODES, FormError, formed_columns
+from bodebench.core.measured import MEASURED, RATIO_MODES, FormError, formed_columns
 from bodebench.drivers import cia408
 from bodebench.drivers.canopen_link import CanopenSetup, ObjectRef, load_od, resolve_object
 from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS
@@ -333,6 +333,14 @@ def _check_frequencies(excitation: ExcitationConfig, key: Callable[[str, str], s
                              "take hours")
         if f > MAX_FREQUENCY_HZ:
             raise _Fault(at, f"{f:g} Hz is above {MAX_FREQUENCY_HZ:g} Hz, far beyond any servo drive's loop")
+
+
+def measured_of(config: Mapping[str, Any]) -> str:
+    """What a case measured (``analysis.measured``, :data:`bodebench.core.measured.MEASURED`), from its validated
+    configuration (``CaseConfig.raw``, a sidecar's ``config``)."""
+    analysis = config.get("analysis")
+    measured = analysis.get("measured") if isinstance(analysis, Mapping) else None
+    return measured if isinstance(measured, str) and measured in MEASURED else MEASURED[0]
 
 
 def disturbance_lines_of(config: Mapping[str, Any], analysis: AnalysisConfig) -> tuple[float, ...]:

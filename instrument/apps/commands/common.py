@@ -243,6 +243,7 @@ def _chain_taken_off(response: FrequencyResponse, args: argparse.Namespace, dire
     """``response`` with the bench's delays taken off when ``--without-chain`` asks (ResultsError in one line when
     the sweep was no bench sweep or a delay is not a time)."""
     from bodebench.core.chain import without_chain
+    from bodebench.io.config import measured_of
     from bodebench.io.results import ResultsError
 
     if not args.without_chain:
@@ -253,8 +254,7 @@ def _chain_taken_off(response: FrequencyResponse, args: argparse.Namespace, dire
     rate = bench.get("rate_hz") if isinstance(bench, dict) else None
     if not isinstance(rate, (int, float)) or isinstance(rate, bool):
         raise ResultsError(f"{directory}: --without-chain: not a bench sweep (its configuration has no bench.rate_hz)")
-    analysis = response.config.get("analysis") if isinstance(response.config, dict) else None
-    measured = (analysis.get("measured") if isinstance(analysis, dict) else None) or "output"
+    measured = measured_of(response.config) if isinstance(response.config, dict) else "output"
     if measured != "output":
         raise ResultsError(f"{directory}: --without-chain: the sweep measured {measured}, a ratio of two of the "
                            "drive's channels, which the bench's delays never enter")
