@@ -304,3 +304,21 @@ def test_the_host_holds_the_target_where_the_drive_stands_while_it_excites_an_of
     finally:
         host.close()
         serving.close()
+
+
+def test_a_loop_sweep_resumed_measures_only_the_frequencies_it_lacks(tmp_path: Path) -> None:
+    """The points of a loop sweep are named by their mode ("loop"): a resumed sweep counts them as measured."""
+    from bodebench.bench.events import PointStarted
+    from bodebench.io.results import load_response
+
+    gains = PLANTS["velocity PI"][1]
+    first = case_of("loop", "velocity PI", gains, frequencies=(5.0, 20.0))
+    assert first.analysed_channels == ("loop",)
+    assert BenchSession(first, plan_link(first), out_dir=tmp_path).run().completed
+    started: list[float] = []
+    more = case_of("loop", "velocity PI", gains, frequencies=(5.0, 20.0, 30.0))
+    result = BenchSession(more, plan_link(more), resume=load_response(tmp_path),
+                          listener=lambda e: started.append(e.frequency_hz) if isinstance(e, PointStarted) else None
+                          ).run()
+    assert result.completed and started == [30.0]
+    assert sorted(p.frequency_hz for p in result.response.points) == [5.0, 20.0, 30.0]

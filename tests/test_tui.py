@@ -883,3 +883,24 @@ async def test_sigterm_aborts_the_sweep_safely_and_quits(tmp_path: Path, monkeyp
     assert app.stopped_by == "SIGTERM" and app.return_value == 128 + signal.SIGTERM
     assert app.control.done.is_set()
     assert value == 0.0 and disabled
+
+
+@pytest.mark.slow
+@pytest.mark.asyncio
+async def test_a_loop_sweep_fills_its_rows_named_by_the_mode(tmp_path: Path) -> None:
+    """configs/sim_loop.toml measured as the loop gain in the UI: the table's rows are the mode's ("loop"), each
+    ends converged, and the scope names the channel it shows (the effort)."""
+    text = (Path(__file__).resolve().parent.parent / "configs" / "sim_loop.toml").read_text()
+    text = text.replace("frequencies_hz = [1, 2, 3, 5, 7, 10, 14, 17, 20, 30, 50, 70]", "frequencies_hz = [10, 20]")
+    text = text.replace('channel = "bodebench-loop"', f'channel = "{channel_name()}"')
+    path = tmp_path / "loop.toml"
+    path.write_text(text)
+    app = BodeBenchApp(load_config(path), tmp_path / "out")
+    async with app.run_test(size=(160, 48)) as pilot:
+        assert [key.split(":")[2] for key in app.model.rows] == ["loop", "loop"]
+        await pilot.press("s")
+        await wait_for(pilot, lambda: finished(app), "the end of the sweep")
+        await pilot.pause(0.3)
+        assert app.state == "done", app.worker_errors
+        assert table_states(app) == [CONVERGED] * 2
+        assert "effort" in app.w_live.query_one("#scope", PlotView).legend.plain

@@ -48,7 +48,6 @@ from bodebench.bench.worker import (
 from bodebench.core.autointegration import Autointegrator, period_budget
 from bodebench.core.benchgrid import flag_disturbed, mark_untied
 from bodebench.core.liveness import FlatWatch, no_fundamental
-from bodebench.core.measured import formed_columns
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.drivers.layout import SETPOINT_ECHO
 from bodebench.drivers.scheduling import pacing_cpu_left_alone
@@ -143,7 +142,7 @@ class BenchSession:
         ResultsError before the first setpoint when the results directory cannot take the sweep's files."""
         made = False
         if self.out_dir is not None:
-            points = len(self.case.excitation.frequencies_hz) * len(self.bench.output_channels) * \
+            points = len(self.case.excitation.frequencies_hz) * len(self.case.analysed_channels) * \
                 len(self.analysis.harmonics)
             made = check_output(self.out_dir, points + len(self.response.points))
         try:
@@ -166,7 +165,7 @@ class BenchSession:
         try:
             ready = self._expect(Ready, timeout=60.0)
             self.channels = ready.channels
-            done = completed_frequencies(self.response, self.bench.output_channels, self.analysis.harmonics)
+            done = completed_frequencies(self.response, self.case.analysed_channels, self.analysis.harmonics)
             self.listener(self._started(ready.channels, done))
             queue = [f for f in self.case.excitation.frequencies_hz if f not in done]
             index = 0
@@ -322,8 +321,7 @@ class BenchSession:
             reference, reference_phase, untied = sine_dating(bench, self.channels, f)
         else:  # a ratio of two channels: the host's clock never enters it
             reference, reference_phase, untied = "", 0.0, False
-        formed = formed_columns(analysis.measurement, bench.output_channels, reference, bench.effort_channel,
-                                bench.control_channel)
+        formed = self.case.formed(reference)
         outputs, reference = formed.outputs, formed.reference
         columns = [self.channels.index(n) for n in formed.raw]
         # the drive's echo, where it sends one, is watched with the outputs: a drive that stopped applying the sine

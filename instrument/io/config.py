@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from bodebench.core.benchgrid import disturbance_lines, folding_notes, move_off_disturbances, move_off_folds
-from bodebench.core.measured import MEASURED, RATIO_MODES, FormError, formed_columns
+from bodebench.core.measured import MEASURED, RATIO_MODES, Formed, FormError, formed_columns
 from bodebench.drivers import cia408
 from bodebench.drivers.canopen_link import CanopenSetup, ObjectRef, load_od, resolve_object
 from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS
@@ -160,6 +160,20 @@ class CaseConfig:
         """The disturbance lines (Hz) a bench point is judged against: [analysis] disturbance_hz with harmonics,
         by default mains at 50 Hz on a real drive and none on the simulated one (it has no mains); () offline."""
         return disturbance_lines_of(self.raw, self.analysis)
+
+    def formed(self, reference_channel: str | None = None) -> Formed:
+        """The columns a bench case analyses, formed from the drive's channels by ``analysis.measured``, with the
+        divisor ``reference_channel`` in output mode (None: ``bench.reference_channel``); ValueError offline."""
+        bench = self.on_bench.bench
+        reference = bench.reference_channel if reference_channel is None else reference_channel
+        return formed_columns(self.analysis.measurement, bench.output_channels, reference, bench.effort_channel,
+                              bench.control_channel)
+
+    @property
+    def analysed_channels(self) -> tuple[str, ...]:
+        """The channel names of a bench case's points: the output channels, or what its mode forms ("loop",
+        ...); ValueError offline."""
+        return self.formed().outputs
 
     @property
     def on_bench(self) -> BenchTables:

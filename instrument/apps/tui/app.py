@@ -58,7 +58,6 @@ from bodebench.bench.events import (
 )
 from bodebench.bench.procedure import CaseOutcome, SweepProcedure, case_directory, previous_run
 from bodebench.bench.session import completed_frequencies
-from bodebench.core.measured import formed_columns
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.summary import summarize_response
 from bodebench.io.config import AnalysisConfig, CaseConfig, ExperimentConfig
@@ -214,8 +213,7 @@ class BodeBenchApp(App[int]):
         return self.control is not None and not self.control.done.is_set()
 
     def _new_model(self, case: CaseConfig) -> SweepModel:
-        bench = case.on_bench.bench
-        return SweepModel(case.excitation.frequencies_hz, case.analysis.harmonics, bench.output_channels)
+        return SweepModel(case.excitation.frequencies_hz, case.analysis.harmonics, case.analysed_channels)
 
     def _display_error(self, where: str) -> None:
         """A fault in drawing is reported, not fatal: the measurement goes on (traceback kept for diagnosis)."""
@@ -361,7 +359,7 @@ class BodeBenchApp(App[int]):
                 continue
             if previous is not None:
                 resumable[i] = previous
-                done = completed_frequencies(previous, case.on_bench.bench.output_channels, case.analysis.harmonics)
+                done = completed_frequencies(previous, case.analysed_channels, case.analysis.harmonics)
                 found.append(f"{directory} ({len(done)} of {len(case.excitation.frequencies_hz)} frequencies "
                              "measured)")
         if not found:
@@ -796,10 +794,7 @@ class BodeBenchApp(App[int]):
         # between points and at the end the latest samples stay, also those of a point that began and ended
         # between two refreshes
         if latest is not None and (model.current_index is None or latest.index == model.current_index):
-            bench = self.case.on_bench.bench
-            shown = formed_columns(self.case.analysis.measurement, bench.output_channels, bench.reference_channel,
-                                   bench.effort_channel, bench.control_channel).raw[0]  # the session's scope channel
-            panel.show_scope(latest.scope, shown)
+            panel.show_scope(latest.scope, self.case.formed().raw[0])  # the channel the session's scope holds
         elif model.current_index is not None and self._scope_index != model.current_index:
             panel.show_scope(None, "")  # a new point: its samples are yet to come (at the end the last stays)
         self._scope_index = model.current_index
