@@ -103,6 +103,12 @@ def test_each_mode_forms_its_columns_from_the_channels() -> None:
         assert np.array_equal(columns, np.stack([numerator, values[:, 0] - values[:, 1]], axis=1))
     form = formed_columns("output", ("position", "velocity"), "setpoint_echo")
     assert form.raw == ("position", "velocity", "setpoint_echo") and form.selects
+    assert form.formulas() == ("position / setpoint_echo", "velocity / setpoint_echo")
+    # what check prints: each column as its channels form it
+    assert [formed_columns(m, ("position",), "", "effort", "control").formulas()[0]
+            for m in ("output", "plant", "loop", "sensitivity", "complementary")] == [
+        "position against the excitation", "position / effort", "loop = -control / effort",
+        "sensitivity = effort / (effort - control)", "complementary = -control / (effort - control)"]
     with pytest.raises(FormError) as missing:
         formed_columns("loop", ("position",), "", "effort")
     assert missing.value.field == "control_channel"

@@ -78,6 +78,9 @@ def _case_lines(case: CaseConfig) -> Iterator[str]:
     yield (f"plan: {len(excitation.frequencies_hz)} frequencies, harmonics {harmonics}, criterion {analysis.criterion}"
            f", tolerance {analysis.tolerance_percent:g} %, skip_periods {analysis.skip_periods}, at most "
            f"{analysis.max_periods} periods a point{timed}")
+    if bench is not None and analysis.measurement != "output":
+        ratios = "; ".join(case.formed().formulas())
+        yield f"measures: {ratios}, each period's ratio of the fundamentals, averaged ({analysis.measurement})"
     ramp_in = bench.ramp_in_periods if bench is not None else 0
     ramp_out = bench.ramp_out_periods if bench is not None else 0
     top = max(excitation.frequencies_hz)

@@ -54,6 +54,19 @@ class Formed:
         """True when every analysed column is one raw channel as it is (no sum, no sign)."""
         return all(len(t) == 1 and t[0][1] == 1.0 for t in self.terms) and len(self.terms) == len(self.raw)
 
+    def formulas(self) -> tuple[str, ...]:
+        """Each analysed column as the drive's channels form it, for a reader ("loop = -control / effort",
+        "position against the excitation")."""
+        def expression(column: tuple[tuple[int, float], ...]) -> str:
+            (first, sign), *rest = column
+            text = ("-" if sign < 0 else "") + self.raw[first]
+            text += "".join(f" {'-' if weight < 0 else '+'} {self.raw[index]}" for index, weight in rest)
+            return f"({text})" if rest else text
+
+        divisor = f" / {expression(self.terms[-1])}" if self.reference else " against the excitation"
+        return tuple(f"{name} = {expression(column)}{divisor}" if expression(column) != name else f"{name}{divisor}"
+                     for name, column in zip(self.outputs, self.terms, strict=False))
+
     def combine(self, values: np.ndarray) -> np.ndarray:
         """(n, len(raw)) feedback samples -> (n, analysed columns)."""
         if self.selects:
