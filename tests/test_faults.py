@@ -174,3 +174,13 @@ def test_on_the_realtime_clock_garbage_feedback_ends_the_sweep_with_the_drive_sa
     assert error is not None and (error.kind == kind or kind == "no_response" and error.kind == "watchdog"), name
     assert value == 0.0 and disabled
     assert all(p.converged for p in session.response.points)
+
+
+def test_garbage_feedback_trips_the_watchdog_within_its_time_of_setpoints() -> None:
+    """Every feedback value NaN from the start: the lockstep drive answers every setpoint with nothing valid. The
+    watchdog (0.3 s) leaves out only the time no setpoint was asked for, so the sweep ends after about 0.3 s of
+    setpoints: far fewer replies than the lockstep chain carries in a second (it carries at most some 10,000
+    frames a second on this kind of machine), not the minute of them a watchdog fed at every pause would allow."""
+    _, health, error = run(can_config("faults-nan-count", {"nan": 1.0}, safety={"watchdog_s": 0.3}))
+    assert error is not None and error.kind == "watchdog"
+    assert health is not None and 0 < health.health.invalid_samples < 10_000

@@ -637,13 +637,15 @@ class BusWorker:
                 if self.lockstep:
                     # without credit the worker waits, except to ramp out and start a requested sine
                     if self.tick > self.credit and self.pending is None and not (self.stopping and self.program):
+                        idle_from = time.monotonic()
                         self._ship(even_empty=self.program is not None and self._credit_shipped != self.credit)
                         self._credit_shipped = self.credit
                         self._health()
                         self._poll_commands(min(0.5, self._heartbeat_s) if self._heartbeat_s else 0.5)
                         # a lockstep drive answers setpoints only: its silence while none is asked for (a paused
-                        # or slow session) is not a fault, so the watchdog counts from the next setpoint
-                        self.last_feedback = time.monotonic()
+                        # or slow session) is not a fault, so that time is left out of the watchdog's count; the
+                        # time it was asked and gave nothing valid (NaN, failed checks) stays in it
+                        self.last_feedback += time.monotonic() - idle_from
                         continue
                     self._lockstep_tick()
                     if self.tick > self.credit:
