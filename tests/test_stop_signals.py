@@ -26,12 +26,16 @@ PIECE_BYTES = 1 << 16
 PIECE_PAUSE_S = 0.01
 
 
-def _slow_writer(fd: int, payload: bytes, after: bytes) -> None:
+def _slow_writer(fd: int, payload: bytes, after: bytes, interrupt_after: int = -1) -> None:
     """Write one message the way Connection.send frames it (a 4-byte big-endian length, then the pickle), in pieces
-    with pauses, so that its reader is half-way through it for a while; then a whole second message."""
+    with pauses, so that its reader is half-way through it for a while; then a whole second message. After
+    ``interrupt_after`` pieces (if >= 0) it sends SIGINT to this process: the message is then surely incomplete,
+    however busy the machine."""
     try:
         os.write(fd, struct.pack("!i", len(payload)))
-        for i in range(0, len(payload), PIECE_BYTES):
+        for piece, i in enumerate(range(0, len(payload), PIECE_BYTES)):
+            if piece == interrupt_after:
+                os.kill(os.getpid(), signal.SIGINT)
             os.write(fd, payload[i:i + PIECE_BYTES])
             time.sleep(PIECE_PAUSE_S)
         os.write(fd, struct.pack("!i", len(after)) + after)
@@ -46,7 +50,7 @@ def _interrupt_mid_message(held: bool) -> tuple[object, list[object]]:
     ours, theirs = Pipe(duplex=True)
     big = pickle.dumps(bytes(PIECES * PIECE_BYTES - 100))
     second = pickle.dumps("stopped: drive left at setpoint 0, disabled")
-    writer = threading.Thread(target=_slow_writer, args=(theirs.fileno(), big, second), daemon=True)
+    writer = threading.Thread(target=_slow_writer, args=(theirs.fileno(), big, second, PIECES // 4), daemon=True)
     conn = MessagePipe(ours) if held else ours
 
     def read() -> object:
@@ -56,8 +60,6 @@ def _interrupt_mid_message(held: bool) -> tuple[object, list[object]]:
     first: object
     with stop_on_signals():
         writer.start()
-        timer = threading.Timer(PIECES * PIECE_PAUSE_S / 4, os.kill, (os.getpid(), signal.SIGINT))
-        timer.start()
         try:
             first = read()
         except StopSignal as exc:
@@ -70,7 +72,6 @@ def _interrupt_mid_message(held: bool) -> tuple[object, list[object]]:
             except Exception as exc:  # noqa: BLE001 - what a torn stream gives
                 following.append(exc)
                 break
-        timer.join()
     ours.close()
     writer.join(5.0)
     theirs.close()
