@@ -64,8 +64,9 @@ class Formed:
             return f"({text})" if rest else text
 
         divisor = f" / {expression(self.terms[-1])}" if self.reference else " against the excitation"
-        return tuple(f"{name} = {expression(column)}{divisor}" if expression(column) != name else f"{name}{divisor}"
-                     for name, column in zip(self.outputs, self.terms, strict=False))
+        numerators = (expression(column) for column in self.terms[:len(self.outputs)])
+        return tuple(f"{name}{divisor}" if numerator == name else f"{name} = {numerator}{divisor}"
+                     for name, numerator in zip(self.outputs, numerators, strict=True))
 
     def combine(self, values: np.ndarray) -> np.ndarray:
         """(n, len(raw)) feedback samples -> (n, analysed columns)."""
@@ -84,8 +85,7 @@ def formed_columns(measured: str, output_channels: tuple[str, ...], reference_ch
     if measured not in MEASURED:
         raise ValueError(f"measured must be one of {', '.join(MEASURED)}, got {measured!r}")
     if measured == "output":
-        raw = (*output_channels, *((reference_channel,) if reference_channel else ()))
-        return Formed(output_channels, reference_channel, raw, tuple(((i, 1.0),) for i in range(len(raw))))
+        return _selected(output_channels, reference_channel)
     if not effort_channel:
         raise FormError("effort_channel", f"missing: {measured} divides by the plant input after the excitation "
                                           "(the effort channel)")
@@ -93,8 +93,7 @@ def formed_columns(measured: str, output_channels: tuple[str, ...], reference_ch
         outputs = tuple(name for name in output_channels if name != effort_channel)
         if not outputs:
             raise FormError("output_channels", "plant: needs an output channel besides the effort channel")
-        raw = (*outputs, effort_channel)
-        return Formed(outputs, effort_channel, raw, tuple(((i, 1.0),) for i in range(len(raw))))
+        return _selected(outputs, effort_channel)
     if not control_channel:
         raise FormError("control_channel", f"missing: {measured} needs the controller output before the "
                                            "excitation (the control channel)")
@@ -107,3 +106,9 @@ def formed_columns(measured: str, output_channels: tuple[str, ...], reference_ch
     if measured == "sensitivity":
         return Formed(("sensitivity",), INJECTION, raw, (effort, injection))
     return Formed(("complementary",), INJECTION, raw, (minus_control, injection))
+
+
+def _selected(outputs: tuple[str, ...], reference: str) -> Formed:
+    """Columns that are channels as they are: ``outputs``, then the divisor ``reference`` ("" for none)."""
+    raw = (*outputs, *((reference,) if reference else ()))
+    return Formed(outputs, reference, raw, tuple(((i, 1.0),) for i in range(len(raw))))
