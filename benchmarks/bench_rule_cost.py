@@ -26,10 +26,10 @@ never dies: capped at max_periods): the default rule's cost per period over peri
 5000..20000, to show that it does not grow with the record.
 
 ``--against REV``: instead, the default rule of this tree against the one of git revision REV (its
-bodebench/core/rules.py, loaded beside this one), replayed in one process series by series in turn (least of
-``--repeat`` each), on the same four grids: both figures, their ratio, whether every series stopped at the same
-period with the same status and method, and how far apart the values are (relative). Turn by turn, a machine
-whose speed wanders slows both alike.
+bodebench/core/rules package, or the single module rules.py before it, loaded beside this one), replayed in one
+process series by series in turn (least of ``--repeat`` each), on the same four grids: both figures, their ratio,
+whether every series stopped at the same period with the same status and method, and how far apart the values are
+(relative). Turn by turn, a machine whose speed wanders slows both alike.
 
 Target: at most 5 us per period per series. Prints figures only.
 """
@@ -37,10 +37,12 @@ Target: at most 5 us per period per series. Prints figures only.
 from __future__ import annotations
 
 import argparse
+import importlib
 import math
 import os
 import subprocess
 import sys
+import tempfile
 import time
 import types
 from dataclasses import replace
@@ -79,14 +81,31 @@ BANDS = ((0, 1000), (1000, 5000), (5000, 20000))
 TARGET_US = 5.0
 
 
+def git(*args: str) -> str:
+    """The output of a git command run in the repository."""
+    return subprocess.run(["git", *args], cwd=ROOT, check=True, capture_output=True, text=True).stdout
+
+
 def rules_at(revision: str) -> types.ModuleType:
-    """bodebench.core.rules as git revision ``revision`` had it, loaded as a module of its own."""
-    source = subprocess.run(["git", "show", f"{revision}:instrument/core/rules.py"], cwd=ROOT, check=True,
-                            capture_output=True, text=True).stdout
-    module = types.ModuleType(f"rules_at_{revision}")
-    sys.modules[module.__name__] = module  # dataclasses look their module up
-    exec(compile(source, f"{revision}:instrument/core/rules.py", "exec"), module.__dict__)
-    return module
+    """bodebench.core.rules as git revision ``revision`` had it, loaded as a module of its own: the single module
+    instrument/core/rules.py where the revision has it, else the package instrument/core/rules/, written out to
+    a temporary folder under a name of its own (its imports of its own modules renamed alike)."""
+    name = f"rules_at_{git('rev-parse', '--short=12', revision).strip()}"
+    files = git("ls-tree", "--name-only", revision, "instrument/core/").split()
+    if "instrument/core/rules.py" in files:
+        source = git("show", f"{revision}:instrument/core/rules.py")
+        module = types.ModuleType(name)
+        sys.modules[module.__name__] = module  # dataclasses look their module up
+        exec(compile(source, f"{revision}:instrument/core/rules.py", "exec"), module.__dict__)
+        return module
+    folder = Path(tempfile.mkdtemp(prefix="bench_rule_cost_")) / name
+    folder.mkdir()
+    for path in git("ls-tree", "--name-only", revision, "instrument/core/rules/").split():
+        if path.endswith(".py"):
+            source = git("show", f"{revision}:{path}").replace("bodebench.core.rules", name)
+            (folder / Path(path).name).write_text(source)
+    sys.path.insert(0, str(folder.parent))
+    return importlib.import_module(name)
 
 
 def against(revision: str, plants: dict[str, Plant], freqs: tuple[float, ...], amplitude: float,

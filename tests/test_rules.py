@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from bodebench.core import rules
 from bodebench.core.fourier import PeriodIntegrator
 from bodebench.core.rules import (
     BELOW_RESOLUTION,
@@ -18,12 +21,14 @@ from bodebench.core.rules import (
     AdaptiveRule,
     ModalFit,
     SeriesHistory,
-    _modal_fit,
+    adaptive,
     extrapolate_modes,
+    least_squares,
     make_rule,
     relative_change_percent,
     settled_estimate,
 )
+from bodebench.core.rules.modal import _forecast, _modal_fit
 from bodebench.sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant
 
 
@@ -243,13 +248,13 @@ def test_a_fit_refused_for_a_slow_mode_says_how_long_a_window_that_mode_needs(la
 def count_fits(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     """A one-element list that counts the modal fits made from now on."""
     made = [0]
-    fit = rules._modal_fit
+    fit = adaptive._modal_fit
 
     def counted(z: np.ndarray, modes: int, max_decay: float, finite: bool = False):  # type: ignore[no-untyped-def]
         made[0] += 1
         return fit(z, modes, max_decay, finite)
 
-    monkeypatch.setattr(rules, "_modal_fit", counted)
+    monkeypatch.setattr(adaptive, "_modal_fit", counted)
     return made
 
 
@@ -580,8 +585,6 @@ def test_modal_forecast_is_the_recurrence_as_scipy_filters_it() -> None:
     """The modal fit's forecast against scipy.signal.lfilter running the same recurrence: bit for bit."""
     from scipy.signal import lfilter
 
-    from bodebench.core.rules import _forecast
-
     rng = np.random.default_rng(7)
     for _ in range(100):
         order = int(rng.integers(1, 4))
@@ -628,7 +631,7 @@ def test_forecast_error_is_the_largest_distance_of_the_forecast_from_what_follow
 def test_student_t_factor_is_scipy_stats_quantile() -> None:
     from scipy import stats
 
-    from bodebench.core.rules import _line_factor
+    from bodebench.core.rules.intervals import _line_factor
 
     for dof in (1, 2, 3, 5, 7, 10, 31, 100, 1000, 100_000):
         for confidence in (0.9, 0.95, 0.99):
@@ -701,10 +704,28 @@ def test_a_fit_whose_workspace_query_failed_is_solved_by_numpy_to_the_same_limit
     z = (0.3 - 0.2j) + (0.5 + 0.1j) * (0.8 * np.exp(0.6j)) ** i + 0.2 * 0.6 ** i
     z = z + 1e-3 * np.random.default_rng(2).normal(size=(40, 2)) @ np.array([1.0, 1.0j])
     lapack_fit, _ = _modal_fit(z, 2, 0.5)
-    design = rules._design(z.size, 2)
-    monkeypatch.setitem(rules._DESIGNS, (z.size, 2), design._replace(lwork=0))
+    design = least_squares._design(z.size, 2)
+    monkeypatch.setitem(least_squares._DESIGNS, (z.size, 2), design._replace(lwork=0))
     numpy_fit, _ = _modal_fit(z, 2, 0.5)
     assert lapack_fit is not None and numpy_fit is not None
     assert abs(numpy_fit.limit - lapack_fit.limit) <= 1e-12 * abs(lapack_fit.limit)
     assert numpy_fit.residual == pytest.approx(lapack_fit.residual, rel=1e-9)
     assert numpy_fit.alpha == pytest.approx(lapack_fit.alpha, rel=1e-12)
+
+
+def test_no_screen_spares_a_verdict_over_the_rule_tests() -> None:
+    """The rule tests in a process with BODEBENCH_CHECK_SCREENS=1, where every AdaptiveRule runs the full analysis
+    beside each screen that spared one and fails where that analysis gives a verdict: every test of this file and
+    of test_friction_link.py but the slow battery, and of the battery the friction link with faint noise (where the
+    fit's screens decide near its tolerance). Between them they reach every screen."""
+    root = Path(__file__).resolve().parent.parent
+    env = {key: value for key, value in os.environ.items()
+           if not key.startswith("PYTEST_XDIST") and key != "PYTEST_CURRENT_TEST"}
+    env[adaptive.CHECK_SCREENS_VARIABLE] = "1"
+    selection = ("(not test_the_screened_rule_stops_where_the_every_period_rule_stops or friction-faint) "
+                 "and not test_no_screen_spares_a_verdict_over_the_rule_tests")
+    done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "-k", selection,
+                           "tests/test_rules.py", "tests/test_friction_link.py"],
+                          cwd=root, env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
+    assert " passed" in done.stdout and " deselected" in done.stdout

@@ -62,7 +62,7 @@ def test_bad_arguments_are_refused() -> None:
 
 def test_the_measuring_processes_do_not_import_scipy_special() -> None:
     """The stated intervals need the t quantile; a measuring process gets it without scipy.special's import."""
-    code = ("import sys; from bodebench.core import rules; print(rules._line_factor(42)); "
+    code = ("import sys; from bodebench.core.rules.intervals import _line_factor; print(_line_factor(42)); "
             "print('scipy.special' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert float(out[0]) == pytest.approx(float(stdtrit(42, 0.975)), rel=1e-12)
