@@ -6,6 +6,8 @@ drive with the fault injected; a completed sweep must agree with the fault-free 
 
 from __future__ import annotations
 
+import re
+
 import json
 from pathlib import Path
 from typing import Any
@@ -184,3 +186,20 @@ def test_garbage_feedback_trips_the_watchdog_within_its_time_of_setpoints() -> N
     _, health, error = run(can_config("faults-nan-count", {"nan": 1.0}, safety={"watchdog_s": 0.3}))
     assert error is not None and error.kind == "watchdog"
     assert health is not None and 0 < health.health.invalid_samples < 10_000
+    # the trip says what the silence held: the setpoints were answered, each reply dropped as invalid
+    said = re.search(r"\((\d+) setpoints sent and \d+ feedback frames received in that time; dropped: (\d+) "
+                     r"samples invalid", str(error))
+    assert said is not None, str(error)
+    assert int(said.group(2)) >= int(said.group(1)) > 0
+
+
+def test_a_stuck_counter_trip_says_its_replies_were_dropped_as_repeats() -> None:
+    """A counter that stops advancing: the drive answers every setpoint with a counter already seen, so the trip
+    counts those replies as repeats, as many frames as setpoints, not as a drive that said nothing."""
+    _, _, error = run(can_config("faults-stuck-said", {"counter_stuck_after": 1500}, safety={"watchdog_s": 0.3}))
+    assert error is not None and error.kind == "watchdog"
+    said = re.search(r"\((\d+) setpoints sent and (\d+) feedback frames received in that time; dropped: (.*)\)",
+                     str(error))
+    assert said is not None, str(error)
+    assert int(said.group(2)) >= int(said.group(1)) > 0, str(error)  # the drive answered every setpoint
+    assert "repeated or stale counters" in said.group(3), str(error)

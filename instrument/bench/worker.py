@@ -291,6 +291,12 @@ class MessagePipe:
         self._conn.close()
 
 
+DROPPED = ("samples invalid (NaN, inf, beyond any sensor)", "samples with a counter out of turn",
+           "samples whose time did not increase", "repeated or stale counters", "incomplete samples",
+           "frames rejected or broken")
+"""What the watchdog's trip counts as dropped between two valid samples (:meth:`BusWorker._counts`)."""
+
+
 class BusWorker:
     """The pacing loop. ``run`` never raises: every way out zeroes the drive and ends with ``Stopped``."""
 
@@ -335,6 +341,11 @@ class BusWorker:
         # monotonic time of the last frame this loop sent that feeds the drive's watchdog (a setpoint, a heartbeat);
         # None while nothing is known of it: before the enable frame, or where the port repeats the heartbeat itself
         self._last_fed: float | None = None
+        # the counts when the last valid sample came, and the longest time (s) between two turns of this loop since:
+        # a watchdog trip says what happened in the silence (setpoints unanswered, replies dropped, a stalled host)
+        self._at_last_feedback: tuple[int, ...] = (0,) * (2 + len(DROPPED))
+        self._turn_at = 0.0
+        self._longest_turn_gap = 0.0
 
     # --- plumbing
     def _post(self, message: object) -> None:
@@ -482,6 +493,8 @@ class BusWorker:
             if self._echo_index is not None and answered_tick is None:
                 self._match_echo(s)
             self.last_feedback = time.monotonic()
+            self._at_last_feedback = self._counts()
+            self._longest_turn_gap = 0.0
             self._t.append(t)
             self._v.append(s.values)
             self._u.append(self.last_sent)
@@ -539,9 +552,32 @@ class BusWorker:
             if self._next_heartbeat < time.monotonic():  # fell behind (a stall): the next one a period from now
                 self._next_heartbeat = time.monotonic() + self._heartbeat_s
 
+    def _counts(self) -> tuple[int, ...]:
+        """Setpoints sent, feedback frames received, then what was dropped on the way to a sample (in the order of
+        :data:`DROPPED`), so far."""
+        h = self.driver.health if self.driver is not None else None
+        return (self.tick, h.frames_in if h else 0, self.invalid_samples, self.counter_anomalies, self.time_conflicts,
+                h.duplicates if h else 0, h.incomplete_samples if h else 0, h.rejected_total + h.errors if h else 0)
+
+    def _turn(self) -> None:
+        """A turn of the loop: the longest gap between turns since the last valid sample grows."""
+        now = time.monotonic()
+        if self._turn_at:
+            self._longest_turn_gap = max(self._longest_turn_gap, now - self._turn_at)
+        self._turn_at = now
+
     def _watchdog(self) -> None:
-        if time.monotonic() - self.last_feedback > self.spec.limits.watchdog_s:
-            raise _Trip("watchdog", f"no valid feedback for {self.spec.limits.watchdog_s:g} s")
+        limit = self.spec.limits.watchdog_s
+        if time.monotonic() - self.last_feedback <= limit:
+            return
+        sent, frames, *dropped = (now - then for now, then in zip(self._counts(), self._at_last_feedback,
+                                                                  strict=True))
+        seen = [f"{n} {what}" for n, what in zip(dropped, DROPPED, strict=True) if n]
+        said = (f"{sent} setpoints sent and {frames} feedback frames received in that time; dropped: "
+                f"{', '.join(seen) if seen else 'none'}")
+        if self._longest_turn_gap > 0.25 * limit:
+            said += f"; this loop did not run for {self._longest_turn_gap:.3g} s of it (a stalled or overloaded host)"
+        raise _Trip("watchdog", f"no valid feedback for {limit:g} s ({said})")
 
     # --- main loops
     def _lockstep_tick(self) -> None:
@@ -629,6 +665,7 @@ class BusWorker:
             next_ship = next_health = time.monotonic()
             scheduled = time.perf_counter() + self.h
             while True:
+                self._turn()
                 self._poll_commands()
                 self._keep_alive()
                 if self.stopping is not None and (self.program is None or self.program.finished(self.tick)):
@@ -646,6 +683,7 @@ class BusWorker:
                         # or slow session) is not a fault, so that time is left out of the watchdog's count; the
                         # time it was asked and gave nothing valid (NaN, failed checks) stays in it
                         self.last_feedback += time.monotonic() - idle_from
+                        self._turn_at = time.monotonic()
                         continue
                     self._lockstep_tick()
                     if self.tick > self.credit:
