@@ -6,9 +6,8 @@ drive with the fault injected; a completed sweep must agree with the fault-free 
 
 from __future__ import annotations
 
-import re
-
 import json
+import re
 from pathlib import Path
 from typing import Any
 
