@@ -100,6 +100,20 @@ def test_settle_periods_pass_before_the_first_integrated_period() -> None:
      "amplitude_profile = {frequencies_hz, amplitudes})"),
     ({"amplitude": 1.0, "frequencies_hz": [1.0], "settle_periods": -1},
      "plan.toml: excitation.settle_periods: must be >= 0, got -1"),
+    ({"amplitude": 1.0, "frequencies": {"start_hz": 1.0, "stop_hz": 100.0, "per_decade": 10,
+                                        "adaptive": {"max_points": 12}}},
+     "plan.toml: excitation.frequencies.adaptive: max_points = 12 is fewer than the range's 21 frequencies"),
+    ({"amplitude": 1.0, "frequencies": {"start_hz": 1.0, "stop_hz": 10.0, "per_decade": 2,
+                                        "adaptive": {"figures": ["bandwidth", "peak"]}}},
+     "plan.toml: excitation.frequencies.adaptive.figures[1]: must be one of \"bandwidth\", \"resonance\", "
+     "\"phase_90\", \"phase_180\", \"phase_margin\", \"gain_margin\", got \"peak\""),
+    ({"amplitudes": [1.0, 1.0], "frequencies": {"start_hz": 1.0, "stop_hz": 10.0, "per_decade": 1,
+                                                "adaptive": {}}},
+     "plan.toml: excitation.amplitudes: one value per frequency cannot follow an adaptive plan, whose frequencies "
+     "are not known before the sweep (give amplitude or amplitude_profile, and settle_periods)"),
+    ({"amplitude": 1.0, "frequencies": {"start_hz": 1.0, "stop_hz": 10.0, "per_decade": 1,
+                                        "adaptive": {"frequency_percent": 0}}},
+     "plan.toml: excitation.frequencies.adaptive.frequency_percent: must be > 0, got 0.0"),
 ])
 def test_plan_errors_are_one_line_naming_the_key(excitation: dict, message: str) -> None:
     with pytest.raises(ConfigError) as info:
@@ -132,6 +146,19 @@ channel = "{channel}"
 max_amplitude = 0.02
 [simulator]
 """
+
+
+def test_an_adaptive_plan_checks_the_amplitude_profile_between_its_frequencies(tmp_path: Path) -> None:
+    """A profile's knot between two of the range's frequencies is where an added frequency's amplitude can be
+    largest: the loader refuses a knot above safety.max_amplitude though every frequency of the range is below."""
+    config = tmp_path / "bench.toml"
+    plan = ("frequencies = { start_hz = 2, stop_hz = 20, per_decade = 1, adaptive = {} }\n"
+            "amplitude_profile = { frequencies_hz = [2, 6, 20], amplitudes = [0.01, 0.03, 0.01] }")
+    config.write_text(BENCH.format(plan=plan, channel="unused"))
+    with pytest.raises(ConfigError) as info:
+        load_config(config)
+    assert str(info.value) == (f"{config}: excitation.amplitude_profile: 0.03 at 6 Hz exceeds safety.max_amplitude "
+                               "(0.02)")
 
 
 def test_the_bench_checks_every_planned_amplitude_and_sweeps_with_it(tmp_path: Path) -> None:

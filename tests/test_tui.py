@@ -904,3 +904,52 @@ async def test_a_loop_sweep_fills_its_rows_named_by_the_mode(tmp_path: Path) -> 
         assert app.state == "done", app.worker_errors
         assert table_states(app) == [CONVERGED] * 2
         assert "effort" in app.w_live.query_one("#scope", PlotView).legend.plain
+
+
+@pytest.mark.slow
+@pytest.mark.asyncio
+async def test_an_adaptive_plan_grows_in_the_table(tmp_path: Path) -> None:
+    """A lightly damped oscillator on the virtual bus with an adaptive plan of two points a decade: the rows of
+    the frequencies the plan adds appear in the table, in ascending frequency among the planned ones, and every
+    row ends as the point on disk says."""
+    path = tmp_path / "adaptive.toml"
+    path.write_text(f"""
+title = "adaptive plan in the UI"
+[plant]
+model = "linear"
+mass = {1 / (2 * math.pi * 6.3) ** 2!r}
+stiffness = 1.0
+damping_ratio = 0.1
+[excitation]
+amplitude = 0.01
+frequencies = {{ start_hz = 3, stop_hz = 30, per_decade = 2, adaptive = {{ figures = ["resonance"], max_points = 8 }} }}
+[analysis]
+harmonics = [1]
+tolerance_percent = 0.1
+[bench]
+transport = "can"
+rate_hz = 1000
+clock = "lockstep"
+[can]
+interface = "virtual"
+channel = "{channel_name()}"
+[safety]
+max_amplitude = 0.02
+watchdog_s = 5.0
+[simulator]
+""")
+    out = tmp_path / "out"
+    app = BodeBenchApp(load_config(path), out)
+    async with app.run_test(size=(160, 48)) as pilot:
+        assert len(app.model.rows) == 3
+        await pilot.press("s")
+        await wait_for(pilot, lambda: finished(app), "the end of the sweep", timeout=600.0)
+        await pilot.pause(0.3)
+        assert app.state == "done", app.worker_errors
+        on_disk = sorted(p.frequency_hz for p in load_response(out).points)
+        assert 3 < len(on_disk) <= 8
+        table = app.w_table
+        shown = [float(str(table.get_cell(row.key.value, "f"))) for row in table.ordered_rows]
+        assert shown == pytest.approx(on_disk, rel=1e-5)
+        assert table_states(app) == [CONVERGED] * len(on_disk)
+        assert f"{len(on_disk)}/{len(on_disk)}" in app.w_status.render().plain

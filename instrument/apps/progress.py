@@ -7,7 +7,14 @@ import sys
 import time
 from typing import TextIO
 
-from bodebench.bench.events import BusStatus, PointFinished, PointProgress, PointStarted, SessionStarted
+from bodebench.bench.events import (
+    BusStatus,
+    PlanGrew,
+    PointFinished,
+    PointProgress,
+    PointStarted,
+    SessionStarted,
+)
 from bodebench.core.eta import SweepTimer
 
 logger = logging.getLogger(__name__)
@@ -64,6 +71,13 @@ class ProgressPrinter:
             self.total = self.timer.total
             already = f", {self.timer.done} already measured" if self.timer.done else ""
             self._line(f"{self.label}: {len(event.frequencies_hz)} points on {event.where}{already}", True)
+        elif isinstance(event, PlanGrew):
+            if self.timer is not None:
+                self.timer.extend(event.frequencies_hz, event.extra_periods, event.max_periods)
+                self.total = self.timer.total
+            self._line(f"{self.label}: the plan adds {len(event.frequencies_hz)} frequencies", True)
+            for f, reason in zip(event.frequencies_hz, event.reasons, strict=True):
+                self._line(f"  + {f:.6g} Hz: {reason}", True)
         elif isinstance(event, PointStarted):
             self._freq = event.frequency_hz
             if self.timer is not None:

@@ -74,6 +74,17 @@ class SessionStarted:
 
 
 @dataclass(frozen=True)
+class PlanGrew:
+    """An adaptive plan adds ``frequencies_hz`` (Hz, ascending) to the sweep, each for the reason at the same place in
+    ``reasons``; ``extra_periods`` and ``max_periods`` as :class:`SessionStarted` gives them, per added frequency."""
+
+    frequencies_hz: tuple[float, ...]
+    reasons: tuple[str, ...]
+    extra_periods: tuple[float, ...] = ()
+    max_periods: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
 class PointStarted:
     """Point ``index`` (the index-th point of the session) starts at ``frequency_hz`` (Hz), judged by the rule
     ``criterion`` at ``tolerance_percent`` (percent)."""

@@ -20,8 +20,17 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from bodebench.bench.adaptive import GrowingPlan
 from bodebench.bench.controls import SweepControls
-from bodebench.bench.events import CaseBegins, CaseSaved, Listener, PointFinished, PointStarted, SessionError
+from bodebench.bench.events import (
+    CaseBegins,
+    CaseSaved,
+    Listener,
+    PlanGrew,
+    PointFinished,
+    PointStarted,
+    SessionError,
+)
 from bodebench.bench.runinfo import RunClock, run_record
 from bodebench.bench.session import BenchSession, SessionResult, completed_frequencies
 from bodebench.core.response import FrequencyResponse, ResponsePoint
@@ -153,6 +162,8 @@ class CaseOutcome:
     clock: RunClock = field(default_factory=RunClock)
     earlier_runs: list[dict[str, Any]] = field(default_factory=list)
     resumed: bool = False
+    plan: GrowingPlan | None = None
+    """An adaptive case's plan as it grew (None: the planned frequencies only)."""
 
 
 LEAST_ANALYSED_PERIODS = 8
@@ -329,6 +340,7 @@ class SweepProcedure:
                                worker_mode=mode, resume=previous, keep_samples=self.keep_samples,
                                controls=self.controls)
         outcome.session = session
+        outcome.plan = session.growing
         outcome.result = session.run()
         return outcome.result
 
@@ -355,16 +367,20 @@ class SweepProcedure:
                                                case.analysis.harmonics) if before else set())
         writers = [ResultsWriter(o.directory, o.case.name, o.case.raw, resume=previous[o.index] is not None)
                    for o in outcomes]
+        plans = [GrowingPlan(case) if case.excitation.adaptive is not None else None for case in cases]
+        for outcome, plan in zip(outcomes, plans, strict=True):
+            outcome.plan = plan
         remaining = [sum(f not in skip for f in case.excitation.frequencies_hz)
                      for case, skip in zip(cases, skips, strict=True)]
-        waiting: list[list[list[ResponsePoint]]] = [[] for _ in cases]
+        waiting: list[list[list[ResponsePoint] | PlanGrew]] = [[] for _ in cases]
         drawing: list[tuple[CaseOutcome, list[Future[list[Path]]]]] = []
         turn = -1
 
         def advance() -> None:
-            """Finish the cases whose every frequency is done, in order, and begin the next one."""
+            """Finish the cases whose every frequency is done (an adaptive one's plan too), in order, and begin the
+            next one."""
             nonlocal turn
-            while turn < len(outcomes) and (turn < 0 or remaining[turn] == 0):
+            while turn < len(outcomes) and (turn < 0 or (remaining[turn] == 0 and not _growing(plans[turn]))):
                 if turn >= 0:
                     sort_points(outcomes[turn].response)
                     self._summarize(outcomes[turn], completed=not self.controls.aborted)
@@ -375,27 +391,55 @@ class SweepProcedure:
                     self.listener(CaseBegins(outcome.index, outcome.case.name, outcome.directory))
                     self.current = outcome
                     self.outcomes.append(outcome)
-                    for points in waiting[turn]:
-                        self._announce(outcome.case, points)
+                    for told in waiting[turn]:
+                        self._tell(outcome.case, told)
 
         advance()
         samples_dirs = [str(o.directory) if self.keep_samples else "" for o in outcomes]
-        for k, points in measure_cases(cases, self.executor, skips, samples_dirs, in_flight_limit(self.executor)):
-            writers[k].append(points)
-            for point in points:
-                outcomes[k].response.add(point)
-            if k == turn:
-                self._announce(cases[k], points)
-            else:
-                waiting[k].append(points)
-            remaining[k] -= 1
-            advance()
+        active = list(range(len(cases)))  # the cases with frequencies to measure in this round
+        while active:
+            rounds = measure_cases([cases[k] for k in active], self.executor, [skips[k] for k in active],
+                                   [samples_dirs[k] for k in active], in_flight_limit(self.executor))
+            for j, points in rounds:
+                k = active[j]
+                writers[k].append(points)
+                skips[k].add(points[0].frequency_hz)
+                for point in points:
+                    outcomes[k].response.add(point)
+                self._tell(cases[k], points) if k == turn else waiting[k].append(points)
+                remaining[k] -= 1
+                if self.controls.aborted:
+                    break
+                advance()
             if self.controls.aborted:
+                for plan in plans:
+                    if plan is not None and not plan.ended:
+                        plan.ended = "the sweep was stopped"
+                advance()
                 break
+            active = []
+            for k, plan in enumerate(plans):
+                if plan is None or plan.ended or remaining[k]:
+                    continue
+                additions = plan.grow(outcomes[k].response, sorted(skips[k]))
+                if additions:
+                    cases[k] = outcomes[k].case = plan.case
+                    grew = plan.event(additions)
+                    self._tell(cases[k], grew) if k == turn else waiting[k].append(grew)
+                    remaining[k] = len(additions)
+                    active.append(k)
+            advance()
         for outcome, futures in drawing:
             if futures:
                 outcome.files = tuple(path for future in futures for path in future.result())
             self.listener(CaseSaved(outcome.index, outcome.response, outcome.directory, outcome.files))
+
+    def _tell(self, case: CaseConfig, told: list[ResponsePoint] | PlanGrew) -> None:
+        """Tell the listener of a frequency's points (their start and end), or of a plan that grew."""
+        if isinstance(told, PlanGrew):
+            self.listener(told)
+        else:
+            self._announce(case, told)
 
     def _announce(self, case: CaseConfig, points: list[ResponsePoint]) -> None:
         index = case.excitation.frequencies_hz.index(points[0].frequency_hz)
@@ -444,8 +488,9 @@ class SweepProcedure:
                             plan_notes=outcome.case.plan_notes)
         if not (outcome.directory / SIDECAR_NAME).exists():  # a run that measured nothing still leaves its record
             ResultsWriter(outcome.directory, outcome.case.name, outcome.case.raw, resume=True)
+        plan = {"plan": outcome.plan.record()} if outcome.plan is not None else {}
         update_sidecar(outcome.directory, {"summary": [s.to_json() for s in outcome.summary],
-                                           "runs": [*outcome.earlier_runs, record]})
+                                           "runs": [*outcome.earlier_runs, record], **plan})
 
     def _finish(self, outcome: CaseOutcome) -> None:
         """The record, the summary and the plots of a case that ran to its end; SessionError (output) when the
@@ -457,6 +502,11 @@ class SweepProcedure:
             raise SessionError(FaultKind.OUTPUT, f"{outcome.directory}: cannot write the run's record, summary or "
                                                  f"plots: {exc.strerror or exc}") from None
         self.listener(CaseSaved(outcome.index, outcome.response, outcome.directory, outcome.files))
+
+
+def _growing(plan: GrowingPlan | None) -> bool:
+    """Whether an adaptive case's plan may still add frequencies."""
+    return plan is not None and not plan.ended
 
 
 def latest_points(response: FrequencyResponse) -> FrequencyResponse:

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bodebench.bench.adaptive import GrowingPlan
 from bodebench.bench.connection import LinkPlan
 from bodebench.bench.controls import SweepControls
 from bodebench.bench.events import (
@@ -109,6 +110,8 @@ class BenchSession:
         """The samples of the frequency measured last (saved in ``samples/`` when there is a results directory)."""
         self._writer: ResultsWriter | None = None
         self._stopped: Stopped | None = None  # the worker's last message, where it came before the shutdown
+        self.growing = GrowingPlan(case) if case.excitation.adaptive is not None else None
+        """An adaptive case's plan as it grows (None: the planned frequencies only)."""
 
     # --- user requests (any thread)
     def request_abort(self) -> None:
@@ -168,11 +171,17 @@ class BenchSession:
             done = completed_frequencies(self.response, self.case.analysed_channels, self.analysis.harmonics)
             self.listener(self._started(ready.channels, done))
             queue = [f for f in self.case.excitation.frequencies_hz if f not in done]
+            attempted = set(done)
             index = 0
-            while queue or self.controls.remeasure:
-                f = self.controls.remeasure.pop(0) if self.controls.remeasure else queue.pop(0)
-                self._measure(index, f)
-                index += 1
+            while True:
+                while queue or self.controls.remeasure:
+                    f = self.controls.remeasure.pop(0) if self.controls.remeasure else queue.pop(0)
+                    attempted.add(f)
+                    self._measure(index, f)
+                    index += 1
+                queue = self._grow(attempted)
+                if not queue:
+                    break
             completed = True
         except SessionError as exc:
             reason = str(exc)
@@ -201,6 +210,17 @@ class BenchSession:
         return SessionResult(self.response, completed, reason, stopped.last_setpoint if stopped else math.nan,
                              stopped.disabled if stopped else False, rt, self.last_health, self.periods_discarded,
                              stopped.log_failure if stopped else "", self.stale_samples)
+
+    def _grow(self, attempted: set[float]) -> list[float]:
+        """An adaptive case's next round of frequencies, announced (none: the plan is done or there is none)."""
+        if self.growing is None or self.controls.aborted:
+            return []
+        additions = self.growing.grow(self.response, sorted(attempted))
+        if not additions:
+            return []
+        self.case = self.growing.case
+        self.listener(self.growing.event(additions))
+        return [a.frequency_hz for a in additions]
 
     def _started(self, channels: tuple[str, ...], done: set[float]) -> SessionStarted:
         excitation, bench = self.case.excitation, self.bench

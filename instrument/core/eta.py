@@ -133,6 +133,15 @@ class SweepTimer:
             self.finished.add(f)
             self._periods[f] = float(periods)
 
+    def extend(self, frequencies_hz: Sequence[float], extra_periods: Sequence[float],
+               max_periods: Sequence[int]) -> None:
+        """Frequencies (Hz) an adaptive plan adds, each with its extra periods and its cap on integrated periods."""
+        for f, extra, cap in zip(frequencies_hz, extra_periods, max_periods, strict=True):
+            f = float(f)
+            if f not in self._extra:
+                self.frequencies_hz += (f,)
+                self._extra[f], self._caps[f] = float(extra), int(cap)
+
     # --- events (now: monotonic seconds)
     def point_started(self, frequency_hz: float, now: float) -> None:
         f = self._own(frequency_hz)

@@ -34,11 +34,15 @@ from bodebench.core.response import FrequencyResponse
 
 __all__ = [
     "CONFIDENCE",
+    "ChannelCurve",
     "RESPONSE_KINDS",
     "Figure",
     "ResponseSummary",
+    "channel_curves",
+    "interpolation_error",
     "summarize",
     "summarize_response",
+    "unwrapped_phase",
 ]
 
 CONFIDENCE = 0.95
@@ -198,7 +202,7 @@ def _curvature(x: np.ndarray, y: np.ndarray, i: int) -> float:
     return best
 
 
-def _interp_error(x: np.ndarray, y: np.ndarray, i: int, at: float) -> float:
+def interpolation_error(x: np.ndarray, y: np.ndarray, i: int, at: float) -> float:
     """Estimated error of y linearly interpolated at ``at`` in segment i, y's units: twice the classical estimate,
     as a margin for curvature that changes between the points."""
     return 1.0 * (at - x[i]) * (x[i + 1] - at) * _curvature(x, y, i)
@@ -209,7 +213,7 @@ def _crossing_x_error(x: np.ndarray, y: np.ndarray, i: int, at: float) -> float:
     slope = (y[i + 1] - y[i]) / (x[i + 1] - x[i])
     if slope == 0.0:
         return math.inf
-    return _interp_error(x, y, i, at) / abs(slope)
+    return interpolation_error(x, y, i, at) / abs(slope)
 
 
 def _hz(x: float) -> float:
@@ -352,7 +356,7 @@ def _margin(driver: _Curve, reader: _Curve, level: float, name: str, unit: str,
         dx = _crossing_x_error(driver.x, driver.y, i, xc)
         j = min(int(np.searchsorted(reader.x, xc, side="right")) - 1, len(reader.x) - 2)
         slope = (reader.y[j + 1] - reader.y[j]) / (reader.x[j + 1] - reader.x[j])
-        interp = _interp_error(reader.x, reader.y, j, xc) + abs(slope) * dx
+        interp = interpolation_error(reader.x, reader.y, j, xc) + abs(slope) * dx
         figure = Figure(name, unit, value=value, low=low, high=high, interpolation=float(interp), at_hz=_hz(xc),
                         at_low_hz=a_hz, at_high_hz=b_hz,
                         note=f"the smallest of {len(found)} crossovers" if len(found) > 1 else "")
@@ -365,7 +369,8 @@ def _margin(driver: _Curve, reader: _Curve, level: float, name: str, unit: str,
 def summarize(frequency_hz: Sequence[float] | np.ndarray, gain_db: Sequence[float] | np.ndarray,
               gain_low_db: Sequence[float] | np.ndarray, gain_high_db: Sequence[float] | np.ndarray,
               phase_deg: Sequence[float] | np.ndarray, phase_ci_deg: Sequence[float] | np.ndarray,
-              kind: str = "system", channel: str = "", converged: Sequence[bool] | None = None) -> ResponseSummary:
+              kind: str = "system", channel: str = "", converged: Sequence[bool] | np.ndarray | None = None
+              ) -> ResponseSummary:
     """The summary of a response given per point: frequency (Hz, > 0), gain (dB) with its 95 % bounds (dB),
     phase (degrees, unwrapped, or folded: it is unwrapped here) with its 95 % half-width (degrees). ``converged``
     (per point, default all): a figure read from a point that did not converge says so in its note.
@@ -392,12 +397,7 @@ def summarize(frequency_hz: Sequence[float] | np.ndarray, gain_db: Sequence[floa
         raise ValueError("gains, their upper bounds and phases must be finite")
     g_lo = np.where(np.isfinite(g_lo), g_lo, _FLOOR_DB)
     ph_ci = np.where(np.isfinite(ph_ci), ph_ci, 180.0)
-    # The lowest frequency's phase on the branch (-180, 180], so that a response starting at 0 deg is not read
-    # as starting at -360; then the 360 deg jumps between neighbours removed.
-    start = ph[0] - 360.0 * math.floor((ph[0] + 180.0) / 360.0)
-    if start == -180.0:
-        start = 180.0
-    ph = np.unwrap(ph - ph[0], period=360.0) + start
+    ph = unwrapped_phase(ph)
     x = np.log10(f)
     gain = _Curve(x, g, g_lo, g_hi)
     phase = _Curve(x, ph, ph - ph_ci, ph + ph_ci)
@@ -415,6 +415,16 @@ def summarize(frequency_hz: Sequence[float] | np.ndarray, gain_db: Sequence[floa
     return ResponseSummary(channel=channel, kind=kind, points=int(f.size), reference_hz=float(f[0]),
                            reference_db=ref, reference_low_db=ref_lo, reference_high_db=ref_hi,
                            figures=tuple(figures))
+
+
+def unwrapped_phase(phase_deg: np.ndarray) -> np.ndarray:
+    """Phases (deg, ascending frequency) unwrapped: the lowest frequency's on the branch (-180, 180], so that a
+    response starting at 0 deg is not read as starting at -360, then the 360 deg jumps between neighbours removed."""
+    ph = np.asarray(phase_deg, dtype=float)
+    start = ph[0] - 360.0 * math.floor((ph[0] + 180.0) / 360.0)
+    if start == -180.0:
+        start = 180.0
+    return np.asarray(np.unwrap(ph - ph[0], period=360.0) + start)
 
 
 def _unconverged_note(figure: Figure, f: np.ndarray, settled: np.ndarray) -> Figure:
@@ -436,10 +446,28 @@ def _unconverged_note(figure: Figure, f: np.ndarray, settled: np.ndarray) -> Fig
     return replace(figure, note=f"{note}; {figure.note}" if figure.note else note)
 
 
-def summarize_response(response: FrequencyResponse, kind: str = "system") -> list[ResponseSummary]:
-    """One summary per channel of harmonic 1 of ``response``, on its points with a finite gain and a defined phase
-    (a point below the resolution has none); a channel with fewer than two such points is left out."""
-    out: list[ResponseSummary] = []
+@dataclass(frozen=True)
+class ChannelCurve:
+    """Harmonic 1 of one channel as the summary reads it: its points with a finite gain and a defined phase (the
+    latest of a frequency measured again), by ascending frequency (Hz); gains and their 95 % bounds in dB, phases
+    and their 95 % half-widths in degrees (as measured, not unwrapped); ``unstated``: points that state no interval
+    (taken as exact)."""
+
+    channel: str
+    frequency_hz: np.ndarray
+    gain_db: np.ndarray
+    low_db: np.ndarray
+    high_db: np.ndarray
+    phase_deg: np.ndarray
+    phase_ci_deg: np.ndarray
+    converged: np.ndarray
+    unstated: int
+
+
+def channel_curves(response: FrequencyResponse) -> list[ChannelCurve]:
+    """One curve per channel of harmonic 1 of ``response`` (:class:`ChannelCurve`); a channel with fewer than two
+    points that have a finite gain and a defined phase (a point below the resolution has none) is left out."""
+    out: list[ChannelCurve] = []
     first = response.select(harmonic=1)
     for channel in first.channels:
         points = [p for p in first.select(channel=channel).points
@@ -458,10 +486,20 @@ def summarize_response(response: FrequencyResponse, kind: str = "system") -> lis
             low = np.where(magnitude > width, 20.0 * np.log10((magnitude - width) / amplitude), -np.inf)
             high = 20.0 * np.log10((magnitude + width) / amplitude)
         phase_ci = np.array([p.phase_ci_deg for p in points])
-        phase_ci = np.where(np.isfinite(phase_ci), phase_ci, 0.0)
-        summary = summarize([p.frequency_hz for p in points], gain_db, low, high, [p.phase_deg for p in points],
-                            phase_ci, kind=kind, channel=channel, converged=[p.converged for p in points])
-        if unstated:
-            summary = replace(summary, note=f"{unstated} points state no interval: taken as exact")
+        out.append(ChannelCurve(channel, np.array([p.frequency_hz for p in points]), gain_db, low, high,
+                                np.array([p.phase_deg for p in points]),
+                                np.where(np.isfinite(phase_ci), phase_ci, 0.0),
+                                np.array([p.converged for p in points], dtype=bool), unstated))
+    return out
+
+
+def summarize_response(response: FrequencyResponse, kind: str = "system") -> list[ResponseSummary]:
+    """One summary per channel of harmonic 1 of ``response`` (the curves of :func:`channel_curves`)."""
+    out: list[ResponseSummary] = []
+    for c in channel_curves(response):
+        summary = summarize(c.frequency_hz, c.gain_db, c.low_db, c.high_db, c.phase_deg, c.phase_ci_deg, kind=kind,
+                            channel=c.channel, converged=c.converged)
+        if c.unstated:
+            summary = replace(summary, note=f"{c.unstated} points state no interval: taken as exact")
         out.append(summary)
     return out

@@ -169,6 +169,14 @@ class CaseConfig:
         return formed_columns(self.analysis.measurement, bench.output_channels, reference, bench.effort_channel,
                               bench.control_channel)
 
+    def placed(self, frequencies_hz: Sequence[float]) -> tuple[float, ...]:
+        """Frequencies (Hz) added to a bench case's plan, moved as the loader moves the planned ones (off the
+        disturbance lines, off folding sample counts, as [analysis] says); offline, as they are."""
+        if self.bench is None:
+            return tuple(frequencies_hz)
+        moved, _ = _off_disturbances(frequencies_hz, self.analysis, self.raw)
+        return _off_folds(moved, self.bench.rate_hz, self.analysis, self.raw)[0]
+
     @property
     def analysed_channels(self) -> tuple[str, ...]:
         """The channel names of a bench case's points: the output channels, or what its mode forms ("loop",
@@ -264,22 +272,16 @@ def _build_case(
                      f"its own: analysis.steps_per_period = {analysis.steps_per_period} allows harmonics up to "
                      f"{analysis.steps_per_period // MIN_SAMPLES_PER_PERIOD}")
     notes: tuple[str, ...] = ()
-    if built["bench"] is not None and built["analysis"].disturbance_policy == "move":
-        excitation = built["excitation"]
-        frequencies, notes = move_off_disturbances(excitation.frequencies_hz, built["analysis"].harmonics,
-                                                   disturbance_lines_of(raw, built["analysis"]))
-        if notes:
-            built["excitation"] = replace(excitation, frequencies_hz=frequencies, frequencies=None)
+    if built["bench"] is not None:
+        frequencies, notes = _off_disturbances(built["excitation"].frequencies_hz, built["analysis"], raw)
+        built["excitation"] = built["excitation"].with_frequencies(frequencies)
     layout, setup = _check_bench(built, frames, key, source)
-    if built["bench"] is not None and built["analysis"].fold_policy == "move":
+    if built["bench"] is not None:
         # after the checks, which name the frequencies as given: a move lowers one by a fraction of a percent
-        excitation, analysis = built["excitation"], built["analysis"]
-        lines = disturbance_lines_of(raw, analysis) if analysis.disturbance_policy == "move" else ()
-        frequencies, moves = move_off_folds(built["bench"].rate_hz, excitation.frequencies_hz, analysis.harmonics,
-                                            lines)
-        if moves:
-            built["excitation"] = replace(excitation, frequencies_hz=frequencies, frequencies=None)
-            notes += moves
+        frequencies, moves = _off_folds(built["excitation"].frequencies_hz, built["bench"].rate_hz,
+                                        built["analysis"], raw)
+        built["excitation"] = built["excitation"].with_frequencies(frequencies)
+        notes += moves
     if built["bench"] is not None and built["analysis"].fold_policy != "bound":  # bound: each interval carries it
         notes += folding_notes(built["bench"].rate_hz, built["excitation"].frequencies_hz, built["analysis"].harmonics)
         assert layout is not None
@@ -355,6 +357,25 @@ def measured_of(config: Mapping[str, Any]) -> str:
     analysis = config.get("analysis")
     measured = analysis.get("measured") if isinstance(analysis, Mapping) else None
     return measured if isinstance(measured, str) and measured in MEASURED else MEASURED[0]
+
+
+def _off_disturbances(frequencies_hz: Sequence[float], analysis: AnalysisConfig, raw: Mapping[str, Any]
+                      ) -> tuple[tuple[float, ...], tuple[str, ...]]:
+    """A bench plan's frequencies (Hz) moved off the disturbance lines where ``analysis.disturbance_policy`` says
+    "move", with a note per move."""
+    if analysis.disturbance_policy != "move":
+        return tuple(frequencies_hz), ()
+    return move_off_disturbances(frequencies_hz, analysis.harmonics, disturbance_lines_of(raw, analysis))
+
+
+def _off_folds(frequencies_hz: Sequence[float], rate_hz: float, analysis: AnalysisConfig, raw: Mapping[str, Any]
+               ) -> tuple[tuple[float, ...], tuple[str, ...]]:
+    """A bench plan's frequencies (Hz) moved where ``analysis.fold_policy`` says "move" so that the folds of their
+    harmonics turn (and kept off the disturbance lines when those move too), with one note for the moves."""
+    if analysis.fold_policy != "move":
+        return tuple(frequencies_hz), ()
+    lines = disturbance_lines_of(raw, analysis) if analysis.disturbance_policy == "move" else ()
+    return move_off_folds(rate_hz, frequencies_hz, analysis.harmonics, lines)
 
 
 def disturbance_lines_of(config: Mapping[str, Any], analysis: AnalysisConfig) -> tuple[float, ...]:
@@ -518,9 +539,10 @@ def _check_plan(tables: Mapping[str, Any], bench: BenchConfig, safety: SafetyCon
     """Each frequency of a bench plan against the safety limits and the sample rate; raises :class:`_Fault`."""
     excitation: ExcitationConfig = tables["excitation"]
     top = max(tables["analysis"].harmonics)
-    for i, f in enumerate(excitation.frequencies_hz):
+    for i, f in enumerate(excitation.frequencies_to_check()):
         at = (f"{key('excitation', 'frequencies_hz')}[{i}]" if excitation.frequencies is None
-              else f"{key('excitation', 'frequencies')} (frequency {i})")
+              else f"{key('excitation', 'frequencies')} (frequency {i})" if i < len(excitation.frequencies_hz)
+              else f"{key('excitation', 'frequencies')} (adaptive, at the profile's knot {f:g} Hz)")
         amplitude = excitation.amplitude_at(f)
         if amplitude > safety.max_amplitude:
             if excitation.amplitudes is None and excitation.amplitude_profile is None:

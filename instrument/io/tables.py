@@ -9,11 +9,12 @@ carry, and [simulator] stands a simulated servo controller around [plant] in for
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 from bodebench.core.autointegration import DEFAULT_BENCH_POINT_S, MIN_BUDGET_PERIODS
 from bodebench.core.measured import MEASURED
+from bodebench.core.refine import FIGURE_NAMES
 from bodebench.core.rules import CRITERIA, MIN_NOISE_EVIDENCE
 from bodebench.core.summary import RESPONSE_KINDS
 from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS
@@ -193,14 +194,52 @@ PLAN_MAX_POINTS = 10_000
 """Most frequencies a log-spaced range may expand to."""
 
 
+PLAN_FIGURES = tuple(FIGURE_NAMES)
+"""Summary figures an adaptive plan can pin down (:mod:`bodebench.core.refine`)."""
+
+
+@dataclass(frozen=True)
+class AdaptivePlan:
+    """A plan that adds frequencies between those of the range until each requested summary figure, and the curve
+    between the points, is known to the stated accuracy by interpolation, or the budget is spent."""
+
+    figures: tuple[str, ...] = field(default=PLAN_FIGURES, metadata={
+        "choices": PLAN_FIGURES, "unique": True,
+        "doc": "the summary figures to pin down (those the response kind has: a closed loop's bandwidth and "
+               "resonance, an open loop's margins, the phase crossings of either)"})
+    frequency_percent: float = field(default=1.0, metadata={
+        "min": 0, "min_exclusive": True, "max": 50,
+        "doc": "accuracy of each figure read as a frequency (bandwidth, crossings, the resonance frequency), % of it"})
+    gain_db: float = field(default=0.1, metadata={
+        "min": 0, "min_exclusive": True, "doc": "accuracy of each figure in dB (resonance peak, gain margin), dB"})
+    phase_deg: float = field(default=1.0, metadata={
+        "min": 0, "min_exclusive": True, "doc": "accuracy of each figure in degrees (phase margin), deg"})
+    curve_gain_db: float = field(default=1.0, metadata={
+        "min": 0, "min_exclusive": True,
+        "doc": "largest interpolation error of the gain curve between two neighbouring points, dB"})
+    curve_phase_deg: float = field(default=10.0, metadata={
+        "min": 0, "min_exclusive": True,
+        "doc": "largest interpolation error of the phase curve between two neighbouring points, deg"})
+    max_points: int = field(default=60, metadata={
+        "min": 2, "max": PLAN_MAX_POINTS, "doc": "most frequencies in all, the range's included"})
+    budget_s: float | None = field(default=None, metadata={
+        "min": 0, "min_exclusive": True,
+        "doc": "bench time after which no frequency is added, s (the periods measured, settled and ramped at each "
+               "frequency over its frequency; none: no limit but max_points)"})
+
+
 @dataclass(frozen=True)
 class FrequencyRange:
     """Log-spaced frequencies: ``start_hz * 10**(i / per_decade)`` for i = 0, 1, ... up to ``stop_hz``, each
-    rounded to 6 significant digits; ``stop_hz`` is the last one when it falls on the grid (within 1e-9)."""
+    rounded to 6 significant digits; ``stop_hz`` is the last one when it falls on the grid (within 1e-9). With
+    ``adaptive``, these are the first frequencies of a plan that adds more between them."""
 
     start_hz: float = field(metadata={"min": 0, "min_exclusive": True, "doc": "first frequency, Hz"})
     stop_hz: float = field(metadata={"min": 0, "min_exclusive": True, "doc": "last frequency at most, Hz"})
     per_decade: int = field(metadata={"min": 1, "max": 1000, "doc": "points per decade"})
+    adaptive: AdaptivePlan | None = field(default=None, metadata={
+        "doc": "add frequencies where the curve bends or a summary figure is not yet known to its accuracy "
+               "(none: the range's frequencies only)"})
 
     def validate(self, where: Callable[[str], str]) -> None:
         """Stop above start, and not too many points; raises :class:`FieldError`."""
@@ -209,6 +248,9 @@ class FrequencyRange:
         count = len(self.expand())
         if count > PLAN_MAX_POINTS:
             raise FieldError("per_decade", f"{count} frequencies, more than {PLAN_MAX_POINTS}")
+        if self.adaptive is not None and count > self.adaptive.max_points:
+            raise FieldError("adaptive", f"max_points = {self.adaptive.max_points} is fewer than the range's "
+                                         f"{count} frequencies")
 
     def expand(self) -> tuple[float, ...]:
         """The frequencies, Hz, ascending."""
@@ -295,6 +337,12 @@ class ExcitationConfig:
                                                "stop_hz, per_decade})")
         if self.frequencies is not None and self.frequencies_hz != self.frequencies.expand():
             raise FieldError("frequencies", f"give either this or {where('frequencies_hz')}, not both")
+        if self.adaptive is not None:
+            for name in ("amplitudes", "settle_periods_per_frequency"):
+                if getattr(self, name) is not None:
+                    raise FieldError(name, "one value per frequency cannot follow an adaptive plan, whose frequencies "
+                                           "are not known before the sweep (give amplitude or amplitude_profile, and "
+                                           "settle_periods)")
         n = len(self.frequencies_hz)
         rules = [name for name in ("amplitude", "amplitudes", "amplitude_profile") if getattr(self, name) is not None]
         if not rules:
@@ -311,6 +359,26 @@ class ExcitationConfig:
             if len(self.settle_periods_per_frequency) != n:
                 raise FieldError("settle_periods_per_frequency",
                                  f"{len(self.settle_periods_per_frequency)} values for {n} frequencies")
+
+    @property
+    def adaptive(self) -> AdaptivePlan | None:
+        """The adaptive plan that adds frequencies to these, if any."""
+        return self.frequencies.adaptive if self.frequencies is not None else None
+
+    def with_frequencies(self, frequencies_hz: Sequence[float]) -> ExcitationConfig:
+        """The plan with ``frequencies_hz`` (Hz) in place of its frequencies (a bench's moved ones, an adaptive plan's
+        grown ones); the range and its adaptive plan are kept."""
+        return replace(self, frequencies_hz=tuple(frequencies_hz))
+
+    def frequencies_to_check(self) -> tuple[float, ...]:
+        """The frequencies (Hz) whose amplitude and slew bound every frequency the plan can measure: its own, and for
+        an adaptive plan with an amplitude profile, the profile's knots between them too (the amplitude and the
+        slew 2 pi f A are monotonic between knots on log-log lines, so their largest lie there or at the ends)."""
+        if self.adaptive is None or self.amplitude_profile is None:
+            return self.frequencies_hz
+        lo, hi = min(self.frequencies_hz), max(self.frequencies_hz)
+        return self.frequencies_hz + tuple(f for f in self.amplitude_profile.frequencies_hz
+                                           if lo < f < hi and f not in self.frequencies_hz)
 
     def _index(self, frequency_hz: float) -> int:
         try:

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from bodebench.bench.adaptive import GrowingPlan
     from bodebench.bench.procedure import PlotWriter
     from bodebench.core.response import FrequencyResponse
     from bodebench.core.summary import ResponseSummary
@@ -132,17 +133,19 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
                   f"periods_discarded){stale}")
         if result.log_failure:
             print(f"  bus log failed, the sweep went on without it: {result.log_failure}")
-        _print_summary(outcome.summary)
+        _print_summary(outcome.summary, outcome.plan)
         if session.refused:
             status = 1
     return status
 
 
-def _print_summary(summary: Sequence[ResponseSummary]) -> None:
-    """The figures read off a finished case, indented under its line."""
+def _print_summary(summary: Sequence[ResponseSummary], plan: GrowingPlan | None = None) -> None:
+    """The figures read off a finished case, and an adaptive plan's account, indented under its line."""
     for item in summary:
         for line in item.lines():
             print("  " + line)
+    for line in plan.lines() if plan is not None else ():
+        print("  " + line)
 
 
 def _also(files: Sequence[Path]) -> str:

@@ -28,7 +28,7 @@ log = logging.getLogger("bodebench")
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from bodebench.bench.events import CaseBegins, PointFinished
+    from bodebench.bench.events import CaseBegins, PlanGrew, PointFinished
     from bodebench.bench.offline import ExecutorError, offline_executor
     from bodebench.bench.procedure import SweepProcedure
 
@@ -45,6 +45,11 @@ def _simulate(args: argparse.Namespace) -> int:
         if isinstance(event, CaseBegins):
             name, done = event.name, 0
             total = len(config.cases[event.index].excitation.frequencies_hz)
+        elif isinstance(event, PlanGrew) and not args.quiet:
+            total += len(event.frequencies_hz)
+            print(f"{name}: the plan adds {len(event.frequencies_hz)} frequencies", file=sys.stderr)
+            for f, reason in zip(event.frequencies_hz, event.reasons, strict=True):
+                print(f"  + {f:.6g} Hz: {reason}", file=sys.stderr)
         elif isinstance(event, PointFinished) and not args.quiet:
             done += 1
             worst = max(p.periods for p in event.points)
@@ -73,6 +78,6 @@ def _simulate(args: argparse.Namespace) -> int:
         unconverged = [p for p in outcome.response.points if not p.converged]
         print(f"{outcome.case.name}: {len(outcome.response.points)} points, "
               f"{len(unconverged)} not converged -> {outcome.directory}/response.csv{_also(outcome.files)}")
-        _print_summary(outcome.summary)
+        _print_summary(outcome.summary, outcome.plan)
     print(f"done in {time.perf_counter() - started:.1f} s")
     return 0

@@ -49,6 +49,7 @@ from bodebench.bench.events import (
     CaseBegins,
     CaseSaved,
     Health,
+    PlanGrew,
     PointFinished,
     PointStarted,
     SessionEnded,
@@ -651,6 +652,12 @@ class BodeBenchApp(App[int]):
             self.watchdog = "armed"
             self.model.session_started(now, event.timer())
             self.state = "paused" if self.control is not None and self.control.paused else "running"
+        elif isinstance(event, PlanGrew):
+            self.model.extend(event.frequencies_hz, event.extra_periods, event.max_periods)
+            self.w_table.fill(self.model.rows)
+            self.model.take_changed()
+            self.notify(f"the plan adds {len(event.frequencies_hz)} frequencies: "
+                        + ", ".join(f"{f:.4g} Hz" for f in event.frequencies_hz), timeout=4)
         elif isinstance(event, PointStarted):
             self.model.point_started(event.index, event.frequency_hz, now, event.tolerance_percent, event.criterion)
             self._max_index = max(self._max_index, event.index)

@@ -135,6 +135,24 @@ class SweepModel:
         self.changed: set[str] = set(self.rows)
         self.state_changed = True  # a row changed more than its period count since take_changed
 
+    def extend(self, frequencies_hz: Sequence[float], extra_periods: Sequence[float],
+               max_periods: Sequence[int]) -> None:
+        """Frequencies (Hz) an adaptive plan adds: rows of their own, every row in ascending frequency (positions
+        keep their keys), timed like the others (their extra periods and caps)."""
+        new = [float(f) for f in frequencies_hz if not any(math.isclose(f, g, rel_tol=1e-9)
+                                                           for g in self.frequencies_hz)]
+        start = len(self.frequencies_hz)
+        self.frequencies_hz += tuple(new)
+        for i, f in enumerate(new, start):
+            for k in self.harmonics:
+                for c in self.channels:
+                    self.rows[row_key(i, k, c)] = Row(f, k, c)
+                    self.changed.add(row_key(i, k, c))
+        order = sorted(range(len(self.frequencies_hz)), key=lambda i: self.frequencies_hz[i])
+        self.rows = {key: self.rows[key] for i in order for key in self.keys_at(i)}
+        self.timer.extend(frequencies_hz, extra_periods, max_periods)
+        self.state_changed = True
+
     # --- lookups
     def position(self, frequency_hz: float) -> int:
         """Position of ``frequency_hz`` in the sweep; ValueError when it is not one of its frequencies."""

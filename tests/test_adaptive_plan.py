@@ -1,0 +1,304 @@
+"""The adaptive plan: where it adds frequencies, and that the figures it ends with are within the accuracy it was
+asked for, against figures solved apart from the summary (root finding and bounded minimisation on the exact
+response), on plants whose resonances lie anywhere between the coarse grid's points."""
+
+from __future__ import annotations
+
+import cmath
+import json
+import math
+import tomllib
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import signal
+from scipy.optimize import brentq, minimize_scalar
+
+from bodebench.bench.events import PlanGrew, PointFinished
+from bodebench.bench.procedure import CaseOutcome, SweepProcedure
+from bodebench.core.refine import FIGURE_NAMES, next_round
+from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.core.summary import summarize_response
+from bodebench.io.config import parse_config
+from bodebench.io.results import SIDECAR_NAME, load_response
+from bodebench.io.tables import AdaptivePlan, FrequencyRange
+
+Response = Callable[[float], complex]
+
+
+def second_order(fn: float, zeta: float, delay_s: float = 0.0) -> Response:
+    def g(f: float) -> complex:
+        s, wn = 2j * math.pi * f, 2.0 * math.pi * fn
+        return wn * wn / (s * s + 2.0 * zeta * wn * s + wn * wn) * cmath.exp(-s * delay_s)
+    return g
+
+
+def two_mass(f1: float, f2: float, zeta: float, delay_s: float) -> Response:
+    """A drive with a load on a compliant shaft: two lightly damped pairs, the second a resonance over an
+    anti-resonance."""
+    first, second = second_order(f1, zeta), second_order(f2, zeta)
+    anti = second_order(0.8 * f2, zeta)
+
+    def g(f: float) -> complex:
+        return first(f) * second(f) / anti(f) * cmath.exp(-2j * math.pi * f * delay_s)
+    return g
+
+
+def points(g: Response, frequencies: list[float], amplitude: float = 0.5) -> FrequencyResponse:
+    out = []
+    for f in frequencies:
+        c = g(f) * amplitude
+        out.append(ResponsePoint(f, 1, "y", amplitude, c.real, c.imag, 40, True, "converged", 1e-9, 1e-9, True))
+    return FrequencyResponse(out)
+
+
+def grown(g: Response, plan: AdaptivePlan, start: float, stop: float, per_decade: int,
+          kind: str = "system") -> tuple[list[float], FrequencyResponse, int]:
+    """The plan's rounds on exact points: the frequencies it ends with, their response and the rounds taken."""
+    frequencies = list(FrequencyRange(start, stop, per_decade).expand())
+    for rounds in range(40):
+        response = points(g, frequencies)
+        step = next_round(response, plan, kind, frequencies)
+        if not step.additions:
+            return frequencies, response, rounds
+        frequencies = sorted(frequencies + [a.frequency_hz for a in step.additions])
+    raise AssertionError("the plan did not end in 40 rounds")
+
+
+@dataclass
+class Exact:
+    """A figure solved on the exact response: value, and the frequency it is read at (Hz)."""
+
+    value: float
+    at_hz: float = math.nan
+
+
+def exact_figures(g: Response, start: float, stop: float, kind: str) -> dict[str, Exact]:
+    """The summary's figures of ``g`` over [start, stop], from the exact response: root finding on a dense
+    bracket scan, bounded minimisation around the largest gain."""
+    f = np.geomspace(start, stop, 20001)
+    gain = np.array([20.0 * math.log10(abs(g(x))) for x in f])
+    phase = np.degrees(np.unwrap(np.array([cmath.phase(g(x)) for x in f])))
+    phase += -360.0 * math.floor((phase[0] + 180.0) / 360.0)
+
+    def gain_db(x: float) -> float:
+        return 20.0 * math.log10(abs(g(x)))
+
+    def phase_deg(x: float) -> float:
+        return _phase_at(g, f, phase, x)
+
+    def first_down(values: np.ndarray, level: float, fun: Callable[[float], float]) -> float:
+        below = np.flatnonzero((values[:-1] > level) & (values[1:] <= level))
+        if not below.size:
+            return math.nan
+        i = int(below[0])
+        return float(brentq(lambda x: fun(x) - level, f[i], f[i + 1], xtol=1e-12))
+
+    out: dict[str, Exact] = {}
+    ref = gain[0]
+    if kind != "open_loop":
+        out["bandwidth"] = Exact(first_down(gain, ref - 10.0 * math.log10(2.0), gain_db))
+        i = int(np.argmax(gain))
+        if 0 < i < f.size - 1:
+            best = minimize_scalar(lambda x: -gain_db(x), bounds=(f[i - 1], f[i + 1]), method="bounded",
+                                   options={"xatol": 1e-10})
+            out["resonance"] = Exact(-float(best.fun) - ref, float(best.x))
+    out["phase_90"] = Exact(first_down(phase, -90.0, phase_deg))
+    out["phase_180"] = Exact(first_down(phase, -180.0, phase_deg))
+    if kind == "open_loop":
+        wc = first_down(gain, 0.0, gain_db)
+        out["phase_margin"] = Exact(180.0 + phase_deg(wc), wc)
+        w180 = first_down(phase, -180.0, phase_deg)
+        out["gain_margin"] = Exact(-gain_db(w180), w180)
+    return out
+
+
+def _phase_at(g: Response, f: np.ndarray, unwrapped: np.ndarray, x: float) -> float:
+    """The unwrapped phase (deg) at ``x``: the wrapped phase there, on the branch of the nearest scanned one."""
+    near = float(np.interp(math.log(x), np.log(f), unwrapped))
+    wrapped = math.degrees(cmath.phase(g(x)))
+    return wrapped + 360.0 * round((near - wrapped) / 360.0)
+
+
+PLAN = AdaptivePlan()
+
+CLOSED = [
+    ("light resonance", second_order(7.31, 0.02, 0.002), 1.0, 100.0),
+    ("very light resonance", second_order(23.7, 0.005, 0.0005), 1.0, 100.0),
+    ("moderate resonance", second_order(3.17, 0.2, 0.004), 0.5, 50.0),
+    ("well damped", second_order(13.9, 0.6, 0.001), 1.0, 200.0),
+    ("two-mass drive", two_mass(4.3, 37.0, 0.03, 0.001), 1.0, 150.0),
+]
+
+
+@pytest.mark.parametrize("name, g, start, stop", CLOSED, ids=[c[0] for c in CLOSED])
+def test_every_figure_the_plan_calls_met_is_within_its_accuracy_of_the_exact_one(
+        name: str, g: Response, start: float, stop: float) -> None:
+    frequencies, response, rounds = grown(g, PLAN, start, stop, per_decade=3)
+    (summary,) = summarize_response(response)
+    exact = exact_figures(g, start, stop, "system")
+    step = next_round(response, PLAN, "system", frequencies)
+    assert rounds > 0 and not step.additions
+    checked = 0
+    for standing in step.standings:
+        figure = summary.figure(FIGURE_NAMES[standing.figure])
+        truth = exact.get(standing.figure)
+        if not standing.found:
+            assert truth is None or not math.isfinite(truth.value), f"{name}: {standing.text}"
+            continue
+        assert standing.met, f"{name}: {standing.text}"
+        assert truth is not None
+        assert abs(figure.value - truth.value) <= standing.accuracy, (
+            f"{name}: {figure.name} {figure.value:.6g} vs exact {truth.value:.6g} (accuracy {standing.accuracy:.3g})")
+        if standing.figure == "resonance":
+            assert abs(figure.at_hz - truth.at_hz) <= PLAN.frequency_percent / 100.0 * truth.at_hz, name
+        checked += 1
+    assert checked >= 3, f"{name}: only {checked} figures found"
+
+
+def test_open_loop_margins_are_pinned_down_to_their_accuracy() -> None:
+    """A servo loop's open-loop gain (an integrator, a lag and a delay): the margins and their crossovers within
+    the asked accuracy of those solved on the exact response."""
+    def loop(f: float) -> complex:
+        s = 2j * math.pi * f
+        return 60.0 / (s * (1.0 + s / (2.0 * math.pi * 31.0))) * cmath.exp(-s * 0.0011)
+
+    frequencies, response, _ = grown(loop, PLAN, 1.0, 300.0, per_decade=3, kind="open_loop")
+    (summary,) = summarize_response(response, "open_loop")
+    exact = exact_figures(loop, 1.0, 300.0, "open_loop")
+    for key in ("phase_margin", "gain_margin", "phase_180"):
+        figure = summary.figure(FIGURE_NAMES[key])
+        accuracy = {"phase_margin": PLAN.phase_deg, "gain_margin": PLAN.gain_db}.get(
+            key, PLAN.frequency_percent / 100.0 * exact[key].value)
+        assert abs(figure.value - exact[key].value) <= accuracy, (key, figure.value, exact[key].value)
+    assert len(frequencies) < PLAN.max_points
+
+
+def test_a_resonance_between_two_coarse_points_is_found_by_the_curve() -> None:
+    """A mode that the coarse grid steps over (its peak between two points, two points a decade): the phase
+    drop bends the curve there, and the plan measures where it lies."""
+    g = second_order(31.6, 0.01)
+    plan = AdaptivePlan(figures=())
+    frequencies, response, _ = grown(g, plan, 1.0, 1000.0, per_decade=2)
+    near = [f for f in frequencies if 25.0 < f < 40.0]
+    assert len(near) >= 3, frequencies
+    (summary,) = summarize_response(response)
+    peak = summary.figure("resonance peak")
+    assert abs(peak.at_hz - 31.6 * math.sqrt(1 - 2 * 0.01**2)) < 0.05 * 31.6
+
+
+def test_a_figure_limited_by_the_measurement_adds_nothing_for_it() -> None:
+    """Points whose intervals are wider than the accuracy: the bandwidth's standing says the measurement limits
+    it; what the plan adds for it is only where interpolation errs, never a point on top of another."""
+    g = second_order(9.0, 0.3)
+    frequencies = list(FrequencyRange(1.0, 100.0, 10).expand())
+    noisy = FrequencyResponse([
+        ResponsePoint(p.frequency_hz, 1, "y", p.amplitude, p.p, p.q, 40, True, "converged", 0.05 * p.magnitude,
+                      0.05 * p.magnitude, False) for p in points(g, frequencies).points])
+    step = next_round(noisy, PLAN, "system", frequencies)
+    bandwidth = next(s for s in step.standings if s.figure == "bandwidth")
+    assert bandwidth.measurement > bandwidth.accuracy
+    assert "limited by the measurement" in bandwidth.text
+
+
+def test_nothing_is_added_next_to_a_measured_frequency_nor_outside_the_range() -> None:
+    g = second_order(7.31, 0.02)
+    frequencies = list(FrequencyRange(1.0, 100.0, 3).expand())
+    step = next_round(points(g, frequencies), PLAN, "system", frequencies)
+    gap = 0.25 * PLAN.frequency_percent / 100.0
+    assert step.additions
+    for a in step.additions:
+        assert frequencies[0] < a.frequency_hz < frequencies[-1]
+        assert min(abs(math.log(a.frequency_hz / f)) for f in frequencies) >= gap
+        assert a.reason.startswith("y: ")
+    added = [a.frequency_hz for a in step.additions]
+    assert all(abs(math.log(a / b)) >= gap for i, a in enumerate(added) for b in added[:i])
+
+
+# --- the plan in a sweep: offline and on the bench chain
+
+MASS, ZETA = 4.8e-4, 0.03  # a resonance at 7.264 Hz, between the coarse points 6.81 and 10 Hz
+
+
+def oscillator(f: float) -> complex:
+    """The linear plant's exact response: 1 / (1 - m w^2 + 2 zeta sqrt(m) j w), stiffness 1."""
+    w = 2.0 * math.pi * f
+    return 1.0 / (1.0 - MASS * w * w + 2j * ZETA * math.sqrt(MASS) * w)
+
+
+def held(rate_hz: float) -> Response:
+    """The oscillator held and sampled at ``rate_hz``: its zero-order-hold discretisation on the unit circle."""
+    num_d, den_d, _ = signal.cont2discrete(([1.0], [MASS, 2.0 * ZETA * math.sqrt(MASS), 1.0]), 1.0 / rate_hz,
+                                           method="zoh")
+
+    def g(f: float) -> complex:
+        z = cmath.exp(2j * math.pi * f / rate_hz)
+        return complex(np.polyval(np.ravel(num_d), z) / np.polyval(den_d, z))
+    return g
+
+
+ADAPTIVE = {"start_hz": 1.0, "stop_hz": 100.0, "per_decade": 3,
+            "adaptive": {"figures": ["bandwidth", "resonance", "phase_90"]}}
+
+
+def assert_figures_within_accuracy(outcome: CaseOutcome, g: Response) -> None:
+    """Each figure the plan calls met is within its accuracy, plus the points' own tolerance, of the exact one."""
+    assert outcome.plan is not None and outcome.plan.added
+    (summary,) = outcome.summary
+    exact = exact_figures(g, 1.0, 100.0, "system")
+    for standing in outcome.plan.standings:
+        assert standing.met, standing.text
+        figure = summary.figure(FIGURE_NAMES[standing.figure])
+        slack = 0.01 if figure.unit == "dB" else 0.001 * figure.value  # the points' 0.1 % tolerance
+        assert abs(figure.value - exact[standing.figure].value) <= standing.accuracy + slack, standing.text
+
+
+def test_an_offline_sweep_grows_its_plan_and_records_why(tmp_path: Path) -> None:
+    data = {"plant": {"model": "linear", "mass": MASS, "stiffness": 1.0, "damping_ratio": ZETA},
+            "excitation": {"amplitude": 0.01, "frequencies": ADAPTIVE},
+            "analysis": {"harmonics": [1], "tolerance_percent": 0.1, "steps_per_period": 200}}
+    events: list[object] = []
+    (outcome,) = SweepProcedure(parse_config(data, "adaptive.toml"), tmp_path, listener=events.append).run()
+    grew = [e for e in events if isinstance(e, PlanGrew)]
+    added = [f for e in grew for f in e.frequencies_hz]
+    assert added and all(reason for e in grew for reason in e.reasons)
+    on_disk = sorted(p.frequency_hz for p in load_response(tmp_path).points)
+    assert on_disk == sorted([*FrequencyRange(1.0, 100.0, 3).expand(), *added])
+    record = json.loads((tmp_path / SIDECAR_NAME).read_text())["plan"]
+    assert [a["frequency_hz"] for a in record["added"]] == added
+    assert record["ended"].startswith("every requested figure")
+    assert len([e for e in events if isinstance(e, PointFinished)]) == len(on_disk)
+    assert_figures_within_accuracy(outcome, oscillator)
+
+
+@pytest.mark.slow
+def test_a_bench_sweep_grows_its_plan_on_the_virtual_bus(tmp_path: Path) -> None:
+    """The same plan over python-can's virtual bus to the simulated drive, lockstep at 1 kHz: the figures are
+    those of the held and sampled plant, each within its accuracy; the budget in bench seconds is kept."""
+    data = {"plant": {"model": "linear", "mass": MASS, "stiffness": 1.0, "damping_ratio": ZETA},
+            "excitation": {"amplitude": 0.01, "frequencies": ADAPTIVE},
+            "analysis": {"harmonics": [1], "tolerance_percent": 0.1},
+            "bench": {"transport": "can", "rate_hz": 1000, "clock": "lockstep"},
+            "can": {"interface": "virtual", "channel": f"adaptive-{uuid.uuid4().hex[:8]}"},
+            "safety": {"max_amplitude": 0.02, "watchdog_s": 5.0}, "simulator": {}}
+    events: list[object] = []
+    (outcome,) = SweepProcedure(parse_config(data, "adaptive.toml"), tmp_path, listener=events.append).run()
+    assert any(isinstance(e, PlanGrew) for e in events)
+    assert_figures_within_accuracy(outcome, held(1000.0))
+    added = len(outcome.plan.added) if outcome.plan is not None else 0
+    assert len(load_response(tmp_path).points) == 7 + added
+
+
+def test_the_guide_s_plan_table_loads_as_written() -> None:
+    """The TOML block of docs/adaptive.md, under a plant, is a valid adaptive plan with the values it states."""
+    text = (Path(__file__).resolve().parent.parent / "docs" / "adaptive.md").read_text()
+    block = text.split("```toml\n", 1)[1].split("```", 1)[0]
+    data = tomllib.loads('[plant]\nmodel = "lag"\n[excitation]\namplitude = 0.01\n' + block)
+    (case,) = parse_config(data, "adaptive.md").cases
+    plan = case.excitation.adaptive
+    assert plan is not None and plan.max_points == 40 and plan.budget_s == 600
+    assert case.excitation.frequencies_hz == FrequencyRange(1.0, 100.0, 3).expand()
