@@ -14,6 +14,7 @@ import pytest
 import scipy.signal
 
 from bodebench.apps.cli import main
+from bodebench.bench.worker import TableProgram
 from bodebench.core.multisine import LINE_GAP, Multisine, design_multisine, sine_coefficients
 from bodebench.core.overview import LineIntegrator, OverviewLine, RuleSettings
 from bodebench.sim.plants import CoulombOscillator, LinearOscillator, Plant
@@ -214,16 +215,65 @@ def test_bad_overview_gives_one_line_naming_the_key(tmp_path: Path, capsys: pyte
     assert not (tmp_path / "o").exists()
 
 
-def test_overview_needs_its_table_and_an_offline_config(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_overview_needs_its_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["overview", str(CONFIGS / "paper2013.toml"), "--out", str(tmp_path / "o")]) == 2
     assert capsys.readouterr().err.strip() == (f"bodebench: {CONFIGS / 'paper2013.toml'}: overview: missing "
                                                "(bodebench overview needs an [overview] table: start_hz, stop_hz, "
                                                "amplitude)")
-    table = ["--set", "overview={start_hz = 2, stop_hz = 50, amplitude = 0.01}"]
-    assert main(["overview", str(CONFIGS / "sim_can.toml"), "--out", str(tmp_path / "o"), *table]) == 2
+    assert not (tmp_path / "o").exists()
+
+
+ON_CAN = ["--set", "overview={start_hz = 5, stop_hz = 100, amplitude = 0.01, lines_per_decade = 5}",
+          "--set", 'plant={model = "linear", mass = 2.533e-4, stiffness = 1.0, damping_ratio = 0.05}']
+"""configs/sim_can.toml's drive (lockstep, virtual CAN) around a damped linear resonance, with an overview."""
+
+
+def test_overview_on_the_simulated_can_drive_is_the_exact_response(tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """The whole chain: the multisine sent as a table of setpoints over the bus, the drive's feedback dated by its
+    counter; every line is the exact zero-order-hold response to the float32 frames' precision, and the drive is
+    left at zero and disabled."""
+    out = tmp_path / "can"
+    assert main(["overview", str(CONFIGS / "sim_can.toml"), "--out", str(out), "-q", *ON_CAN]) == 0
+    assert "drive left at setpoint 0, disabled" in capsys.readouterr().out
+    design = json.loads((out / "response.json").read_text())["multisine"]
+    assert design["rate_hz"] == 2000.0  # bench.rate_hz
+    rows = read_overview(out)
+    frequencies = np.array([float(r["frequency_hz"]) for r in rows])
+    exact = exact_zoh_response(LinearOscillator(MASS, STIFFNESS, 0.05), design["rate_hz"], frequencies)
+    gain = np.array([float(r["gain"]) for r in rows])
+    phase = np.array([float(r["phase_deg"]) for r in rows])
+    assert np.max(np.abs(gain / np.abs(exact) - 1.0)) < 1e-6
+    assert np.max(np.abs((phase - np.degrees(np.angle(exact)) + 180.0) % 360.0 - 180.0)) < 1e-4
+    assert max(float(r["distortion_db"]) for r in rows) < -100.0
+    assert all(r["status"] == "converged" for r in rows)
+
+
+def test_a_trip_during_the_overview_leaves_the_drive_at_zero(tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "trip"
+    status = main(["overview", str(CONFIGS / "sim_can.toml"), "--out", str(out), "-q", *ON_CAN,
+                   "--set", "safety.feedback_limits={position = [-1e-3, 1e-3]}"])
     err = capsys.readouterr().err.strip()
-    assert err.startswith(f"bodebench: {CONFIGS / 'sim_can.toml'}: bench: bodebench overview runs the simulated "
-                          "plant offline") and len(err.splitlines()) == 1
+    assert status == 1
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert err.startswith("bodebench: sim_can: stopped: feedback_limit: position = ") and \
+        err.endswith("outside [-0.001, 0.001]; drive left at setpoint 0, disabled"), err
+    assert not out.exists()
+
+
+def test_table_program_repeats_its_table_between_whole_period_ramps() -> None:
+    table = (0.5, -1.0, 2.0, 0.25)
+    program = TableProgram(table, ramp_in_periods=2, ramp_out_periods=1, tick0=10, period_s=1e-3)
+    assert program.f == pytest.approx(250.0)
+    assert [program.value(t) for t in range(8, 10)] == [0.0, 0.0]
+    ramp = [program.value(10 + n) for n in range(8)]
+    assert ramp == pytest.approx([table[n % 4] * n / 8 for n in range(8)])
+    assert [program.value(18 + n) for n in range(8)] == pytest.approx([table[n % 4] for n in range(8)])
+    program.finish(27)
+    assert [program.value(27 + n) for n in range(4)] == pytest.approx([table[(17 + n) % 4] * (1 - n / 4)
+                                                                       for n in range(4)])
+    assert program.finished(31) and program.value(31) == 0.0 and not program.finished(30)
 
 
 def test_multisine_beyond_the_safety_limits_is_refused(capsys: pytest.CaptureFixture[str]) -> None:

@@ -169,9 +169,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="keep the raw samples of each frequency in DIR/samples/ for bodebench analyse (a "
                           "simulation's samples are reproducible from its config, so by default they are not kept)")
     sim.set_defaults(handler=_simulate)
-    ovw = add("overview", help="measure a simulated plant offline with a periodic multisine: every line's response "
-                               "to the tolerance and its nonlinear distortion ([overview] table)")
-    ovw.add_argument("config", help="TOML experiment file with an [overview] table")
+    ovw = add("overview", help="measure with a periodic multisine, a simulated plant offline or a drive on the bench: "
+                               "every line's response to the tolerance and its nonlinear distortion ([overview])")
+    ovw.add_argument("config", help="TOML experiment or bench file with an [overview] table")
     ovw.add_argument("--set", action="append", type=_override, metavar="KEY=VALUE", help=SET_HELP)
     ovw.add_argument("--out", required=True, help="results directory (one sub-directory per case)")
     ovw.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)

@@ -1,5 +1,5 @@
 """``bodebench overview``: the overview measurement (a periodic multisine, every line averaged to the tolerance) of
-a simulated plant offline."""
+a simulated plant offline, or of the drive a bench configuration reaches."""
 
 from __future__ import annotations
 
@@ -12,8 +12,11 @@ from typing import TYPE_CHECKING
 from bodebench.apps.commands.common import _load, say_compiling
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from bodebench.bench.overview import OverviewResult
     from bodebench.core.response import FrequencyResponse
+    from bodebench.io.config import CaseConfig
 
 
 def _overview(args: argparse.Namespace) -> int:
@@ -28,10 +31,10 @@ def _overview(args: argparse.Namespace) -> int:
         if case.overview is None:
             raise ConfigError(f"{args.config}: overview: missing (bodebench overview needs an [overview] table: "
                               "start_hz, stop_hz, amplitude)", "overview")
-        if case.bench is not None:
-            raise ConfigError(f"{args.config}: bench: bodebench overview runs the simulated plant offline (a "
-                              "configuration without [bench]); on a bench configuration [overview] is checked "
-                              "against [safety] by bodebench check", "bench")
+        if case.bench is not None and case.analysis.measurement != "output":
+            raise ConfigError(f"{args.config}: analysis.measured: \"{case.analysis.measurement}\": bodebench "
+                              "overview measures the output channel against the setpoint (measured = \"output\")",
+                              "analysis.measured")
     out = Path(args.out)
     started = time.perf_counter()
     say_compiling(config, args.quiet)
@@ -40,7 +43,7 @@ def _overview(args: argparse.Namespace) -> int:
         if (directory / CSV_NAME).exists():
             raise ResultsError(f"{directory / CSV_NAME}: results already here; choose another --out")
         design = case.multisine()
-        check_output(directory, len(design.lines))
+        made = check_output(directory, len(design.lines))
         if not args.quiet:
             print(f"{case.name}: {len(design.lines)} lines from {design.frequencies_hz[0]:g} to "
                   f"{design.frequencies_hz[-1]:g} Hz, a period of {design.samples} samples ({design.period_s:g} s "
@@ -50,16 +53,46 @@ def _overview(args: argparse.Namespace) -> int:
             if not args.quiet and periods % 10 == 0:
                 print(f"{name}: {periods} periods", file=sys.stderr)
 
-        result = measure_overview(case, progress)
+        if case.bench is None:
+            result = measure_overview(case, progress)
+        else:
+            try:
+                result = _on_bench(case, progress)
+            except OverviewStopped as exc:
+                if made and not any(directory.iterdir()):
+                    directory.rmdir()  # nothing measured: no empty directory left behind
+                print(f"bodebench: {exc}", file=sys.stderr)
+                return 1
         response = save_overview(directory, result.lines, result.design, result.periods, case.raw, case.name)
         files = _draw(args, result, response, directory, config.title if not config.has_cases
                       else f"{config.title}: {case.name}")
         converged = sum(line.point.converged for line in result.lines)
         also = "".join(f", {path.name}" for path in files)
+        drive = f"; {result.ended.drive_state()}" if result.ended is not None else ""
         print(f"{case.name}: {len(result.lines)} lines, {converged} converged, {result.periods} periods -> "
-              f"{directory / OVERVIEW_CSV}{also}")
+              f"{directory / OVERVIEW_CSV}{also}{drive}")
     print(f"done in {time.perf_counter() - started:.1f} s")
     return 0
+
+
+def _on_bench(case: CaseConfig, progress: Callable[[int], None]) -> OverviewResult:
+    """The overview of a bench case on its drive (a [simulator]'s drive on its bus); a trip or an error is one
+    line saying what the drive was last sent."""
+    from bodebench.bench.connection import plan_link
+    from bodebench.bench.events import SessionEnded, SessionError
+    from bodebench.bench.overview import measure_overview_on_bench
+    from bodebench.drivers.errors import DriverError
+
+    ended: list[SessionEnded] = []
+    try:
+        return measure_overview_on_bench(case, plan_link(case), progress, on_end=ended.append)
+    except (SessionError, DriverError) as exc:
+        drive = ended[0].drive_state() if ended else "nothing was sent to the drive"
+        raise OverviewStopped(f"{case.name}: stopped: {exc}; {drive}") from None
+
+
+class OverviewStopped(Exception):
+    """A bench overview that stopped before its end; the message says why and what the drive was last sent."""
 
 
 def _draw(args: argparse.Namespace, result: OverviewResult, response: FrequencyResponse, directory: Path,
