@@ -113,7 +113,7 @@ def test_crest_factor_against_its_definition() -> None:
 
 
 def test_linear_plant_lines_cover_the_exact_response() -> None:
-    """A damped resonance with white noise on its output, five noise records: every line's 95 % disc and gain
+    """A damped resonance with white noise on its output, twelve noise records: every line's 95 % disc and gain
     interval against the exact zero-order-hold response, counted over all lines; lines at the noise end
     noise-limited, well before the period budget."""
     plant = LinearOscillator(MASS, STIFFNESS, 0.05)
@@ -122,7 +122,8 @@ def test_linear_plant_lines_cover_the_exact_response() -> None:
     rules = RuleSettings("adaptive", tolerance_percent=1.0, skip_periods=1, window=5, max_periods=300)
     inside_disc = inside_gain = total = 0
     statuses: dict[str, list[int]] = {}
-    for seed in range(5):
+    records = 12
+    for seed in range(records):
         for line, truth in zip(run_lines(design, plant, rules, 2e-3, seed), exact, strict=True):
             p = line.point
             h = complex(p.p, p.q) / p.amplitude
@@ -132,7 +133,7 @@ def test_linear_plant_lines_cover_the_exact_response() -> None:
             statuses.setdefault(p.status, []).append(p.periods)
             if p.status == "converged":
                 assert abs(h - truth) <= 2 * rules.tolerance_percent / 100 * abs(h)
-    assert total == 5 * len(design.lines) >= 100
+    assert total == records * len(design.lines) >= 250
     assert inside_disc / total >= 0.9, (inside_disc, total)
     assert inside_gain / total >= 0.9, (inside_gain, total)
     assert len(statuses["converged"]) >= total // 3
@@ -293,3 +294,32 @@ def test_multisine_beyond_the_safety_limits_is_refused(capsys: pytest.CaptureFix
                           f"{slew:g} a second, above safety.max_rate (5)"), err
     assert main(["check", config, "--set", "overview={start_hz = 2, stop_hz = 20, amplitude = 0.01}"]) == 0
     capsys.readouterr()
+
+
+@pytest.mark.slow
+def test_bench_overview_intervals_cover_the_exact_response_under_noise() -> None:
+    """configs/sim_can.toml's drive called in-process around a damped linear resonance, with white noise on its
+    feedback ([simulator] noise), three noise seeds: every line's 95 % disc against the exact zero-order-hold
+    response, counted over all lines."""
+    from bodebench.bench.connection import plan_link
+    from bodebench.bench.overview import measure_overview_on_bench
+    from bodebench.io.config import load_config
+    from bodebench.io.document import parse_override
+
+    inside = total = 0
+    for seed in range(3):
+        overrides = [parse_override(text) for text in (
+            "overview={start_hz = 5, stop_hz = 100, amplitude = 0.01, lines_per_decade = 10, tolerance_percent = 1}",
+            'plant={model = "linear", mass = 2.533e-4, stiffness = 1.0, damping_ratio = 0.05}',
+            "simulator.noise=2e-5", f"simulator.seed={seed}")]
+        case = load_config(CONFIGS / "sim_can.toml", overrides).cases[0]
+        result = measure_overview_on_bench(case, plan_link(case, direct=True))
+        assert result.ended is not None and result.ended.zero_sent and result.ended.disabled
+        exact = exact_zoh_response(LinearOscillator(MASS, STIFFNESS, 0.05), result.design.rate_hz,
+                                   result.design.frequencies_hz)
+        for line, truth in zip(result.lines, exact, strict=True):
+            p = line.point
+            inside += abs(complex(p.p, p.q) / p.amplitude - truth) <= p.uncertainty / p.amplitude
+            total += 1
+    assert total >= 40
+    assert inside / total >= 0.85, (inside, total)
