@@ -293,7 +293,9 @@ def test_multisine_beyond_the_safety_limits_is_refused(capsys: pytest.CaptureFix
     assert err.startswith(f"bodebench: {config}: --set overview.amplitude: 0.019: the multisine's steepest step is "
                           f"{slew:g} a second, above safety.max_rate (5)"), err
     assert main(["check", config, "--set", "overview={start_hz = 2, stop_hz = 20, amplitude = 0.01}"]) == 0
-    capsys.readouterr()
+    design = design_multisine(2000.0, 2.0, 20.0, 10, 0.01)
+    assert (f"overview: {len(design.lines)} odd lines from 2 to {design.frequencies_hz[-1]:.4g} Hz, a period of "
+            f"{design.samples} samples") in capsys.readouterr().out
 
 
 @pytest.mark.slow
