@@ -103,8 +103,13 @@ def _draw(args: argparse.Namespace, result: OverviewResult, response: FrequencyR
     import numpy as np
 
     from bodebench.apps.plots import plot_levels, write_plots
+    from bodebench.core.response import FrequencyResponse
 
-    files = write_plots(response, directory, title, args.plots, figures=("bode",))
+    # the legend states the tolerance the lines were measured to: [overview]'s, where it differs from [analysis]'s
+    tolerance = response.points[0].tolerance_percent
+    config = {**response.config, "analysis": {**response.config.get("analysis", {}), "tolerance_percent": tolerance}}
+    shown = FrequencyResponse(response.points, config=config, case=response.case)
+    files = write_plots(shown, directory, title, args.plots, figures=("bode",))
     lines = result.lines
     files += plot_levels(np.array([line.point.frequency_hz for line in lines]),
                          np.array([line.point.magnitude for line in lines]),
