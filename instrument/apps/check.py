@@ -104,10 +104,25 @@ def _case_lines(case: CaseConfig) -> Iterator[str]:
     yield f"{INDENT}sweep: at least {_duration(least)}, at most {_duration(most)}"
     for note in case.plan_notes:
         yield f"{INDENT}note: {note}"
+    yield from _overview_lines(case)
     yield from _disturbance_lines(case, fewest)
     if bench is not None:
         yield from _drive_lines(case)
         yield from _safety_lines(case)
+
+
+def _overview_lines(case: CaseConfig) -> Iterator[str]:
+    """The overview's multisine ([overview]), where the case has one: its lines, period, levels and slew."""
+    if case.overview is None:
+        return
+    design = case.multisine()
+    frequencies = design.frequencies_hz
+    budget = case.overview.max_periods
+    yield (f"overview: {len(design.lines)} odd lines from {frequencies[0]:.4g} to {frequencies[-1]:.4g} Hz, a period "
+           f"of {design.samples} samples ({_duration(design.period_s)} at {_number(design.rate_hz)} Hz), at most "
+           f"{budget} periods ({_duration(budget * design.period_s)})")
+    yield (f"{INDENT}peak {design.peak:.4g}, rms {design.rms:.4g}, crest factor {design.crest_factor:.3g}, each line "
+           f"{design.line_amplitude:.4g}, steepest slew {design.peak_slew:.4g} units/s")
 
 
 def _where(case: CaseConfig) -> str:

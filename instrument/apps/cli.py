@@ -19,6 +19,7 @@ from bodebench.apps.commands.dbc import _dbc
 from bodebench.apps.commands.example import _example
 from bodebench.apps.commands.fit import _fit
 from bodebench.apps.commands.identify import _identify
+from bodebench.apps.commands.overview import _overview
 from bodebench.apps.commands.plot import _plot
 from bodebench.apps.commands.ports import _ports
 from bodebench.apps.commands.run import _run, _tui
@@ -168,6 +169,13 @@ def build_parser() -> argparse.ArgumentParser:
                      help="keep the raw samples of each frequency in DIR/samples/ for bodebench analyse (a "
                           "simulation's samples are reproducible from its config, so by default they are not kept)")
     sim.set_defaults(handler=_simulate)
+    ovw = add("overview", help="measure with a periodic multisine, a simulated plant offline or a drive on the bench: "
+                               "every line's response to the tolerance and its nonlinear distortion ([overview])")
+    ovw.add_argument("config", help="TOML experiment or bench file with an [overview] table")
+    ovw.add_argument("--set", action="append", type=_override, metavar="KEY=VALUE", help=SET_HELP)
+    ovw.add_argument("--out", required=True, help="results directory (one sub-directory per case)")
+    ovw.add_argument("--plots", type=_plot_formats, default=("png",), metavar="FORMATS", help=PLOTS_HELP)
+    ovw.set_defaults(handler=_overview)
     run = add("run", help="sweep a drive on the bench (CAN or serial), headless")
     run.add_argument("config", help="TOML bench file")
     run.add_argument("--set", action="append", type=_override, metavar="KEY=VALUE", help=SET_HELP)

@@ -43,6 +43,8 @@ __all__ = [
     "plot_bode",
     "plot_periods",
     "plot_comparison",
+    "plot_levels",
+    "levels_figure",
     "write_plots",
 ]
 
@@ -445,6 +447,44 @@ def write_plots(response: FrequencyResponse, directory: Path, title: str,
     if "periods" in figures:
         files += plot_periods(response, directory / "periods", title, formats)
     return files
+
+
+def plot_levels(frequency_hz: np.ndarray, output: np.ndarray, distortion: np.ndarray, noise: np.ndarray,
+                path_stem: str | Path, title: str = "", formats: Sequence[str] = DEFAULT_FORMATS) -> list[Path]:
+    """The chart of :func:`levels_figure`, written as ``<path_stem>.<format>`` for each of ``formats``; returns
+    the paths."""
+    return _save(levels_figure(frequency_hz, output, distortion, noise, title), path_stem, formats)
+
+
+def levels_figure(frequency_hz: np.ndarray, output: np.ndarray, distortion: np.ndarray, noise: np.ndarray,
+                  title: str = "") -> Figure:
+    """An overview's levels against log frequency (Hz), dB of output units: the output at each excited line, the
+    distortion at its detection lines and the noise that distortion is read against. Where the distortion marks
+    sit on the noise line, the plant looks linear at that frequency; where they stand above it, they show its
+    nonlinear distortion."""
+    fig, (ax,) = _new_figure(1, 4.5, titled=bool(title))
+
+    def db(values: np.ndarray) -> np.ndarray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = 20.0 * np.log10(np.asarray(values, dtype=float))
+        out[~np.isfinite(out)] = np.nan
+        return out
+
+    ax.plot(frequency_hz, db(output), "o", ms=_MARKER_SIZE, color=HARMONIC_COLOURS[0], linestyle="none",
+            label="output at the excited line")
+    ax.plot(frequency_hz, db(distortion), "x", ms=6.0, color=HARMONIC_COLOURS[1], linestyle="none",
+            label="distortion at its detection lines")
+    ax.plot(frequency_hz, db(noise), "-", lw=1.0, color="0.4", label="noise (standard error of those lines)")
+    ax.set_xscale("log")
+    _plain_log_axis(ax.xaxis)
+    ax.set_xlabel("Frequency (Hz)")
+    ax.set_ylabel("Level (dB of output units)")
+    ax.grid(True, which="major", alpha=0.5)
+    ax.legend(fontsize="small")
+    if title:
+        ax.set_title(title)
+    _minor_log_grid(ax, "x")
+    return fig
 
 
 def plot_comparison(responses: Mapping[str, FrequencyResponse], path: str | Path, title: str = "") -> Path:

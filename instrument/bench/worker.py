@@ -52,6 +52,16 @@ class StartSine:
 
 
 @dataclass(frozen=True)
+class StartTable:
+    """Ramp the running program out (if any), then send ``setpoints`` over and over, one a tick, ramped in over
+    whole repetitions: a periodic excitation such as the overview's multisine (input units)."""
+
+    setpoints: tuple[float, ...]
+    ramp_in_periods: int
+    ramp_out_periods: int
+
+
+@dataclass(frozen=True)
 class Credit:
     """Lockstep: setpoints may be sent up to and including tick ``until_tick``."""
 
@@ -202,6 +212,31 @@ class SineProgram:
         return self.amplitude * gain * math.sin(2.0 * math.pi * self.f * t)
 
 
+class TableProgram(SineProgram):
+    """Setpoint at each tick: a table of setpoints repeated, one a tick, with whole-repetition linear ramps in and
+    out, then zero. Its frequency is that of the repetition, 1 / (len(table) * period_s)."""
+
+    def __init__(self, setpoints: tuple[float, ...], ramp_in_periods: int, ramp_out_periods: int, tick0: int,
+                 period_s: float) -> None:
+        super().__init__(1.0 / (len(setpoints) * period_s), 1.0, ramp_in_periods, ramp_out_periods, tick0, period_s)
+        self.table = setpoints
+
+    def finished(self, tick: int) -> bool:
+        if self.out_tick is None:
+            return False
+        return self.ramp_out == 0 or tick - self.out_tick >= self.ramp_out * len(self.table)
+
+    def value(self, tick: int) -> float:
+        n = tick - self.tick0
+        if n < 0 or self.finished(tick):
+            return 0.0
+        size = len(self.table)
+        gain = 1.0 if self.ramp_in == 0 else min(1.0, n / (self.ramp_in * size))
+        if self.out_tick is not None and self.ramp_out:
+            gain *= max(0.0, 1.0 - (tick - self.out_tick) / (self.ramp_out * size))
+        return gain * self.table[n % size]
+
+
 # ------------------------------------------------------------------------------------------------------ the loop
 
 
@@ -308,7 +343,7 @@ class BusWorker:
         self.tick = 0                 # next setpoint's tick
         self.credit = -1              # lockstep: last tick allowed
         self.program: SineProgram | None = None
-        self.pending: StartSine | None = None
+        self.pending: StartSine | StartTable | None = None
         self.stopping: Stop | None = None
         self.last_sent = 0.0
         self.driver: Driver | None = None
@@ -384,7 +419,7 @@ class BusWorker:
     def _command(self, message: object) -> None:
         if isinstance(message, Credit):
             self.credit = max(self.credit, message.until_tick)
-        elif isinstance(message, StartSine):
+        elif isinstance(message, (StartSine, StartTable)):
             if self.program is not None:
                 self.program.finish(self.tick)
             self.pending = message
@@ -418,11 +453,14 @@ class BusWorker:
         if self.program is None and self.pending is not None and self.stopping is None:
             p = self.pending
             self.pending = None
-            self.program = SineProgram(p.frequency_hz, p.amplitude, p.ramp_in_periods, p.ramp_out_periods,
-                                       self.tick, self.h)
-            self._post(SineStarted(p.frequency_hz, self.tick))
+            if isinstance(p, StartTable):
+                self.program = TableProgram(p.setpoints, p.ramp_in_periods, p.ramp_out_periods, self.tick, self.h)
+            else:
+                self.program = SineProgram(p.frequency_hz, p.amplitude, p.ramp_in_periods, p.ramp_out_periods,
+                                           self.tick, self.h)
+            self._post(SineStarted(self.program.f, self.tick))
             if self.lockstep:  # the ramp in and the first period need no asking
-                ramp_ticks = math.ceil((p.ramp_in_periods + 1) / (p.frequency_hz * self.h))
+                ramp_ticks = math.ceil((p.ramp_in_periods + 1) / (self.program.f * self.h))
                 self.credit = max(self.credit, self.tick + ramp_ticks + 1)
         return self.program.value(self.tick) if self.program is not None else 0.0
 

@@ -22,6 +22,7 @@ import numpy as np
 
 from bodebench.core.benchgrid import disturbance_lines, folding_notes, move_off_disturbances, move_off_folds
 from bodebench.core.measured import MEASURED, RATIO_MODES, Formed, FormError, formed_columns
+from bodebench.core.multisine import Multisine, MultisineError
 from bodebench.drivers import cia408
 from bodebench.drivers.canopen_link import CanopenSetup, ObjectRef, load_od, resolve_object
 from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS
@@ -57,6 +58,7 @@ from bodebench.io.tables import (
     CanConfig,
     CanopenConfig,
     ExcitationConfig,
+    OverviewConfig,
     PlantConfig,
     ResultsConfig,
     SafetyConfig,
@@ -74,6 +76,7 @@ __all__ = [
     "ExcitationConfig",
     "ExperimentConfig",
     "FieldError",
+    "OverviewConfig",
     "PlantConfig",
     "SafetyConfig",
     "SerialConfig",
@@ -93,6 +96,7 @@ TABLES: dict[str, type] = {
     "plant": PlantConfig,
     "excitation": ExcitationConfig,
     "analysis": AnalysisConfig,
+    "overview": OverviewConfig,
     "bench": BenchConfig,
     "can": CanConfig,
     "canopen": CanopenConfig,
@@ -151,6 +155,7 @@ class CaseConfig:
     layout: Layout | None = field(default=None, compare=False, repr=False)
     canopen: CanopenConfig | None = None
     canopen_setup: CanopenSetup | None = field(default=None, compare=False, repr=False)
+    overview: OverviewConfig | None = None
     plan_notes: tuple[str, ...] = field(default=(), compare=False)
     """What the loader changed in the frequency plan and why (a frequency moved off a disturbance line), and what it
     warns of (a harmonic that the bench's sample rate folds onto a measured one)."""
@@ -182,6 +187,21 @@ class CaseConfig:
         """The channel names of a bench case's points: the output channels, or what its mode forms ("loop",
         ...); ValueError offline."""
         return self.formed().outputs
+
+    @property
+    def overview_rate_hz(self) -> float:
+        """The sample rate of the overview's multisine, Hz (bench.rate_hz on a bench); ValueError without
+        [overview]."""
+        if self.overview is None:
+            raise ValueError(f"case {self.name!r} of {self.source} has no [overview] table")
+        return self.overview.rate_at(self.bench.rate_hz if self.bench is not None else None)
+
+    def multisine(self) -> Multisine:
+        """The overview's multisine (the loader has checked that the grid holds it); ValueError without
+        [overview]."""
+        rate = self.overview_rate_hz
+        assert self.overview is not None  # overview_rate_hz raised without it
+        return self.overview.multisine(rate)
 
     @property
     def on_bench(self) -> BenchTables:
@@ -276,6 +296,8 @@ def _build_case(
         frequencies, notes = _off_disturbances(built["excitation"].frequencies_hz, built["analysis"], raw)
         built["excitation"] = built["excitation"].with_frequencies(frequencies)
     layout, setup = _check_bench(built, frames, key, source)
+    if built["overview"] is not None:
+        _check_overview(built["overview"], built["bench"], built["safety"], key)
     if built["bench"] is not None:
         # after the checks, which name the frequencies as given: a move lowers one by a fraction of a percent
         frequencies, moves = _off_folds(built["excitation"].frequencies_hz, built["bench"].rate_hz,
@@ -302,8 +324,37 @@ def _build_case(
         layout=layout,
         canopen=built["canopen"],
         canopen_setup=setup,
+        overview=built["overview"],
         plan_notes=notes,
     )
+
+
+def _check_overview(overview: OverviewConfig, bench: BenchConfig | None, safety: SafetyConfig | None,
+                    key: Callable[[str, str], str]) -> None:
+    """[overview] against the sample rate and, on a bench, the safety limits: the whole multisine's peak and the
+    steepest step of its held samples; raises :class:`_Fault` naming the key."""
+    if bench is not None and overview.rate_hz is not None:
+        raise _Fault(key("overview", "rate_hz"), f"not on a bench: the multisine is sent at bench.rate_hz "
+                                                 f"({bench.rate_hz:g} Hz)")
+    rate = overview.rate_at(bench.rate_hz if bench is not None else None)
+    rate_key = "bench.rate_hz" if bench is not None else "overview.rate_hz"
+    if overview.stop_hz * MIN_SAMPLES_PER_PERIOD > rate:
+        raise _Fault(key("overview", "stop_hz"), f"{overview.stop_hz:g} Hz needs at least {MIN_SAMPLES_PER_PERIOD} "
+                                                 f"samples a period at {rate_key} = {rate:g} (at most "
+                                                 f"{rate / MIN_SAMPLES_PER_PERIOD:g} Hz)")
+    try:
+        design = overview.multisine(rate)
+    except MultisineError as exc:
+        raise _Fault(key("overview", exc.key), str(exc)) from None
+    if safety is None:
+        return
+    if overview.amplitude > safety.max_amplitude:
+        raise _Fault(key("overview", "amplitude"), f"the multisine's peak {overview.amplitude:g} exceeds "
+                                                   f"safety.max_amplitude ({safety.max_amplitude:g})")
+    if safety.max_rate is not None and design.peak_slew > safety.max_rate:
+        raise _Fault(key("overview", "amplitude"),
+                     f"{overview.amplitude:g}: the multisine's steepest step is {design.peak_slew:g} a second, above "
+                     f"safety.max_rate ({safety.max_rate:g}); lower it or overview.stop_hz")
 
 
 MIN_SETPOINT_COUNTS = 4.0

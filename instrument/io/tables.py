@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 
 from bodebench.core.autointegration import DEFAULT_BENCH_POINT_S, MIN_BUDGET_PERIODS
 from bodebench.core.measured import MEASURED
+from bodebench.core.multisine import Multisine, design_multisine
 from bodebench.core.refine import FIGURE_NAMES
 from bodebench.core.rules import CRITERIA, MIN_NOISE_EVIDENCE
 from bodebench.core.summary import RESPONSE_KINDS
@@ -39,6 +40,7 @@ __all__ = [
     "CanopenConfig",
     "ExcitationConfig",
     "FrequencyRange",
+    "OverviewConfig",
     "PlantConfig",
     "ResultsConfig",
     "SafetyConfig",
@@ -504,6 +506,64 @@ class AnalysisConfig:
         """Cross-field checks; raises :class:`FieldError`."""
         if self.max_periods <= self.skip_periods:
             raise FieldError("max_periods", f"must be > {where('skip_periods')} ({self.skip_periods})")
+
+
+OVERVIEW_RATE_PER_STOP = 50
+"""Offline, the overview's sample rate where ``[overview] rate_hz`` is not given: this many samples a period of its
+highest line."""
+
+
+@dataclass(frozen=True)
+class OverviewConfig:
+    """The overview measurement (``bodebench overview``, docs/overview.md): a periodic multisine of odd lines
+    log-spread between two frequencies, each line averaged period after period to the tolerance, the lines left out
+    showing the plant's nonlinear distortion."""
+
+    TABLE_OPTIONAL = True
+
+    start_hz: float = field(metadata={"min": MIN_FREQUENCY_HZ, "max": MAX_FREQUENCY_HZ,
+                                      "doc": "lowest excited line, Hz (the first line lies on the period's grid "
+                                             "within a fraction of a percent of it)"})
+    stop_hz: float = field(metadata={"min": MIN_FREQUENCY_HZ, "max": MAX_FREQUENCY_HZ,
+                                     "doc": "highest excited line at most, Hz"})
+    amplitude: float = field(metadata={
+        "min": 0, "min_exclusive": True,
+        "doc": "peak of the whole multisine, input units: the largest |setpoint| it sends (each line's amplitude is "
+               "this over the waveform's crest factor and sqrt(lines / 2); overview.csv gives it)"})
+    lines_per_decade: int = field(default=10, metadata={
+        "min": 1, "max": 100, "doc": "excited lines per decade, where the period's grid allows (at least 4 lines "
+                                     "apart, so that an odd line left out lies between two)"})
+    rate_hz: float | None = field(default=None, metadata={
+        "min": 0, "min_exclusive": True, "max": MAX_RATE_HZ,
+        "doc": "offline: the sample rate the setpoint is held at and the output sampled, Hz (default "
+               f"{OVERVIEW_RATE_PER_STOP} x stop_hz); on a bench it is bench.rate_hz and this key is refused"})
+    tolerance_percent: float | None = field(default=None, metadata={
+        "min": 0, "min_exclusive": True, "max": 100, "max_exclusive": True,
+        "doc": "tolerance of every line, percent (default: analysis.tolerance_percent)"})
+    max_periods: int = field(default=200, metadata={
+        "min": 2, "doc": "period budget of the whole measurement: a line still open then ends capped or "
+                         "noise_limited"})
+    seed: int = field(default=0, metadata={"min": 0, "doc": "seed of the lines' random starting phases"})
+
+    def validate(self, where: Callable[[str], str]) -> None:
+        """Stop above start; raises :class:`FieldError`."""
+        if not self.stop_hz > self.start_hz:
+            raise FieldError("stop_hz", f"must be > {where('start_hz')} ({self.start_hz:g} Hz), got {self.stop_hz:g}")
+
+    def rate_at(self, bench_rate_hz: float | None) -> float:
+        """The sample rate of the multisine, Hz: the bench's, else ``rate_hz``, else its default."""
+        if bench_rate_hz is not None:
+            return bench_rate_hz
+        return self.rate_hz if self.rate_hz is not None else OVERVIEW_RATE_PER_STOP * self.stop_hz
+
+    def tolerance(self, analysis: AnalysisConfig) -> float:
+        """The lines' tolerance, percent: ``tolerance_percent`` or the analysis'."""
+        return self.tolerance_percent if self.tolerance_percent is not None else analysis.tolerance_percent
+
+    def multisine(self, rate_hz: float) -> Multisine:
+        """The multisine this table describes at ``rate_hz`` (Hz); ValueError where the grid cannot hold it."""
+        return design_multisine(rate_hz, self.start_hz, self.stop_hz, self.lines_per_decade, self.amplitude,
+                                self.seed)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,225 @@
+"""The overview measurement (docs/overview.md): the multisine held sample by sample at its rate, the output
+sampled on the same instants, period after period until every line has its verdict. Offline on a simulated plant
+(:func:`measure_overview`), or on a drive through the bus worker (:func:`measure_overview_on_bench`), which sends the
+multisine as a table of setpoints ramped in and out over whole periods and leaves the drive at zero on every way
+out."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from bodebench.bench.connection import LinkPlan
+from bodebench.bench.events import SessionEnded, SessionError
+from bodebench.bench.offline import OUTPUT_CHANNEL, build_plant
+from bodebench.bench.worker import (
+    Credit,
+    Fault,
+    Limits,
+    Ready,
+    Samples,
+    SineStarted,
+    StartTable,
+    Stop,
+    Stopped,
+    WorkerSpec,
+    start_worker,
+)
+from bodebench.core.multisine import Multisine
+from bodebench.core.overview import LineIntegrator, OverviewLine, RuleSettings
+from bodebench.io.config import CaseConfig
+from bodebench.status import FaultKind
+
+__all__ = ["OverviewResult", "measure_overview", "measure_overview_on_bench", "rule_settings"]
+
+
+@dataclass(frozen=True)
+class OverviewResult:
+    """A finished overview: its multisine, each excited line's result (ascending in frequency), the whole periods
+    the measurement ran, those it discarded for samples missing in them (a bench), and how a bench session ended
+    (None offline)."""
+
+    design: Multisine
+    lines: tuple[OverviewLine, ...]
+    periods: int
+    discarded: int = 0
+    ended: SessionEnded | None = None
+
+
+def rule_settings(case: CaseConfig) -> RuleSettings:
+    """The lines' stopping rule: ``[analysis]``'s criterion and parameters, ``[overview]``'s tolerance and period
+    budget."""
+    overview, analysis = case.overview, case.analysis
+    if overview is None:
+        raise ValueError(f"case {case.name!r} of {case.source} has no [overview] table")
+    return RuleSettings(criterion=analysis.criterion, tolerance_percent=overview.tolerance(analysis),
+                        skip_periods=analysis.skip_periods, window=analysis.window,
+                        max_periods=overview.max_periods, settle_periods=analysis.settle_periods,
+                        average_periods=analysis.average_periods)
+
+
+def measure_overview(case: CaseConfig, on_period: Callable[[int], None] | None = None) -> OverviewResult:
+    """Run a case's overview on its simulated plant, starting at rest: every setpoint held over one sample
+    interval, the output read at the start of each (its value at the sample instant). ``on_period`` gets the
+    periods done after each one."""
+    if case.plant is None:
+        raise ValueError(f"case {case.name!r} of {case.source} has no [plant] to simulate")
+    design = case.multisine()
+    plant = build_plant(case.plant)
+    channel = plant.output_names.index(OUTPUT_CHANNEL)
+    step = 1.0 / design.rate_hz
+    setpoint = design.waveform()
+    integrator = LineIntegrator(design, OUTPUT_CHANNEL, rule_settings(case))
+    state = plant.initial_state()
+    at_start = 0.0  # the output at the period's first instant: the plant at rest
+    while not integrator.done:
+        after = plant.run_held(state, setpoint, step)[:, channel]  # the output at the end of each sample interval
+        output = np.concatenate([[at_start], after[:-1]])
+        at_start = float(after[-1])
+        integrator.feed_period(setpoint, output)
+        if on_period is not None:
+            on_period(integrator.periods)
+    return OverviewResult(design, tuple(integrator.result()), integrator.periods)
+
+
+MAX_DISCARDED_SHARE = 0.5
+"""A bench overview fails when more than this share of its whole periods missed samples (lost replies)."""
+
+
+class _PeriodAssembler:
+    """Samples dated on the tick grid, gathered into whole periods of N ticks from ``first_tick``: each period's
+    output at ticks first_tick + p N + n, n = 0 .. N-1 (the instant the setpoint of that tick starts to be held)."""
+
+    def __init__(self, first_tick: int, samples: int, step_s: float) -> None:
+        self.start = first_tick
+        self.samples = samples
+        self.step_s = step_s
+        self.buffer = np.full(samples, np.nan)
+
+    def add(self, t: np.ndarray, values: np.ndarray) -> list[np.ndarray | None]:
+        """Samples (session time t, s; one channel's values); returns the periods they complete, in order (None
+        for one that misses a sample)."""
+        done: list[np.ndarray | None] = []
+        ticks = np.rint(t / self.step_s).astype(np.int64)
+        for tick, value in zip(ticks.tolist(), values.tolist(), strict=True):
+            if tick < self.start:
+                continue
+            while tick >= self.start + self.samples:
+                done.append(self.buffer if np.isfinite(self.buffer).all() else None)
+                self.buffer = np.full(self.samples, np.nan)
+                self.start += self.samples
+            self.buffer[tick - self.start] = value
+        return done
+
+
+def measure_overview_on_bench(case: CaseConfig, plan: LinkPlan, on_period: Callable[[int], None] | None = None,
+                              worker_mode: str | None = None,
+                              on_end: Callable[[SessionEnded], None] | None = None) -> OverviewResult:
+    """Run a bench case's overview on the drive ``plan`` reaches: the multisine as a table of setpoints (ramped in
+    over bench.ramp_in_periods of its periods, out over bench.ramp_out_periods), the first output channel
+    analysed period after period from the end of the ramp in. Whatever ends it (every line measured, a trip, an
+    error, a stop signal), the worker ramps out or slews to zero, sends zero setpoints and the disable frame;
+    ``on_end`` (and the result's ``ended``) gets what the drive was last sent. SessionError on a trip, or where
+    more than :data:`MAX_DISCARDED_SHARE` of the periods missed samples."""
+    tables = case.on_bench
+    bench, safety = tables.bench, tables.safety
+    design = case.multisine()
+    channel = bench.output_channels[0]
+    limits = Limits(safety.max_amplitude, safety.max_rate,
+                    {k: (float(v[0]), float(v[1])) for k, v in safety.feedback_limits.items()}, safety.watchdog_s)
+    spec = WorkerSpec(plan.open_link, bench.rate_hz, bench.clock, bench.timebase, limits,
+                      batch_s=bench.batch_ms / 1000.0, reply_timeout_s=bench.reply_timeout_s,
+                      pacing_cpu=bench.pacing_cpu)
+    conn, handle = start_worker(spec, worker_mode or bench.worker_mode())
+    integrator = LineIntegrator(design, channel, rule_settings(case))
+    setpoint = design.waveform()
+    discarded = 0
+    stopped: Stopped | None = None
+    completed = False
+    reason = "overview complete"
+
+    def receive(timeout: float) -> object | None:
+        nonlocal stopped
+        try:
+            if not conn.poll(timeout):
+                return None
+            message = conn.recv()
+        except (EOFError, OSError):
+            raise SessionError(FaultKind.BUS, "the bus worker ended unexpectedly") from None
+        if isinstance(message, Fault):
+            raise SessionError(FaultKind(message.kind), message.message)
+        if isinstance(message, Stopped):
+            stopped = message
+            raise SessionError(FaultKind.BUS, f"the bus worker stopped: {message.reason}")
+        return message
+
+    def expect(kind: type, timeout: float) -> object:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            message = receive(0.1)
+            if isinstance(message, kind):
+                return message
+        raise SessionError(FaultKind.TIMEOUT, f"no {kind.__name__} from the bus worker within {timeout:g} s")
+
+    try:
+        ready = expect(Ready, 60.0)
+        assert isinstance(ready, Ready)
+        column = ready.channels.index(channel)
+        conn.send(StartTable(tuple(float(u) for u in setpoint), bench.ramp_in_periods, bench.ramp_out_periods))
+        started = expect(SineStarted, 60.0)
+        assert isinstance(started, SineStarted)
+        periods = _PeriodAssembler(started.tick + bench.ramp_in_periods * design.samples, design.samples,
+                                   1.0 / bench.rate_hz)
+        while not integrator.done:
+            message = receive(1.0)
+            if not isinstance(message, Samples):
+                continue
+            for output in periods.add(message.t, message.values[:, column]):
+                if integrator.done:
+                    break
+                if output is None:
+                    discarded += 1
+                    spanned = discarded + integrator.periods
+                    if discarded > MAX_DISCARDED_SHARE * max(spanned, 8):
+                        raise SessionError(FaultKind.BUS, f"{discarded} of {spanned} periods of the multisine "
+                                                          "missed samples (replies lost on the bus)")
+                    continue
+                integrator.feed_period(setpoint, output)
+                if on_period is not None:
+                    on_period(integrator.periods)
+            if bench.clock == "lockstep" and not integrator.done:
+                conn.send(Credit(message.last_tick + design.samples))
+        completed = True
+    except KeyboardInterrupt:
+        reason = "interrupted"
+        raise
+    except BaseException as exc:
+        reason = str(exc)
+        raise
+    finally:
+        with contextlib.suppress(OSError, BrokenPipeError):
+            conn.send(Stop(reason, abort=not completed))
+        deadline = time.monotonic() + 10.0
+        while stopped is None and time.monotonic() < deadline:
+            try:
+                if conn.poll(0.2):
+                    message = conn.recv()
+                    if isinstance(message, Stopped):
+                        stopped = message
+            except (EOFError, OSError):
+                break
+        handle.join(timeout=10)
+        plan.close()
+        layout = plan.layout
+        ended = SessionEnded(reason, completed, stopped.last_setpoint if stopped else math.nan,
+                             stopped.disabled if stopped else False, stopped.zero_sent if stopped else False,
+                             stopped.frames_out if stopped else 0, stopped is not None, layout.disable is not None,
+                             layout.drive_watchdog_s, stopped.shutdown if stopped else "")
+        if on_end is not None:
+            on_end(ended)
+    return OverviewResult(design, tuple(integrator.result()), integrator.periods, discarded, ended)
