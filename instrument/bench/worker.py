@@ -328,7 +328,7 @@ class MessagePipe:
 
 DROPPED = ("samples invalid (NaN, inf, beyond any sensor)", "samples with a counter out of turn",
            "samples whose time did not increase", "repeated or stale counters", "incomplete samples",
-           "frames rejected or broken")
+           "frames rejected or broken", "counter restarts", "replies not in time")
 """What the watchdog's trip counts as dropped between two valid samples (:meth:`BusWorker._counts`)."""
 
 
@@ -595,7 +595,8 @@ class BusWorker:
         :data:`DROPPED`), so far."""
         h = self.driver.health if self.driver is not None else None
         return (self.tick, h.frames_in if h else 0, self.invalid_samples, self.counter_anomalies, self.time_conflicts,
-                h.duplicates if h else 0, h.incomplete_samples if h else 0, h.rejected_total + h.errors if h else 0)
+                h.duplicates if h else 0, h.incomplete_samples if h else 0, h.rejected_total + h.errors if h else 0,
+                h.counter_restarts if h else 0, self.missed_replies)
 
     def _turn(self) -> None:
         """A turn of the loop: the longest gap between turns since the last valid sample grows."""
