@@ -23,7 +23,7 @@ from bodebench.bench.procedure import CaseOutcome, SweepProcedure
 from bodebench.core.refine import FIGURE_NAMES, next_round
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.core.summary import summarize_response
-from bodebench.io.config import parse_config
+from bodebench.io.config import ConfigError, parse_config
 from bodebench.io.results import SIDECAR_NAME, load_response
 from bodebench.io.tables import AdaptivePlan, FrequencyRange
 
@@ -302,3 +302,33 @@ def test_the_guide_s_plan_table_loads_as_written() -> None:
     plan = case.excitation.adaptive
     assert plan is not None and plan.max_points == 40 and plan.budget_s == 600
     assert case.excitation.frequencies_hz == FrequencyRange(1.0, 100.0, 3).expand()
+
+
+def test_an_overview_first_seeds_the_grid_where_its_lines_call_for_points(tmp_path: Path) -> None:
+    """adaptive.from_overview: the multisine runs first, its lines read as the rounds read measured points; the
+    frequencies it calls for are in the first round (said so), its files kept in overview/, and the plan then
+    ends with every figure within its accuracy of the exact one."""
+    data = {"plant": {"model": "linear", "mass": MASS, "stiffness": 1.0, "damping_ratio": ZETA},
+            "excitation": {"amplitude": 0.01, "frequencies": {**ADAPTIVE, "adaptive": {
+                **ADAPTIVE["adaptive"], "from_overview": True}}},
+            "analysis": {"harmonics": [1], "tolerance_percent": 0.1, "steps_per_period": 200},
+            "overview": {"start_hz": 1.0, "stop_hz": 100.0, "amplitude": 0.02, "lines_per_decade": 20,
+                         "rate_hz": 2000.0}}
+    events: list[object] = []
+    (outcome,) = SweepProcedure(parse_config(data, "seeded.toml"), tmp_path, listener=events.append).run()
+    assert outcome.plan is not None
+    seeded = [a for a in outcome.plan.added if a.reason.startswith("overview: ")]
+    assert seeded and any(6.5 < a.frequency_hz < 8.0 for a in seeded)  # it saw the resonance
+    first_round = {p.frequency_hz for p in load_response(tmp_path).points[:7 + len(seeded)]}
+    assert {a.frequency_hz for a in seeded} <= first_round
+    assert (tmp_path / "overview" / "overview.csv").exists()
+    assert_figures_within_accuracy(outcome, oscillator)
+
+
+def test_from_overview_without_an_overview_table_is_one_line_naming_the_key() -> None:
+    data = {"plant": {"model": "linear"}, "excitation": {"amplitude": 0.01, "frequencies": {
+        **ADAPTIVE, "adaptive": {"from_overview": True}}}}
+    with pytest.raises(ConfigError) as info:
+        parse_config(data, "seeded.toml")
+    assert str(info.value) == ("seeded.toml: excitation.frequencies.adaptive.from_overview: needs an [overview] table "
+                               "(start_hz, stop_hz, amplitude): the multisine run first")

@@ -87,11 +87,21 @@ class GrowingPlan:
         if plan.budget_s is not None and spent >= plan.budget_s:
             self.ended = f"budget_s ({plan.budget_s:g} s) spent: {spent:.4g} s"
             return ()
-        chosen = step.additions[:room]
-        placed = self.case.placed([a.frequency_hz for a in chosen])
-        additions = tuple(sorted((replace(a, frequency_hz=f) for a, f in zip(chosen, placed, strict=True)
-                                  if f not in tried), key=lambda a: a.frequency_hz))
         self.rounds += 1
+        return self._add(step.additions[:room], "", tried)
+
+    def seed(self, overview: FrequencyResponse) -> tuple[Addition, ...]:
+        """Frequencies added to the range's before any is measured, read off an overview's lines (``overview``, a
+        response of one point per line) as a round reads the measured points; within ``max_points``."""
+        grid = self.case.excitation.frequencies_hz
+        step = next_round(overview, self.adaptive, self.case.analysis.response_kind, grid, apart_from_points=False)
+        return self._add(step.additions[:max(0, self.adaptive.max_points - len(grid))], "overview: ", set(grid))
+
+    def _add(self, chosen: Sequence[Addition], prefix: str, tried: set[float]) -> tuple[Addition, ...]:
+        """``chosen`` placed on the bench's grid, ascending, those not measured yet added to the plan."""
+        placed = self.case.placed([a.frequency_hz for a in chosen])
+        additions = tuple(sorted((Addition(f, prefix + a.reason) for a, f in zip(chosen, placed, strict=True)
+                                  if f not in tried), key=lambda a: a.frequency_hz))
         self.added += additions
         frequencies = sorted({*self.case.excitation.frequencies_hz, *(a.frequency_hz for a in additions)})
         self.case = replace(self.case, excitation=self.case.excitation.with_frequencies(frequencies))

@@ -18,7 +18,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bodebench.bench.adaptive import GrowingPlan
 from bodebench.bench.controls import SweepControls
@@ -51,7 +51,13 @@ from bodebench.io.results import (
 from bodebench.io.samples import SAMPLES_DIR, samples_path
 from bodebench.status import FaultKind
 
+if TYPE_CHECKING:
+    from bodebench.bench.overview import OverviewResult
+
 log = logging.getLogger("bodebench.sweep")
+
+OVERVIEW_DIR = "overview"
+"""Where an adaptive case's overview, run before its grid (``adaptive.from_overview``), keeps its files."""
 
 PlotWriter = Callable[..., list[Path]]
 """Draws a finished case: (response, directory, title, summary=..., figures=...) -> the files written; figures: those
@@ -330,6 +336,14 @@ class SweepProcedure:
         from bodebench.bench.connection import plan_link
 
         bus_log = "" if self.log_bus is None else str(bus_log_path(self.log_bus, self.config, outcome.case))
+        adaptive = outcome.case.excitation.adaptive
+        growing = GrowingPlan(outcome.case) if adaptive is not None else None
+        if growing is not None and adaptive is not None and adaptive.from_overview and previous is None:
+            from bodebench.bench.overview import measure_overview_on_bench
+
+            log.info("case %s: the overview first", outcome.case.name)
+            self._seed(outcome, growing, measure_overview_on_bench(outcome.case, plan_link(outcome.case,
+                                                                                           direct=self.direct)))
         plan = plan_link(outcome.case, direct=self.direct, log=bus_log)
         log.info("case %s: the drive is reached %s%s", outcome.case.name, plan.where or "directly",
                  f"; bus log {bus_log}" if bus_log else "")
@@ -338,7 +352,7 @@ class SweepProcedure:
             mode = outcome.case.on_bench.bench.worker_mode(in_process_setpoints=least_setpoints(outcome.case))
         session = BenchSession(outcome.case, plan, outcome.directory if write else None, self.listener,
                                worker_mode=mode, resume=previous, keep_samples=self.keep_samples,
-                               controls=self.controls)
+                               controls=self.controls, growing=growing)
         outcome.session = session
         outcome.plan = session.growing
         outcome.result = session.run()
@@ -368,8 +382,13 @@ class SweepProcedure:
         writers = [ResultsWriter(o.directory, o.case.name, o.case.raw, resume=previous[o.index] is not None)
                    for o in outcomes]
         plans = [GrowingPlan(case) if case.excitation.adaptive is not None else None for case in cases]
-        for outcome, plan in zip(outcomes, plans, strict=True):
+        for k, (outcome, plan) in enumerate(zip(outcomes, plans, strict=True)):
             outcome.plan = plan
+            if plan is not None and plan.adaptive.from_overview and not outcome.resumed:
+                from bodebench.bench.overview import measure_overview
+
+                self._seed(outcome, plan, measure_overview(cases[k]))
+                cases[k] = plan.case
         remaining = [sum(f not in skip for f in case.excitation.frequencies_hz)
                      for case, skip in zip(cases, skips, strict=True)]
         waiting: list[list[list[ResponsePoint] | PlanGrew]] = [[] for _ in cases]
@@ -433,6 +452,16 @@ class SweepProcedure:
             if futures:
                 outcome.files = tuple(path for future in futures for path in future.result())
             self.listener(CaseSaved(outcome.index, outcome.response, outcome.directory, outcome.files))
+
+    def _seed(self, outcome: CaseOutcome, plan: GrowingPlan, overview: OverviewResult) -> None:
+        """An adaptive case's grid grown from its overview's lines before it is measured; the overview's files go to
+        ``overview/`` in the case's directory."""
+        from bodebench.io.overview import save_overview
+
+        response = save_overview(outcome.directory / OVERVIEW_DIR, overview.lines, overview.design, overview.periods,
+                                 outcome.case.raw, outcome.case.name)
+        plan.seed(response)
+        outcome.case = plan.case
 
     def _tell(self, case: CaseConfig, told: list[ResponsePoint] | PlanGrew) -> None:
         """Tell the listener of a frequency's points (their start and end), or of a plan that grew."""

@@ -83,10 +83,11 @@ class BenchSession:
     def __init__(self, case: CaseConfig, plan: LinkPlan, out_dir: Path | None = None,
                  listener: Listener | None = None, worker_mode: str | None = None,
                  resume: FrequencyResponse | None = None, keep_samples: bool = True,
-                 controls: SweepControls | None = None) -> None:
+                 controls: SweepControls | None = None, growing: GrowingPlan | None = None) -> None:
         """resume: points of an interrupted sweep of the same case; their frequencies are not measured again.
         keep_samples: save each frequency's raw samples in ``out_dir/samples/`` before its rows. controls: the
-        user's requests, shared with the procedure that runs this session (None: this session's own)."""
+        user's requests, shared with the procedure that runs this session (None: this session's own). growing: an
+        adaptive case's plan already begun, whose ``case`` this is."""
         self.case = case
         self.keep_samples = keep_samples
         self.plan = plan
@@ -110,8 +111,10 @@ class BenchSession:
         """The samples of the frequency measured last (saved in ``samples/`` when there is a results directory)."""
         self._writer: ResultsWriter | None = None
         self._stopped: Stopped | None = None  # the worker's last message, where it came before the shutdown
-        self.growing = GrowingPlan(case) if case.excitation.adaptive is not None else None
-        """An adaptive case's plan as it grows (None: the planned frequencies only)."""
+        self.growing = growing if growing is not None else \
+            GrowingPlan(case) if case.excitation.adaptive is not None else None
+        """An adaptive case's plan as it grows (None: the planned frequencies only); ``growing``: one already
+        begun (an overview's frequencies added to the case)."""
 
     # --- user requests (any thread)
     def request_abort(self) -> None:

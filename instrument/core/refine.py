@@ -179,17 +179,20 @@ def _curve_round(curve: ChannelCurve, targets: PlanTargets) -> list[list[Additio
 
 
 def next_round(response: FrequencyResponse, targets: PlanTargets, kind: str = "system",
-               measured_hz: Sequence[float] = ()) -> Round:
+               measured_hz: Sequence[float] = (), apart_from_points: bool = True) -> Round:
     """The frequencies (Hz) to measure next, and where each requested figure stands, from the harmonic-1 points of
     ``response`` read as ``kind`` (:data:`~bodebench.core.summary.RESPONSE_KINDS`). ``measured_hz``: frequencies
     measured or planned already besides those with points (a point that ended without a result); nothing is added
-    near any of them. Each addition lies between the lowest and the highest measured frequency; the additions
+    near any of them, nor near the points of ``response`` unless ``apart_from_points`` is False (the points are an
+    overview's lines, not measured frequencies of the sweep). Each addition lies between the lowest and the
+    highest of these frequencies; the additions
     are in the order of need (the figures' first, then the curve's), one per place (the first reason given for
     it)."""
     curves = {c.channel: c for c in channel_curves(response)}
     summaries = summarize_response(response, kind)
     gap = MIN_GAP_SHARE * targets.frequency_percent / 100.0
-    taken = sorted({*measured_hz, *(float(f) for c in curves.values() for f in c.frequency_hz)})
+    taken = sorted({*measured_hz, *(float(f) for c in curves.values() for f in c.frequency_hz
+                                     if apart_from_points)})
     wanted: list[list[Addition]] = []
     standings: list[Standing] = []
     for summary in summaries:

@@ -298,6 +298,15 @@ def _build_case(
     layout, setup = _check_bench(built, frames, key, source)
     if built["overview"] is not None:
         _check_overview(built["overview"], built["bench"], built["safety"], key)
+    adaptive = built["excitation"].adaptive
+    if adaptive is not None and adaptive.from_overview:
+        if built["overview"] is None:
+            raise _Fault(f"{key('excitation', 'frequencies')}.adaptive.from_overview",
+                         "needs an [overview] table (start_hz, stop_hz, amplitude): the multisine run first")
+        if built["analysis"].measurement != "output":
+            raise _Fault(f"{key('excitation', 'frequencies')}.adaptive.from_overview",
+                         f'the overview measures the output against the setpoint, not analysis.measured = '
+                         f'"{built["analysis"].measurement}"')
     if built["bench"] is not None:
         # after the checks, which name the frequencies as given: a move lowers one by a fraction of a percent
         frequencies, moves = _off_folds(built["excitation"].frequencies_hz, built["bench"].rate_hz,

@@ -224,6 +224,9 @@ class AdaptivePlan:
         "doc": "largest interpolation error of the phase curve between two neighbouring points, deg"})
     max_points: int = field(default=60, metadata={
         "min": 2, "max": PLAN_MAX_POINTS, "doc": "most frequencies in all, the range's included"})
+    from_overview: bool = field(default=False, metadata={
+        "doc": "run the [overview] multisine first and add to the range's frequencies those its lines call for, "
+               "read as the rounds read the measured points"})
     budget_s: float | None = field(default=None, metadata={
         "min": 0, "min_exclusive": True,
         "doc": "bench time after which no frequency is added, s (the periods measured, settled and ramped at each "
