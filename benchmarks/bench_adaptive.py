@@ -15,7 +15,9 @@ figure within its accuracy, and the gain and phase drawn straight between neighb
 within 1 dB and 10 deg of the exact curve at three points inside each interval. Bench time: at each frequency the
 periods measured and settled, over the frequency (what a stepped-sine bench spends, ramps aside). Printed per plant:
 points, bench seconds, the worst figure error and the worst curve error as shares of their accuracies (<= 1 to
-pass), and the ratio fixed / adaptive bench time (target: above 1, the adaptive plan the quicker).
+pass), and the ratio fixed / adaptive bench time (target: above 1, the adaptive plan the quicker; where no grid up
+to 80 a decade passes, the 80-a-decade grid's time bounds it from below). The friction link has no closed form:
+its reference is a 120-a-decade grid's figures, and its curve is not judged.
 """
 
 from __future__ import annotations
@@ -148,12 +150,12 @@ def main() -> int:
             seconds = seconds_of(grown)
             figures, curve = figure_share(grown, exact, accuracy), curve_share(grown, g)
             print(f"{name:38s} {'adaptive':>9s} {len(grown.response):6d} {seconds:8.1f} {figures:7.2f} {curve:6.2f}")
-            smallest = None
+            smallest = finest = None
             for d in GRIDS:
                 runs = [sweep(plant, grid(d, u), Path(tmp) / f"f{n}-{d}-{k}", pool) for k, u in enumerate(offsets)]
                 worst_figures = max(figure_share(r, exact, accuracy) for r in runs)
                 worst_curve = max(curve_share(r, g) for r in runs)
-                mean_s = sum(seconds_of(r) for r in runs) / len(runs)
+                mean_s = finest = sum(seconds_of(r) for r in runs) / len(runs)
                 passes = worst_figures <= 1.0 and not worst_curve > 1.0
                 mark = " <- smallest within accuracy at every offset" if passes and smallest is None else ""
                 print(f"{'':38s} {f'{d}/dec':>9s} {len(runs[0].response):6d} {mean_s:8.1f} {worst_figures:7.2f} "
@@ -165,12 +167,14 @@ def main() -> int:
             if smallest is not None:
                 ratios.append(smallest / seconds)
                 print(f"{'':38s} ratio {smallest / seconds:.2f} (target > 1); adaptive within accuracy: {met}")
-            else:
-                print(f"{'':38s} no fixed grid up to {GRIDS[-1]}/dec within accuracy; adaptive within accuracy: "
-                      f"{met}")
+            else:  # the finest grid tried bounds the ratio from below
+                assert finest is not None
+                ratios.append(finest / seconds)
+                print(f"{'':38s} ratio > {finest / seconds:.2f} (no fixed grid up to {GRIDS[-1]}/dec within accuracy "
+                      f"at every offset); adaptive within accuracy: {met}")
     if ratios:
-        print(f"ratio fixed/adaptive bench time: least {min(ratios):.2f}, median "
-              f"{sorted(ratios)[len(ratios) // 2]:.2f} (target > 1)")
+        print(f"ratio fixed/adaptive bench time (lower bounds where no grid passed): least {min(ratios):.2f}, "
+              f"median {sorted(ratios)[len(ratios) // 2]:.2f} (target > 1)")
     return 0
 
 
