@@ -335,3 +335,14 @@ def test_from_overview_without_an_overview_table_is_one_line_naming_the_key() ->
         parse_config(data, "seeded.toml")
     assert str(info.value) == ("seeded.toml: excitation.frequencies.adaptive.from_overview: needs an [overview] table "
                                "(start_hz, stop_hz, amplitude): the multisine run first")
+
+
+def test_check_says_the_plan_grows_and_within_what() -> None:
+    from bodebench.apps.check import check_lines
+    from bodebench.io.config import load_config
+
+    lines = list(check_lines(load_config(Path(__file__).resolve().parent.parent / "configs" /
+                                         "adaptive_oscillator.toml")))
+    (said,) = [line for line in lines if "adaptive:" in line]
+    assert "bandwidth, resonance, phase_90, phase_180 to 1 % (frequencies), 0.1 dB" in said
+    assert said.endswith("up to 40 frequencies")
