@@ -60,7 +60,7 @@ PLANTS: dict[str, tuple[dict[str, Any], Response | None]] = {  # [plant], exact 
     "very light (23.7 Hz, zeta 0.005)": (linear(23.7, 0.005), second_order(23.7, 0.005)),
     "moderate (3.17 Hz, zeta 0.2)": (linear(3.17, 0.2), second_order(3.17, 0.2)),
     "well damped (13.9 Hz, zeta 0.6)": (linear(13.9, 0.6), second_order(13.9, 0.6)),
-    "friction link (Fbar 0.5)": ({"model": "coulomb", "mass": 2.533e-4, "stiffness": 1.0, "friction": 0.005}, None),
+    "friction link (Fbar 0.8)": ({"model": "coulomb", "mass": 2.533e-4, "stiffness": 1.0, "friction": 0.008}, None),
 }
 
 
