@@ -7,7 +7,6 @@ out."""
 from __future__ import annotations
 
 import contextlib
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -20,15 +19,15 @@ from bodebench.bench.offline import OUTPUT_CHANNEL, build_plant
 from bodebench.bench.worker import (
     Credit,
     Fault,
-    Limits,
     Ready,
     Samples,
     SineStarted,
     StartTable,
     Stop,
     Stopped,
-    WorkerSpec,
+    session_ended,
     start_worker,
+    worker_spec,
 )
 from bodebench.core.multisine import Multisine
 from bodebench.core.overview import LineIntegrator, OverviewLine, RuleSettings
@@ -130,12 +129,7 @@ def measure_overview_on_bench(case: CaseConfig, plan: LinkPlan, on_period: Calla
     bench, safety = tables.bench, tables.safety
     design = case.multisine()
     channel = bench.output_channels[0]
-    limits = Limits(safety.max_amplitude, safety.max_rate,
-                    {k: (float(v[0]), float(v[1])) for k, v in safety.feedback_limits.items()}, safety.watchdog_s)
-    spec = WorkerSpec(plan.open_link, bench.rate_hz, bench.clock, bench.timebase, limits,
-                      batch_s=bench.batch_ms / 1000.0, reply_timeout_s=bench.reply_timeout_s,
-                      pacing_cpu=bench.pacing_cpu)
-    conn, handle = start_worker(spec, worker_mode or bench.worker_mode())
+    conn, handle = start_worker(worker_spec(plan.open_link, bench, safety), worker_mode or bench.worker_mode())
     integrator = LineIntegrator(design, channel, rule_settings(case))
     setpoint = design.waveform()
     discarded = 0
@@ -216,10 +210,7 @@ def measure_overview_on_bench(case: CaseConfig, plan: LinkPlan, on_period: Calla
         handle.join(timeout=10)
         plan.close()
         layout = plan.layout
-        ended = SessionEnded(reason, completed, stopped.last_setpoint if stopped else math.nan,
-                             stopped.disabled if stopped else False, stopped.zero_sent if stopped else False,
-                             stopped.frames_out if stopped else 0, stopped is not None, layout.disable is not None,
-                             layout.drive_watchdog_s, stopped.shutdown if stopped else "")
+        ended = session_ended(reason, completed, stopped, layout)
         if on_end is not None:
             on_end(ended)
     return OverviewResult(design, tuple(integrator.result()), integrator.periods, discarded, ended)

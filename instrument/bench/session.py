@@ -36,15 +36,15 @@ from bodebench.bench.worker import (
     Credit,
     Fault,
     Health,
-    Limits,
     Ready,
     Samples,
     SineStarted,
     StartSine,
     Stop,
     Stopped,
-    WorkerSpec,
+    session_ended,
     start_worker,
+    worker_spec,
 )
 from bodebench.core.autointegration import Autointegrator, period_budget
 from bodebench.core.benchgrid import flag_disturbed, mark_untied
@@ -134,15 +134,6 @@ class BenchSession:
         self.controls.remeasure.append(frequency_hz)
 
     # --- the sweep
-    def _spec(self) -> WorkerSpec:
-        safety = self.safety
-        limits = Limits(safety.max_amplitude, safety.max_rate,
-                        {k: (float(v[0]), float(v[1])) for k, v in safety.feedback_limits.items()},
-                        safety.watchdog_s)
-        return WorkerSpec(self.plan.open_link, self.bench.rate_hz, self.bench.clock, self.bench.timebase, limits,
-                          batch_s=self.bench.batch_ms / 1000.0, reply_timeout_s=self.bench.reply_timeout_s,
-                          pacing_cpu=self.bench.pacing_cpu)
-
     def run(self) -> SessionResult:
         """Run the whole sweep; never leaves the drive moving. Raises SessionError after a trip (points kept), and
         ResultsError before the first setpoint when the results directory cannot take the sweep's files."""
@@ -158,7 +149,7 @@ class BenchSession:
                 self.out_dir.rmdir()  # nothing measured: leave no empty directory behind
 
     def _run(self) -> SessionResult:
-        conn, handle = start_worker(self._spec(), self.worker_mode)
+        conn, handle = start_worker(worker_spec(self.plan.open_link, self.bench, self.safety), self.worker_mode)
         self._conn = conn
         self._stopped = None
         stopped: Stopped | None = None
@@ -203,11 +194,7 @@ class BenchSession:
             cpu_yielded.close()
             self.plan.close()
             layout = self.plan.layout
-            self.ended = SessionEnded(reason, completed, stopped.last_setpoint if stopped else math.nan,
-                                      stopped.disabled if stopped else False,
-                                      stopped.zero_sent if stopped else False, stopped.frames_out if stopped else 0,
-                                      stopped is not None, layout.disable is not None,
-                                      layout.drive_watchdog_s, stopped.shutdown if stopped else "")
+            self.ended = session_ended(reason, completed, stopped, layout)
             self.listener(self.ended)
         rt = self.last_health.round_trip_s if self.last_health else math.nan
         return SessionResult(self.response, completed, reason, stopped.last_setpoint if stopped else math.nan,

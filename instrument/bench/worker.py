@@ -22,17 +22,21 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from bodebench.bench.events import Health, PacingStats
+from bodebench.bench.events import Health, PacingStats, SessionEnded
 from bodebench.core.autointegration import MAX_COEFFICIENT
 from bodebench.drivers.driver import Driver, FeedbackSample
 from bodebench.drivers.errors import DriveFaultError, DriverError
 from bodebench.drivers.layout import SETPOINT_ECHO
 from bodebench.drivers.scheduling import keep_to, lower_timer_slack, pacing_cpu, request_fifo
 from bodebench.drivers.stop_signals import StopSignal, signals_held, stop_on_signals
+
+if TYPE_CHECKING:
+    from bodebench.drivers.layout import Layout
+    from bodebench.io.tables import BenchConfig, SafetyConfig
 
 ZERO_SETPOINTS = 3
 """Setpoints of zero the worker sends on its way out, after any slew to zero and before the disable frame: one lost
@@ -163,6 +167,24 @@ class WorkerSpec:
     health_s: float = 0.1
     reply_timeout_s: float = 0.05  # lockstep: how long a setpoint's reply may take before it counts as lost
     pacing_cpu: int | None = None  # realtime: the CPU the worker process keeps to (None: the last it may use)
+
+
+def worker_spec(open_link: Any, bench: BenchConfig, safety: SafetyConfig) -> WorkerSpec:
+    """The worker's spec for a bench case: its link (``open_link``), [bench]'s pacing and time base, [safety]'s
+    limits."""
+    limits = Limits(safety.max_amplitude, safety.max_rate,
+                    {k: (float(v[0]), float(v[1])) for k, v in safety.feedback_limits.items()}, safety.watchdog_s)
+    return WorkerSpec(open_link, bench.rate_hz, bench.clock, bench.timebase, limits, batch_s=bench.batch_ms / 1000.0,
+                      reply_timeout_s=bench.reply_timeout_s, pacing_cpu=bench.pacing_cpu)
+
+
+def session_ended(reason: str, completed: bool, stopped: Stopped | None, layout: Layout) -> SessionEnded:
+    """How a run of the worker ended, from the worker's last report (None: it did not report) and the layout's
+    disable frame and drive watchdog."""
+    return SessionEnded(reason, completed, stopped.last_setpoint if stopped else math.nan,
+                        stopped.disabled if stopped else False, stopped.zero_sent if stopped else False,
+                        stopped.frames_out if stopped else 0, stopped is not None, layout.disable is not None,
+                        layout.drive_watchdog_s, stopped.shutdown if stopped else "")
 
 
 class _Trip(Exception):
