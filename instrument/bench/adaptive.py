@@ -87,8 +87,12 @@ class GrowingPlan:
         if plan.budget_s is not None and spent >= plan.budget_s:
             self.ended = f"budget_s ({plan.budget_s:g} s) spent: {spent:.4g} s"
             return ()
-        self.rounds += 1
-        return self._add(step.additions[:room], "", tried)
+        added = self._add(step.additions[:room], "", tried)
+        if not added:  # on a bench, each moved onto a frequency measured already
+            self.ended = "the frequencies it calls for, placed on the bench's grid, are measured already"
+        else:
+            self.rounds += 1
+        return added
 
     def seed(self, overview: FrequencyResponse) -> tuple[Addition, ...]:
         """Frequencies added to the range's before any is measured, read off an overview's lines (``overview``, a
