@@ -346,3 +346,27 @@ def test_check_says_the_plan_grows_and_within_what() -> None:
     (said,) = [line for line in lines if "adaptive:" in line]
     assert "bandwidth, resonance, phase_90, phase_180 to 1 % (frequencies), 0.1 dB" in said
     assert said.endswith("up to 40 frequencies")
+
+
+def test_an_interrupted_adaptive_sweep_resumes_with_the_frequencies_its_plan_had_added(tmp_path: Path) -> None:
+    """An adaptive sweep cut short (the twelve lowest of its frequencies kept, some of them added by its plan):
+    resumed, it keeps those as its plan's, measures none twice, and ends with every figure within its accuracy."""
+    data = {"plant": {"model": "linear", "mass": MASS, "stiffness": 1.0, "damping_ratio": ZETA},
+            "excitation": {"amplitude": 0.01, "frequencies": ADAPTIVE},
+            "analysis": {"harmonics": [1], "tolerance_percent": 0.1, "steps_per_period": 200}}
+    config = parse_config(data, "adaptive.toml")
+    SweepProcedure(config, tmp_path).run()
+    csv = (tmp_path / "response.csv").read_text().splitlines(keepends=True)
+    header = [line for line in csv if line.startswith("#") or line.startswith("frequency")]
+    rows = [line for line in csv if line not in header]
+    (tmp_path / "response.csv").write_text("".join(header + rows[:12]))
+    kept = {p.frequency_hz for p in load_response(tmp_path).points}
+    grid = set(FrequencyRange(1.0, 100.0, 3).expand())
+    assert kept - grid  # the cut keeps frequencies the plan had added
+    (resumed,) = SweepProcedure(config, tmp_path, existing="resume_changed").run()
+    on_disk = [p.frequency_hz for p in load_response(tmp_path).points]
+    assert len(on_disk) == len(set(on_disk)) and kept | grid <= set(on_disk)
+    assert resumed.plan is not None and resumed.plan.ended.startswith("every requested figure")
+    earlier = {a.frequency_hz for a in resumed.plan.added if a.reason == "added by an earlier run of this sweep"}
+    assert earlier == kept - grid
+    assert_figures_within_accuracy(resumed, oscillator)

@@ -94,6 +94,13 @@ class GrowingPlan:
             self.rounds += 1
         return added
 
+    def resume(self, earlier: FrequencyResponse) -> None:
+        """An interrupted sweep continued: the frequencies its points were measured at join the plan (those not of
+        the range were added by the earlier run)."""
+        grid = set(self.case.excitation.frequencies_hz)
+        self._add([Addition(f, "added by an earlier run of this sweep")
+                   for f in sorted({p.frequency_hz for p in earlier.points} - grid)], "", grid, place=False)
+
     def seed(self, overview: FrequencyResponse) -> tuple[Addition, ...]:
         """Frequencies added to the range's before any is measured, read off an overview's lines (``overview``, a
         response of one point per line) as a round reads the measured points; within ``max_points``."""
@@ -101,9 +108,12 @@ class GrowingPlan:
         step = next_round(overview, self.adaptive, self.case.analysis.response_kind, grid, apart_from_points=False)
         return self._add(step.additions[:max(0, self.adaptive.max_points - len(grid))], "overview: ", set(grid))
 
-    def _add(self, chosen: Sequence[Addition], prefix: str, tried: set[float]) -> tuple[Addition, ...]:
-        """``chosen`` placed on the bench's grid, ascending, those not measured yet added to the plan."""
-        placed = self.case.placed([a.frequency_hz for a in chosen])
+    def _add(self, chosen: Sequence[Addition], prefix: str, tried: set[float], place: bool = True
+             ) -> tuple[Addition, ...]:
+        """``chosen`` placed on the bench's grid (unless not ``place``), ascending, those not measured yet added to
+        the plan."""
+        frequencies = [a.frequency_hz for a in chosen]
+        placed = self.case.placed(frequencies) if place else tuple(frequencies)
         additions = tuple(sorted((Addition(f, prefix + a.reason) for a, f in zip(chosen, placed, strict=True)
                                   if f not in tried), key=lambda a: a.frequency_hz))
         self.added += additions

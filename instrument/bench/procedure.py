@@ -384,6 +384,10 @@ class SweepProcedure:
         plans = [GrowingPlan(case) if case.excitation.adaptive is not None else None for case in cases]
         for k, (outcome, plan) in enumerate(zip(outcomes, plans, strict=True)):
             outcome.plan = plan
+            before = previous[outcome.index]
+            if plan is not None and before is not None:
+                plan.resume(before)
+                cases[k] = outcome.case = plan.case
             if plan is not None and plan.adaptive.from_overview and not outcome.resumed:
                 from bodebench.bench.overview import measure_overview
 

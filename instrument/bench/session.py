@@ -115,6 +115,9 @@ class BenchSession:
             GrowingPlan(case) if case.excitation.adaptive is not None else None
         """An adaptive case's plan as it grows (None: the planned frequencies only); ``growing``: one already
         begun (an overview's frequencies added to the case)."""
+        if self.growing is not None and resume is not None:  # the frequencies an earlier run added are the plan's
+            self.growing.resume(resume)
+            self.case = self.growing.case
 
     # --- user requests (any thread)
     def request_abort(self) -> None:

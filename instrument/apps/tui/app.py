@@ -636,6 +636,9 @@ class BodeBenchApp(App[int]):
                 self.model = self._new_model(self.case)
                 resumed = self._resumed.get(event.index)
                 if resumed is not None:  # a resumed sweep: the points it keeps are finished rows
+                    added = sorted({p.frequency_hz for p in resumed.points} - set(self.model.frequencies_hz))
+                    if added:  # an adaptive plan's, from the earlier run (timed from the session's start)
+                        self.model.extend(added, [0.0] * len(added), [0] * len(added))
                     self.model.load_points(resumed.points)
                 self.w_table.fill(self.model.rows)
                 self.model.take_changed()
