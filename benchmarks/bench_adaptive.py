@@ -23,7 +23,6 @@ its reference is a 120-a-decade grid's figures, and its curve is not judged.
 from __future__ import annotations
 
 import argparse
-import cmath
 import math
 import sys
 from concurrent.futures import Executor, ProcessPoolExecutor
@@ -34,13 +33,11 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-import numpy as np  # noqa: E402
-from test_adaptive_plan import Response, exact_figures, second_order  # noqa: E402
+from test_adaptive_plan import Response, curve_share, exact_figures, second_order  # noqa: E402
 
 from bodebench.bench.adaptive import bench_seconds  # noqa: E402
 from bodebench.bench.procedure import CaseOutcome, SweepProcedure  # noqa: E402
 from bodebench.core.refine import FIGURE_NAMES  # noqa: E402
-from bodebench.core.summary import channel_curves, unwrapped_phase  # noqa: E402
 from bodebench.io.config import parse_config  # noqa: E402
 
 GRIDS = (3, 5, 8, 12, 20, 30, 50, 80)
@@ -100,29 +97,6 @@ def figure_share(outcome: CaseOutcome, exact: dict[str, tuple[float, float]], ac
     return worst
 
 
-def curve_share(outcome: CaseOutcome, g: Response | None) -> float:
-    """The largest error of the gain and phase drawn straight between neighbouring points (log frequency) against
-    the exact curve, at a quarter, half and three quarters of each interval, over its accuracy (NaN: no exact
-    curve)."""
-    if g is None:
-        return math.nan
-    (curve,) = channel_curves(outcome.response)
-    x = np.log10(curve.frequency_hz)
-    phase = unwrapped_phase(curve.phase_deg)
-    worst = 0.0
-    for i in range(len(x) - 1):
-        for t in (0.25, 0.5, 0.75):
-            at = x[i] + t * (x[i + 1] - x[i])
-            exact = g(10.0**at) * 1.0
-            gain = 20.0 * math.log10(abs(exact))
-            drawn_phase = phase[i] + t * (phase[i + 1] - phase[i])
-            wrapped = math.degrees(cmath.phase(exact))
-            phase_error = abs(wrapped + 360.0 * round((drawn_phase - wrapped) / 360.0) - drawn_phase)
-            gain_error = abs(curve.gain_db[i] + t * (curve.gain_db[i + 1] - curve.gain_db[i]) - gain)
-            worst = max(worst, gain_error / CURVE_GAIN_DB, phase_error / CURVE_PHASE_DEG)
-    return worst
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--accuracy", type=float, default=1.0, help="frequency accuracy, percent")
@@ -148,13 +122,13 @@ def main() -> int:
                 offsets = (0.0,)
                 name += f" (reference: {REFERENCE_GRID}/dec)"
             seconds = seconds_of(grown)
-            figures, curve = figure_share(grown, exact, accuracy), curve_share(grown, g)
+            figures, curve = figure_share(grown, exact, accuracy), curve_share(grown.response, g)
             print(f"{name:38s} {'adaptive':>9s} {len(grown.response):6d} {seconds:8.1f} {figures:7.2f} {curve:6.2f}")
             smallest = finest = None
             for d in GRIDS:
                 runs = [sweep(plant, grid(d, u), Path(tmp) / f"f{n}-{d}-{k}", pool) for k, u in enumerate(offsets)]
                 worst_figures = max(figure_share(r, exact, accuracy) for r in runs)
-                worst_curve = max(curve_share(r, g) for r in runs)
+                worst_curve = max(curve_share(r.response, g) for r in runs)
                 mean_s = finest = sum(seconds_of(r) for r in runs) / len(runs)
                 passes = worst_figures <= 1.0 and not worst_curve > 1.0
                 mark = " <- smallest within accuracy at every offset" if passes and smallest is None else ""

@@ -22,7 +22,7 @@ from bodebench.bench.events import PlanGrew, PointFinished
 from bodebench.bench.procedure import CaseOutcome, SweepProcedure
 from bodebench.core.refine import FIGURE_NAMES, next_round
 from bodebench.core.response import FrequencyResponse, ResponsePoint
-from bodebench.core.summary import summarize_response
+from bodebench.core.summary import channel_curves, summarize_response, unwrapped_phase
 from bodebench.io.config import ConfigError, parse_config
 from bodebench.io.results import SIDECAR_NAME, load_response
 from bodebench.io.tables import AdaptivePlan, FrequencyRange
@@ -124,6 +124,29 @@ def _phase_at(g: Response, f: np.ndarray, unwrapped: np.ndarray, x: float) -> fl
     return wrapped + 360.0 * round((near - wrapped) / 360.0)
 
 
+def curve_share(response: FrequencyResponse, g: Response | None, gain_db: float = 1.0, phase_deg: float = 10.0
+                ) -> float:
+    """The largest error of the gain and phase drawn straight between neighbouring points of harmonic 1 (log
+    frequency) against the exact curve ``g``, at a quarter, half and three quarters of each interval, over its
+    accuracy (NaN: no exact curve)."""
+    if g is None:
+        return math.nan
+    (curve,) = channel_curves(response)
+    x = np.log10(curve.frequency_hz)
+    phase = unwrapped_phase(curve.phase_deg)
+    worst = 0.0
+    for i in range(len(x) - 1):
+        for t in (0.25, 0.5, 0.75):
+            exact = g(10.0 ** (x[i] + t * (x[i + 1] - x[i])))
+            drawn_phase = phase[i] + t * (phase[i + 1] - phase[i])
+            wrapped = math.degrees(cmath.phase(exact))
+            phase_error = abs(wrapped + 360.0 * round((drawn_phase - wrapped) / 360.0) - drawn_phase)
+            gain_error = abs(curve.gain_db[i] + t * (curve.gain_db[i + 1] - curve.gain_db[i])
+                             - 20.0 * math.log10(abs(exact)))
+            worst = max(worst, gain_error / gain_db, phase_error / phase_deg)
+    return worst
+
+
 PLAN = AdaptivePlan()
 
 CLOSED = [
@@ -145,6 +168,9 @@ def test_every_figure_the_plan_calls_met_is_within_its_accuracy_of_the_exact_one
     assert rounds > 0 and not step.additions
     checked = 0
     for standing in step.standings:
+        if standing.figure == "curve":  # a curve called within its accuracy is, against the exact one
+            assert not standing.met or curve_share(response, g) <= 1.0, f"{name}: {standing.text}"
+            continue
         figure = summary.figure(FIGURE_NAMES[standing.figure])
         truth = exact.get(standing.figure)
         if not standing.found:
@@ -203,6 +229,10 @@ def test_a_figure_limited_by_the_measurement_adds_nothing_for_it() -> None:
     bandwidth = next(s for s in step.standings if s.figure == "bandwidth")
     assert bandwidth.measurement > bandwidth.accuracy
     assert "limited by the measurement" in bandwidth.text
+    assert not any(a.reason.startswith("y: bandwidth") for a in step.additions)
+    # the same points stated exactly: the bandwidth's interpolation alone asks for a point
+    exact = next_round(points(g, frequencies), PLAN, "system", frequencies)
+    assert any(a.reason.startswith("y: bandwidth") for a in exact.additions)
 
 
 def test_nothing_is_added_next_to_a_measured_frequency_nor_outside_the_range() -> None:
@@ -252,6 +282,8 @@ def assert_figures_within_accuracy(outcome: CaseOutcome, g: Response, start: flo
     (summary,) = outcome.summary
     exact = exact_figures(g, start, stop, "system")
     for standing in outcome.plan.standings:
+        if standing.figure == "curve":  # the figures are what this checks; the curve, the exact-points test
+            continue
         assert standing.met, standing.text
         figure = summary.figure(FIGURE_NAMES[standing.figure])
         slack = 0.01 if figure.unit == "dB" else 0.001 * figure.value  # the points' 0.1 % tolerance

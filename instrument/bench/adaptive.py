@@ -74,10 +74,10 @@ class GrowingPlan:
         room = plan.max_points - len(tried)
         spent = bench_seconds(self.case, response)
         if not step.additions:
-            unmet = sum(s.found and not s.met for s in step.standings)
+            unmet = [s.figure for s in step.standings if s.found and not s.met]
             absent = sum(not s.found for s in step.standings)
             self.ended = ("every requested figure found within its accuracy, and the curve within its own" if not unmet
-                          else f"no frequency would help the {unmet} figures not within their accuracy")
+                          else f"no frequency it may add would bring within its accuracy: {', '.join(unmet)}")
             if absent:
                 self.ended += f" ({absent} not found in the measured range)"
             return ()

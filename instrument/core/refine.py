@@ -13,7 +13,9 @@ frequency:
 - **A curve that bends between two points.** Where the gain or the phase interpolated halfway between two
   neighbours may be off by more than the curve's accuracy (their curvature, as the summary estimates it), the
   middle (in log frequency) is added. This finds what no figure names: a lightly damped mode between two coarse
-  points shows as a phase drop that bends the curve there.
+  points shows as a phase drop that bends the curve there. Where the interval is too narrow to take a point (see
+  below), the curve's standing says it is not within its accuracy there: a jump, or a mode narrower than the
+  resolution asked for.
 
 A figure whose 95 % interval is wider than its accuracy is limited by the measurement, not by the spacing:
 more frequencies do not help it and none are added for it; its standing says so. Nothing is added closer to a
@@ -148,7 +150,7 @@ def _figure_round(curve: ChannelCurve, figure: Figure, key: str, targets: PlanTa
     if half > accuracy:
         text += f"; its 95 % interval (+-{half:.3g} {figure.unit}) is wider than that: limited by the measurement"
     standing = Standing(curve.channel, key, figure.unit, accuracy, figure.interpolation, half, True, met, text)
-    if met:
+    if met or half > accuracy:  # within its accuracy, or out of the spacing's reach
         return [], standing
     if key == "resonance" and not math.isfinite(figure.interpolation):
         i = int(np.argmax(curve.gain_db))
@@ -158,11 +160,15 @@ def _figure_round(curve: ChannelCurve, figure: Figure, key: str, targets: PlanTa
     return [[Addition(float(wanted), text), Addition(math.sqrt(f[i] * f[i + 1]), text)]], standing
 
 
-def _curve_round(curve: ChannelCurve, targets: PlanTargets) -> list[list[Addition]]:
-    """The middles of the intervals where the gain or the phase may bend more than the curve's accuracy."""
+def _curve_round(curve: ChannelCurve, targets: PlanTargets) -> tuple[list[list[Addition]], Standing]:
+    """The middles of the intervals where the gain or the phase may bend more than the curve's accuracy, and where
+    the curve stands: not within its accuracy where such an interval is too narrow to split."""
     x = np.log10(curve.frequency_hz)
     phase = unwrapped_phase(curve.phase_deg)
     out: list[list[Addition]] = []
+    unsplit: list[str] = []
+    narrowest = 2.0 * MIN_GAP_SHARE * targets.frequency_percent / 100.0 / math.log(10.0)  # decades: no middle
+    worst = 0.0
     for i in range(len(x) - 1):
         middle = 0.5 * (x[i] + x[i + 1])
         gain_error = interpolation_error(x, curve.gain_db, i, middle)
@@ -170,12 +176,25 @@ def _curve_round(curve: ChannelCurve, targets: PlanTargets) -> list[list[Additio
         a, b = curve.frequency_hz[i], curve.frequency_hz[i + 1]
         between = f"{curve.channel}: the curve between {a:.4g} and {b:.4g} Hz"
         if gain_error > targets.curve_gain_db:
-            out.append([Addition(float(10.0**middle), f"{between}: gain interpolation +-{gain_error:.3g} dB > "
-                                                      f"{targets.curve_gain_db:g} dB")])
+            said = f"gain interpolation +-{gain_error:.3g} dB > {targets.curve_gain_db:g} dB"
         elif phase_error > targets.curve_phase_deg:
-            out.append([Addition(float(10.0**middle), f"{between}: phase interpolation +-{phase_error:.3g} deg > "
-                                                      f"{targets.curve_phase_deg:g} deg")])
-    return out
+            said = f"phase interpolation +-{phase_error:.3g} deg > {targets.curve_phase_deg:g} deg"
+        else:
+            continue
+        worst = max(worst, gain_error / targets.curve_gain_db, phase_error / targets.curve_phase_deg)
+        if x[i + 1] - x[i] < narrowest:  # its middle would lie nearer a point than the plan adds any: a jump,
+            unsplit.append(f"{a:.4g} to {b:.4g} Hz")  # or a mode narrower than the resolution asked for
+        else:
+            out.append([Addition(float(10.0**middle), f"{between}: {said}")])
+    if unsplit:
+        text = (f"{curve.channel}: the curve: bends beyond its accuracy between points too close to add one "
+                f"between ({', '.join(unsplit)}): a jump, or a mode narrower than the resolution asked for "
+                "(frequency_percent)")
+    elif out:
+        text = f"{curve.channel}: the curve: bends beyond its accuracy in {len(out)} intervals"
+    else:
+        text = f"{curve.channel}: the curve: within {targets.curve_gain_db:g} dB and {targets.curve_phase_deg:g} deg"
+    return out, Standing(curve.channel, "curve", "", 1.0, worst, math.nan, True, not unsplit and not out, text)
 
 
 def next_round(response: FrequencyResponse, targets: PlanTargets, kind: str = "system",
@@ -206,7 +225,9 @@ def next_round(response: FrequencyResponse, targets: PlanTargets, kind: str = "s
             wanted += more
             standings.append(standing)
     for curve in curves.values():
-        wanted += _curve_round(curve, targets)
+        more, standing = _curve_round(curve, targets)
+        wanted += more
+        standings.append(standing)
     lo, hi = (min(taken), max(taken)) if taken else (math.inf, -math.inf)
     chosen: list[Addition] = []
     for alternatives in wanted:
