@@ -18,7 +18,7 @@ import pytest
 from scipy import signal
 from scipy.optimize import brentq, minimize_scalar
 
-from bodebench.bench.events import PlanGrew, PointFinished
+from bodebench.bench.events import OverviewProgress, PlanGrew, PointFinished
 from bodebench.bench.procedure import CaseOutcome, SweepProcedure
 from bodebench.core.refine import FIGURE_NAMES, next_round
 from bodebench.core.response import FrequencyResponse, ResponsePoint
@@ -358,6 +358,11 @@ def test_an_overview_first_seeds_the_grid_where_its_lines_call_for_points(tmp_pa
     assert {a.frequency_hz for a in seeded} <= first_round
     assert (tmp_path / "overview" / "overview.csv").exists()
     assert_figures_within_accuracy(outcome, oscillator)
+    # the overview's progress is told before the first point, period by period, under the case's name
+    told = [e for e in events if isinstance(e, OverviewProgress)]
+    first_point = next(i for i, e in enumerate(events) if isinstance(e, PointFinished))
+    assert told and all(events.index(e) < first_point for e in told)
+    assert [e.periods for e in told] == list(range(1, len(told) + 1)) and {e.case for e in told} == {"seeded"}
 
 
 def test_from_overview_without_an_overview_table_is_one_line_naming_the_key() -> None:

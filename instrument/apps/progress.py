@@ -9,6 +9,7 @@ from typing import TextIO
 
 from bodebench.bench.events import (
     BusStatus,
+    OverviewProgress,
     PlanGrew,
     PointFinished,
     PointProgress,
@@ -71,6 +72,8 @@ class ProgressPrinter:
             self.total = self.timer.total
             already = f", {self.timer.done} already measured" if self.timer.done else ""
             self._line(f"{self.label}: {len(event.frequencies_hz)} points on {event.where}{already}", True)
+        elif isinstance(event, OverviewProgress):
+            self._line(f"{self.label}: the overview first, period {event.periods}", event.periods % 10 == 0)
         elif isinstance(event, PlanGrew):
             if self.timer is not None:
                 self.timer.extend(event.frequencies_hz, event.extra_periods, event.max_periods)

@@ -74,6 +74,15 @@ class SessionStarted:
 
 
 @dataclass(frozen=True)
+class OverviewProgress:
+    """The overview an adaptive plan runs first (``from_overview``) for case ``case`` has measured ``periods``
+    whole periods of its multisine."""
+
+    case: str
+    periods: int
+
+
+@dataclass(frozen=True)
 class PlanGrew:
     """An adaptive plan adds ``frequencies_hz`` (Hz, ascending) to the sweep, each for the reason at the same place in
     ``reasons``; ``extra_periods`` and ``max_periods`` as :class:`SessionStarted` gives them, per added frequency."""

@@ -11,6 +11,7 @@ or the offline sweep through a :class:`ResultsWriter`), and writes the plots of 
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import math
@@ -26,6 +27,7 @@ from bodebench.bench.events import (
     CaseBegins,
     CaseSaved,
     Listener,
+    OverviewProgress,
     PlanGrew,
     PointFinished,
     PointStarted,
@@ -342,8 +344,9 @@ class SweepProcedure:
             from bodebench.bench.overview import measure_overview_on_bench
 
             log.info("case %s: the overview first", outcome.case.name)
-            self._seed(outcome, growing, measure_overview_on_bench(outcome.case, plan_link(outcome.case,
-                                                                                           direct=self.direct)))
+            self._seed(outcome, growing, measure_overview_on_bench(
+                outcome.case, plan_link(outcome.case, direct=self.direct),
+                functools.partial(self._overview_progress, outcome.case.name)))
         plan = plan_link(outcome.case, direct=self.direct, log=bus_log)
         log.info("case %s: the drive is reached %s%s", outcome.case.name, plan.where or "directly",
                  f"; bus log {bus_log}" if bus_log else "")
@@ -391,7 +394,8 @@ class SweepProcedure:
             if plan is not None and plan.adaptive.from_overview and not outcome.resumed:
                 from bodebench.bench.overview import measure_overview
 
-                self._seed(outcome, plan, measure_overview(cases[k]))
+                self._seed(outcome, plan, measure_overview(cases[k], functools.partial(self._overview_progress,
+                                                                                      outcome.case.name)))
                 cases[k] = plan.case
         remaining = [sum(f not in skip for f in case.excitation.frequencies_hz)
                      for case, skip in zip(cases, skips, strict=True)]
@@ -456,6 +460,9 @@ class SweepProcedure:
             if futures:
                 outcome.files = tuple(path for future in futures for path in future.result())
             self.listener(CaseSaved(outcome.index, outcome.response, outcome.directory, outcome.files))
+
+    def _overview_progress(self, case: str, periods: int) -> None:
+        self.listener(OverviewProgress(case, periods))
 
     def _seed(self, outcome: CaseOutcome, plan: GrowingPlan, overview: OverviewResult) -> None:
         """An adaptive case's grid grown from its overview's lines before it is measured; the overview's files go to

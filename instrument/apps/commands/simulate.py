@@ -28,7 +28,7 @@ log = logging.getLogger("bodebench")
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from bodebench.bench.events import CaseBegins, PlanGrew, PointFinished
+    from bodebench.bench.events import CaseBegins, OverviewProgress, PlanGrew, PointFinished
     from bodebench.bench.offline import ExecutorError, offline_executor
     from bodebench.bench.procedure import SweepProcedure
 
@@ -45,6 +45,8 @@ def _simulate(args: argparse.Namespace) -> int:
         if isinstance(event, CaseBegins):
             name, done = event.name, 0
             total = len(config.cases[event.index].excitation.frequencies_hz)
+        elif isinstance(event, OverviewProgress) and not args.quiet and event.periods % 10 == 0:
+            print(f"{event.case}: the overview first, {event.periods} periods", file=sys.stderr)
         elif isinstance(event, PlanGrew) and not args.quiet:
             total += len(event.frequencies_hz)
             print(f"{name}: the plan adds {len(event.frequencies_hz)} frequencies", file=sys.stderr)
