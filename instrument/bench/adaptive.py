@@ -54,6 +54,11 @@ class GrowingPlan:
         self.ended = ""
         """Why the plan stopped growing ("" while it may still grow)."""
 
+    @classmethod
+    def of(cls, case: CaseConfig) -> GrowingPlan | None:
+        """The plan of ``case``; None for a case without an adaptive plan."""
+        return cls(case) if case.excitation.adaptive is not None else None
+
     def extra_periods(self, frequency_hz: float) -> float:
         """Periods a point at ``frequency_hz`` spends besides those integrated (:func:`extra_periods`)."""
         return extra_periods(self.case, frequency_hz)

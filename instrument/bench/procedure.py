@@ -338,9 +338,8 @@ class SweepProcedure:
         from bodebench.bench.connection import plan_link
 
         bus_log = "" if self.log_bus is None else str(bus_log_path(self.log_bus, self.config, outcome.case))
-        adaptive = outcome.case.excitation.adaptive
-        growing = GrowingPlan(outcome.case) if adaptive is not None else None
-        if growing is not None and adaptive is not None and adaptive.from_overview and previous is None:
+        growing = GrowingPlan.of(outcome.case)
+        if growing is not None and growing.adaptive.from_overview and previous is None:
             from bodebench.bench.overview import measure_overview_on_bench
 
             log.info("case %s: the overview first", outcome.case.name)
@@ -384,7 +383,7 @@ class SweepProcedure:
                                                case.analysis.harmonics) if before else set())
         writers = [ResultsWriter(o.directory, o.case.name, o.case.raw, resume=previous[o.index] is not None)
                    for o in outcomes]
-        plans = [GrowingPlan(case) if case.excitation.adaptive is not None else None for case in cases]
+        plans = [GrowingPlan.of(case) for case in cases]
         for k, (outcome, plan) in enumerate(zip(outcomes, plans, strict=True)):
             outcome.plan = plan
             before = previous[outcome.index]
@@ -404,10 +403,11 @@ class SweepProcedure:
         turn = -1
 
         def advance() -> None:
-            """Finish the cases whose every frequency is done (an adaptive one's plan too), in order, and begin the
-            next one."""
+            """Finish the cases whose every frequency is done (an adaptive one's plan too, unless the sweep was
+            stopped), in order, and begin the next one."""
             nonlocal turn
-            while turn < len(outcomes) and (turn < 0 or (remaining[turn] == 0 and not _growing(plans[turn]))):
+            while turn < len(outcomes) and (turn < 0 or (remaining[turn] == 0 and (
+                    self.controls.aborted or not _growing(plans[turn])))):
                 if turn >= 0:
                     sort_points(outcomes[turn].response)
                     self._summarize(outcomes[turn], completed=not self.controls.aborted)
@@ -439,9 +439,6 @@ class SweepProcedure:
                     break
                 advance()
             if self.controls.aborted:
-                for plan in plans:
-                    if plan is not None and not plan.ended:
-                        plan.ended = "the sweep was stopped"
                 advance()
                 break
             active = []

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bodebench.bench.adaptive import GrowingPlan
+from bodebench.bench.adaptive import GrowingPlan, extra_periods
 from bodebench.bench.connection import LinkPlan
 from bodebench.bench.controls import SweepControls
 from bodebench.bench.events import (
@@ -111,8 +111,7 @@ class BenchSession:
         """The samples of the frequency measured last (saved in ``samples/`` when there is a results directory)."""
         self._writer: ResultsWriter | None = None
         self._stopped: Stopped | None = None  # the worker's last message, where it came before the shutdown
-        self.growing = growing if growing is not None else \
-            GrowingPlan(case) if case.excitation.adaptive is not None else None
+        self.growing = growing if growing is not None else GrowingPlan.of(case)
         """An adaptive case's plan as it grows (None: the planned frequencies only); ``growing``: one already
         begun (an overview's frequencies added to the case)."""
         if self.growing is not None and resume is not None:  # the frequencies an earlier run added are the plan's
@@ -221,8 +220,7 @@ class BenchSession:
         for p in self.response.points:
             if p.frequency_hz in done:
                 measured[p.frequency_hz] = max(measured.get(p.frequency_hz, 0), p.periods)
-        extra = tuple(bench.ramp_in_periods + excitation.settle_at(f) + bench.ramp_out_periods
-                      for f in excitation.frequencies_hz)
+        extra = tuple(extra_periods(self.case, f) for f in excitation.frequencies_hz)
         budgets = tuple(period_budget(self.analysis, f, on_bench=True) for f in excitation.frequencies_hz)
         return SessionStarted(excitation.frequencies_hz, channels, self.plan.where, tuple(measured.items()), extra,
                               budgets, bench.clock == "realtime")
