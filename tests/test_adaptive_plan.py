@@ -217,6 +217,31 @@ def test_a_resonance_between_two_coarse_points_is_found_by_the_curve() -> None:
     assert abs(peak.at_hz - 31.6 * math.sqrt(1 - 2 * 0.01**2)) < 0.05 * 31.6
 
 
+def test_a_plan_for_the_figures_only_adds_nothing_for_the_curve_and_still_meets_every_figure() -> None:
+    """``curve = false``: a lightly damped mode from three points a decade; every addition names a figure, the
+    curve has no standing, each figure called met is within its accuracy of the exact one, and the plan ends with
+    fewer points than the same plan drawing the curve too."""
+    g = second_order(7.31, 0.02)
+    plan = AdaptivePlan(curve=False)
+    frequencies, response, _ = grown(g, plan, 1.0, 100.0, per_decade=3)
+    step = next_round(response, plan, "system", frequencies)
+    assert not step.additions
+    assert all(s.figure != "curve" for s in step.standings)
+    exact = exact_figures(g, 1.0, 100.0, "system")
+    (summary,) = summarize_response(response)
+    found = [s for s in step.standings if s.found]
+    assert {s.figure for s in found} == {"bandwidth", "resonance", "phase_90"}  # a second order: no -180 deg
+    for standing in found:
+        assert standing.met, standing.text
+        figure = summary.figure(FIGURE_NAMES[standing.figure])
+        allowed = plan.gain_db if figure.unit == "dB" else plan.frequency_percent / 100.0 * exact[standing.figure].value
+        assert abs(figure.value - exact[standing.figure].value) <= allowed, standing.text
+    with_curve, _, _ = grown(g, AdaptivePlan(), 1.0, 100.0, per_decade=3)
+    assert len(frequencies) < len(with_curve)
+    added = [f for f in frequencies if f not in FrequencyRange(1.0, 100.0, 3).expand()]
+    assert added  # the figures alone call for points here
+
+
 def test_a_figure_limited_by_the_measurement_adds_nothing_for_it() -> None:
     """Points whose intervals are wider than the accuracy: the bandwidth's standing says the measurement limits
     it; what the plan adds for it is only where interpolation errs, never a point on top of another."""

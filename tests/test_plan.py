@@ -114,6 +114,10 @@ def test_settle_periods_pass_before_the_first_integrated_period() -> None:
     ({"amplitude": 1.0, "frequencies": {"start_hz": 1.0, "stop_hz": 10.0, "per_decade": 1,
                                         "adaptive": {"frequency_percent": 0}}},
      "plan.toml: excitation.frequencies.adaptive.frequency_percent: must be > 0, got 0.0"),
+    ({"amplitude": 1.0, "frequencies": {"start_hz": 1.0, "stop_hz": 10.0, "per_decade": 1,
+                                        "adaptive": {"figures": [], "curve": False}}},
+     "plan.toml: excitation.frequencies.adaptive: asks for no figure and no curve (figures = [], curve = false): "
+     "nothing would add a frequency"),
 ])
 def test_plan_errors_are_one_line_naming_the_key(excitation: dict, message: str) -> None:
     with pytest.raises(ConfigError) as info:

@@ -906,6 +906,75 @@ async def test_a_loop_sweep_fills_its_rows_named_by_the_mode(tmp_path: Path) -> 
         assert "effort" in app.w_live.query_one("#scope", PlotView).legend.plain
 
 
+class StatusRecorder(BodeBenchApp):
+    """The app, keeping every status line it shows."""
+
+    shown: list[str]
+
+    def _refresh_status(self) -> None:
+        super()._refresh_status()
+        self.__dict__.setdefault("shown", []).append(self.w_status.render().plain)
+
+
+@pytest.mark.slow
+@pytest.mark.asyncio
+async def test_the_overview_an_adaptive_plan_runs_first_shows_its_periods_in_the_status(tmp_path: Path) -> None:
+    """from_overview, on the virtual bus: while the multisine runs the status line counts its periods, one more
+    each time; once the points start it says so no more, and the rows the overview called for are in the table."""
+    path = tmp_path / "seeded.toml"
+    path.write_text(f"""
+title = "overview first"
+[plant]
+model = "linear"
+mass = {1 / (2 * math.pi * 7.3) ** 2!r}
+stiffness = 1.0
+damping_ratio = 0.03
+[excitation]
+amplitude = 0.01
+[excitation.frequencies]
+start_hz = 3
+stop_hz = 30
+per_decade = 2
+[excitation.frequencies.adaptive]
+figures = ["resonance"]
+max_points = 7
+from_overview = true
+[analysis]
+harmonics = [1]
+tolerance_percent = 0.1
+[overview]
+start_hz = 3
+stop_hz = 30
+amplitude = 0.02
+lines_per_decade = 6
+tolerance_percent = 1
+[bench]
+transport = "can"
+rate_hz = 1000
+clock = "lockstep"
+[can]
+interface = "virtual"
+channel = "{channel_name()}"
+[safety]
+max_amplitude = 0.03
+watchdog_s = 5.0
+[simulator]
+""")
+    app = StatusRecorder(load_config(path), tmp_path / "out")
+    async with app.run_test(size=(160, 48)) as pilot:
+        await pilot.press("s")
+        await wait_for(pilot, lambda: finished(app), "the end of the sweep", timeout=300.0)
+        await pilot.pause(0.3)
+        assert app.state == "done", app.worker_errors
+    told = [int(line.split("overview first: ")[1].split()[0]) for line in app.shown if "overview first: " in line]
+    assert told and told == sorted(told) and told[-1] > told[0]
+    last = max(i for i, line in enumerate(app.shown) if "overview first: " in line)
+    assert all("overview first" not in line for line in app.shown[last + 1:])
+    assert "overview first" not in app.w_status.render().plain
+    on_disk = sorted(p.frequency_hz for p in load_response(tmp_path / "out").points)
+    assert any(6.5 < f < 8.0 for f in on_disk) and len(app.model.rows) == len(on_disk)
+
+
 @pytest.mark.slow
 @pytest.mark.asyncio
 async def test_an_adaptive_plan_grows_in_the_table(tmp_path: Path) -> None:

@@ -106,10 +106,12 @@ def _case_lines(case: CaseConfig) -> Iterator[str]:
     if adaptive is not None:
         spend = f", or {_duration(adaptive.budget_s)} of bench time" if adaptive.budget_s is not None else ""
         first = "the overview's lines, then " if adaptive.from_overview else ""
+        curve = (f"the curve to {adaptive.curve_gain_db:g} dB, {adaptive.curve_phase_deg:g} deg; " if adaptive.curve
+                 else "")
         yield (f"{INDENT}adaptive: these first, then frequencies added where {first}the points call for them: "
                f"{', '.join(adaptive.figures) or 'no figure'} to {adaptive.frequency_percent:g} % (frequencies), "
-               f"{adaptive.gain_db:g} dB, {adaptive.phase_deg:g} deg; the curve to {adaptive.curve_gain_db:g} dB, "
-               f"{adaptive.curve_phase_deg:g} deg; up to {adaptive.max_points} frequencies{spend}")
+               f"{adaptive.gain_db:g} dB, {adaptive.phase_deg:g} deg; {curve}up to {adaptive.max_points} "
+               f"frequencies{spend}")
     for note in case.plan_notes:
         yield f"{INDENT}note: {note}"
     yield from _overview_lines(case)

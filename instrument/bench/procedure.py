@@ -343,9 +343,9 @@ class SweepProcedure:
             from bodebench.bench.overview import measure_overview_on_bench
 
             log.info("case %s: the overview first", outcome.case.name)
-            self._seed(outcome, growing, measure_overview_on_bench(
+            self.listener(self._seed(outcome, growing, measure_overview_on_bench(
                 outcome.case, plan_link(outcome.case, direct=self.direct),
-                functools.partial(self._overview_progress, outcome.case.name)))
+                functools.partial(self._overview_progress, outcome.case.name))))
         plan = plan_link(outcome.case, direct=self.direct, log=bus_log)
         log.info("case %s: the drive is reached %s%s", outcome.case.name, plan.where or "directly",
                  f"; bus log {bus_log}" if bus_log else "")
@@ -384,6 +384,7 @@ class SweepProcedure:
         writers = [ResultsWriter(o.directory, o.case.name, o.case.raw, resume=previous[o.index] is not None)
                    for o in outcomes]
         plans = [GrowingPlan.of(case) for case in cases]
+        waiting: list[list[list[ResponsePoint] | PlanGrew]] = [[] for _ in cases]
         for k, (outcome, plan) in enumerate(zip(outcomes, plans, strict=True)):
             outcome.plan = plan
             before = previous[outcome.index]
@@ -393,12 +394,11 @@ class SweepProcedure:
             if plan is not None and plan.adaptive.from_overview and not outcome.resumed:
                 from bodebench.bench.overview import measure_overview
 
-                self._seed(outcome, plan, measure_overview(cases[k], functools.partial(self._overview_progress,
-                                                                                      outcome.case.name)))
+                waiting[k].append(self._seed(outcome, plan, measure_overview(
+                    cases[k], functools.partial(self._overview_progress, outcome.case.name))))
                 cases[k] = plan.case
         remaining = [sum(f not in skip for f in case.excitation.frequencies_hz)
                      for case, skip in zip(cases, skips, strict=True)]
-        waiting: list[list[list[ResponsePoint] | PlanGrew]] = [[] for _ in cases]
         drawing: list[tuple[CaseOutcome, list[Future[list[Path]]]]] = []
         turn = -1
 
@@ -461,15 +461,16 @@ class SweepProcedure:
     def _overview_progress(self, case: str, periods: int) -> None:
         self.listener(OverviewProgress(case, periods))
 
-    def _seed(self, outcome: CaseOutcome, plan: GrowingPlan, overview: OverviewResult) -> None:
-        """An adaptive case's grid grown from its overview's lines before it is measured; the overview's files go to
-        ``overview/`` in the case's directory."""
+    def _seed(self, outcome: CaseOutcome, plan: GrowingPlan, overview: OverviewResult) -> PlanGrew:
+        """An adaptive case's grid grown from its overview's lines before it is measured (the event that tells of
+        it); the overview's files go to ``overview/`` in the case's directory."""
         from bodebench.io.overview import save_overview
 
         response = save_overview(outcome.directory / OVERVIEW_DIR, overview.lines, overview.design, overview.periods,
                                  outcome.case.raw, outcome.case.name)
-        plan.seed(response)
+        seeded = plan.seed(response)
         outcome.case = plan.case
+        return plan.event(seeded)
 
     def _tell(self, case: CaseConfig, told: list[ResponsePoint] | PlanGrew) -> None:
         """Tell the listener of a frequency's points (their start and end), or of a plan that grew."""

@@ -70,6 +70,8 @@ class PlanTargets(Protocol):
     @property
     def phase_deg(self) -> float: ...
     @property
+    def curve(self) -> bool: ...
+    @property
     def curve_gain_db(self) -> float: ...
     @property
     def curve_phase_deg(self) -> float: ...
@@ -224,7 +226,7 @@ def next_round(response: FrequencyResponse, targets: PlanTargets, kind: str = "s
             more, standing = _figure_round(curve, figure, key, targets)
             wanted += more
             standings.append(standing)
-    for curve in curves.values():
+    for curve in curves.values() if targets.curve else ():
         more, standing = _curve_round(curve, targets)
         wanted += more
         standings.append(standing)

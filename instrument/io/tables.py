@@ -216,6 +216,9 @@ class AdaptivePlan:
         "min": 0, "min_exclusive": True, "doc": "accuracy of each figure in dB (resonance peak, gain margin), dB"})
     phase_deg: float = field(default=1.0, metadata={
         "min": 0, "min_exclusive": True, "doc": "accuracy of each figure in degrees (phase margin), deg"})
+    curve: bool = field(default=True, metadata={
+        "doc": "add frequencies where the curve drawn between two neighbouring points may be further from the "
+               "response than curve_gain_db or curve_phase_deg (false: for the figures only)"})
     curve_gain_db: float = field(default=1.0, metadata={
         "min": 0, "min_exclusive": True,
         "doc": "largest interpolation error of the gain curve between two neighbouring points, dB"})
@@ -256,6 +259,9 @@ class FrequencyRange:
         if self.adaptive is not None and count > self.adaptive.max_points:
             raise FieldError("adaptive", f"max_points = {self.adaptive.max_points} is fewer than the range's "
                                          f"{count} frequencies")
+        if self.adaptive is not None and not self.adaptive.figures and not self.adaptive.curve:
+            raise FieldError("adaptive", "asks for no figure and no curve (figures = [], curve = false): nothing "
+                                         "would add a frequency")
 
     def expand(self) -> tuple[float, ...]:
         """The frequencies, Hz, ascending."""

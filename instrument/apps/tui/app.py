@@ -49,6 +49,7 @@ from bodebench.bench.events import (
     CaseBegins,
     CaseSaved,
     Health,
+    OverviewProgress,
     PlanGrew,
     PointFinished,
     PointStarted,
@@ -185,6 +186,7 @@ class BodeBenchApp(App[int]):
         self._health_seen: float | None = None
         self.bus_rates = (math.nan, math.nan)
         self.where = ""
+        self.overview_periods: int | None = None  # periods of the overview an adaptive plan runs first, while it runs
         self.watchdog = "off"
         self.last_fault: SessionFault | None = None
         self.last_ended: SessionEnded | None = None
@@ -630,6 +632,8 @@ class BodeBenchApp(App[int]):
     def _session_event(self, event: object) -> None:
         self._drain()
         now = time.monotonic()
+        if not isinstance(event, OverviewProgress):
+            self.overview_periods = None
         if isinstance(event, CaseBegins):
             self.case_index = event.index
             if event.frequency_hz is None:
@@ -655,6 +659,8 @@ class BodeBenchApp(App[int]):
             self.watchdog = "armed"
             self.model.session_started(now, event.timer())
             self.state = "paused" if self.control is not None and self.control.paused else "running"
+        elif isinstance(event, OverviewProgress):
+            self.overview_periods = event.periods
         elif isinstance(event, PlanGrew):
             self.model.extend(event.frequencies_hz, event.extra_periods, event.max_periods)
             self.w_table.fill(self.model.rows)
@@ -883,6 +889,8 @@ class BodeBenchApp(App[int]):
         text.append(f" ETA {format_duration(model.eta(now))}")
         tol = self.tolerance_percent if self.tolerance_percent is not None else self.case.analysis.tolerance_percent
         text.append(f"  tol {tol:g} %")
+        if self.overview_periods is not None:
+            text.append(f"  overview first: {self.overview_periods} periods", style="bold cyan")
         if text != self._status_text:
             self._status_text = text
             self.w_status.update(text, layout=False)
