@@ -179,6 +179,31 @@ def test_the_loader_says_what_a_mode_lacks() -> None:
         parse_config(data, "loop.toml")
 
 
+def test_the_loader_checks_what_the_simulated_drive_can_send_and_regulate() -> None:
+    """A loop regulating no output of the plant, and a feedback channel the simulated drive does not have, are
+    one line each from the loader, not a failure after the bus is up; the names it
+    gives are the plant's own."""
+    from bodebench.bench.offline import build_plant
+
+    data = load_config(CONFIGS / "sim_loop.toml")
+    data["simulator"]["loop"]["feedback"] = "velocty"
+    outputs = build_plant(parse_config(load_config(CONFIGS / "sim_loop.toml"), "loop.toml").cases[0].plant
+                          ).output_names
+    with pytest.raises(ConfigError) as info:
+        parse_config(data, "loop.toml")
+    assert str(info.value) == (f"loop.toml: simulator.loop.feedback: 'velocty' is not an output of the linear plant "
+                               f"({', '.join(outputs)})")
+    data["simulator"]["loop"]["feedback"] = "velocity"
+    assert parse_config(data, "loop.toml").cases[0].simulator.loop.feedback == "velocity"
+    data = load_config(CONFIGS / "sim_loop.toml")
+    data["frames"]["feedback"][1]["signals"][0]["name"] = "torque"
+    data["bench"]["effort_channel"] = "torque"
+    with pytest.raises(ConfigError) as info:
+        parse_config(data, "loop.toml")
+    assert str(info.value).startswith("loop.toml: simulator: feedback channel 'torque' (feedback[1], id 0x182) is "
+                                      "not sent by the simulated drive: it sends the linear plant's position, velocity")
+
+
 def test_a_loop_sweep_reanalyses_to_itself_and_refuses_another_mode_and_the_chain(tmp_path: Path) -> None:
     """The record holds the mode's columns: ``analyse`` gives the same points; another mode, or taking the bench's
     delays off a ratio of two channels, is refused in one line."""

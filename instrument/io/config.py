@@ -26,7 +26,7 @@ from bodebench.core.multisine import Multisine, MultisineError
 from bodebench.drivers import cia408
 from bodebench.drivers.canopen_link import CanopenSetup, ObjectRef, load_od, resolve_object
 from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS
-from bodebench.drivers.codec import COUNTER, SETPOINT, TIMESTAMP
+from bodebench.drivers.codec import COUNTER, CRC, SETPOINT, SETPOINT_ECHO, TIMESTAMP
 from bodebench.drivers.device_profile import PROFILES
 from bodebench.drivers.errors import LayoutError
 from bodebench.drivers.extras import missing, require
@@ -296,6 +296,8 @@ def _build_case(
         frequencies, notes = _off_disturbances(built["excitation"].frequencies_hz, built["analysis"], raw)
         built["excitation"] = built["excitation"].with_frequencies(frequencies)
     layout, setup = _check_bench(built, frames, key, source)
+    if built["simulator"] is not None and layout is not None:
+        _check_simulated_outputs(built["plant"], built["simulator"], layout, built["bench"].transport, key)
     if built["overview"] is not None:
         _check_overview(built["overview"], built["bench"], built["safety"], key)
     adaptive = built["excitation"].adaptive
@@ -529,6 +531,33 @@ def _resolve_can(table: CanConfig, simulated: bool, key: Callable[[str, str], st
         raise _Fault(key("can", "bitrate"), f"python-can's configuration gives bitrate {bitrate!r}: not a bit rate")
     fd = table.fd or bool(resolved.get("fd", False))
     return replace(table, interface=interface, channel=channel, bitrate=bitrate, fd=fd)
+
+
+def _check_simulated_outputs(plant: PlantConfig, simulator: SimulatorConfig, layout: Layout, transport: str,
+                             key: Callable[[str, str], str]) -> None:
+    """The simulated drive's loop regulates an output of the plant, and on CAN frames or a serial line it can send
+    every feedback channel of the layout (a simulated CANopen device maps its objects to the plant itself); raises
+    :class:`_Fault`."""
+    from dataclasses import asdict
+
+    from bodebench.sim.models import plant_from_config
+    from bodebench.sim.servo_loop import CONTROL, EFFORT
+
+    params = asdict(plant)
+    outputs = plant_from_config(params.pop("model"), **params).output_names
+    loop = simulator.loop
+    if loop.inject and loop.feedback and loop.feedback not in outputs:
+        raise _Fault(f"{key('simulator', 'loop')}.feedback",
+                     f"{loop.feedback!r} is not an output of the {plant.model} plant ({', '.join(outputs)})")
+    sent = (*outputs, *((EFFORT, CONTROL) if loop.inject else ()), SETPOINT_ECHO)
+    for message in layout.feedback if transport != "canopen" else ():
+        for name in message.signal_names:
+            if name not in (COUNTER, TIMESTAMP, CRC) and name not in sent:
+                raise _Fault(_key_path("simulator"),
+                             f"feedback channel {name!r} ({message.name}, id 0x{message.id:X}) is not sent by the "
+                             f"simulated drive: it sends the {plant.model} plant's {', '.join(outputs)}"
+                             + (f", the loop's {EFFORT} and {CONTROL}" if loop.inject else "")
+                             + f" and {SETPOINT_ECHO}")
 
 
 def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, key: Callable[[str, str], str],
