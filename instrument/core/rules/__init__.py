@@ -20,10 +20,13 @@ Reading map, in reading order:
   confirm a limit; :mod:`.least_squares`, the fit's solve by LAPACK.
 - :mod:`.criteria`: the criterion names a config may give and :func:`make_rule`.
 
-Only speed, never a verdict: :mod:`.screens` (necessary conditions from the running sums, one period at a time
-or a table of many at once, under which the analysis of a period could give a verdict) and the fit's schedule
-in :mod:`.adaptive` (fits spaced out once windows are long, put off for a slowly decaying mode). A screen calls
-the same named inequalities as the decision, or says in its docstring which of them it bounds.
+Only speed, never a verdict: :mod:`.screens`, necessary conditions from the running sums (one period at a time
+or a table of many at once) under which the analysis of a period could give a verdict. A screen calls the same
+named inequalities as the decision, or says in its docstring which of them it bounds.
+
+Part of the decision, though it looks like speed: the fit's schedule in :mod:`.adaptive` (fits spaced out once
+windows are long, put off for a slowly decaying mode). The modal fit is judged only at the periods the schedule
+gives, so a fit at every period would stop at other periods with other values.
 
 Check mode: with the environment variable ``BODEBENCH_CHECK_SCREENS=1`` (read once, when :mod:`.adaptive` is
 imported) every :class:`AdaptiveRule` also runs the full, unscreened analysis wherever a screen spared one, and
