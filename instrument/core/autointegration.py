@@ -207,7 +207,7 @@ class Autointegrator:
         # so a small harmonic cannot stop on the calm before the transient of its channel has died out
         self._primary = self.harmonics.index(1) if 1 in self.harmonics else 0
         self._order = [self._primary] + [k for k in range(len(self.harmonics)) if k != self._primary]
-        self._last_references: list[float] = [math.nan] * len(self.channels)
+        self._last_scales: list[float] = [math.nan] * len(self.channels)
         # the drift the bench's integrator took off, summed (channel units per period) over the whole periods it
         # returned while a rule was still open, and their count
         self._drift_sum = np.zeros(len(self.channels))
@@ -305,7 +305,7 @@ class Autointegrator:
         orders = self._integrator.high_harmonics  # type: ignore[union-attr]
         return fold_bound(last, orders, self.samples_per_period, self.harmonics[k], periods), settled
 
-    def _reopen_for_folds(self, n: int, references: list[float]) -> None:
+    def _reopen_for_folds(self, n: int, scales: list[float]) -> None:
         """Every series just converged whose fold bound pushes it past its tolerance, where more periods can help:
         the bound alone is within the tolerance (the interval has to shrink to make room for it), or the content
         above the measured harmonics is still fading (a transient, not a fold). Reopened, to be judged again with
@@ -320,7 +320,7 @@ class Autointegrator:
                 bound, settled = self._fold(c, k, n)
                 if not bound:
                     continue
-                tolerance = self._rules[c][k].tolerance(complex(v.p, v.q), references[c])
+                tolerance = self._rules[c][k].tolerance(complex(v.p, v.q), scales[c])
                 if not self._fits(v, bound, tolerance) and (bound < tolerance or not settled):
                     verdicts[k] = None
                     self._pending += 1
@@ -398,35 +398,35 @@ class Autointegrator:
         exceeds the arithmetic)."""
         series = self._series
         count, harmonics = len(series), len(self.harmonics)
-        references = []
+        scales = []
         for start in range(0, len(values), count):
             for hist, v in zip(series, values[start:start + count], strict=True):
                 hist.append(v)
             # each channel's scale: its largest coefficient of the period
-            references.append([max(sizes[first:first + harmonics]) for first in range(start, start + count, harmonics)])
-        self._judge(len(references), references)
+            scales.append([max(sizes[first:first + harmonics]) for first in range(start, start + count, harmonics)])
+        self._judge(len(scales), scales)
 
-    def _judge(self, m: int, references: list[list[float]]) -> None:
-        """The rules' verdicts on the m periods just appended to the histories; references: each period's scale
-        of each channel, its largest coefficient (output units)."""
-        self._last_references = references[-1]
+    def _judge(self, m: int, scales: list[list[float]]) -> None:
+        """The rules' verdicts on the m periods just appended to the histories; scales: each period's scale of each
+        channel, its largest coefficient (output units)."""
+        self._last_scales = scales[-1]
         primary, order, max_periods = self._primary, self._order, self.max_periods
         for i in range(m):
             n = self.periods + i + 1
             for c, verdicts in enumerate(self._verdicts):
-                reference = references[i][c]
+                channel_scale = scales[i][c]
                 rules, histories = self._rules[c], self._histories[c]
                 for k in order:
                     if verdicts[k] is not None or (k != primary and verdicts[primary] is None):
                         continue
-                    verdict = rules[k].check(histories[k], n, reference)
+                    verdict = rules[k].check(histories[k], n, channel_scale)
                     if verdict is None and n >= max_periods:
-                        verdict = rules[k].capped(histories[k], n, reference)
+                        verdict = rules[k].capped(histories[k], n, channel_scale)
                     if verdict is not None:
                         verdicts[k] = verdict
                         self._pending -= 1
             if self._pending == 0 and self._high:
-                self._reopen_for_folds(n, references[i])
+                self._reopen_for_folds(n, scales[i])
             if self.discarded and (self._pending == 0 or n + self.discarded >= max_periods):
                 self._judge_gaps(n)
             if self.done:
@@ -442,7 +442,7 @@ class Autointegrator:
                     hist = self._histories[c][k]
                     if hist.n == 0:
                         raise ValueError(f"the record of {self.frequency_hz:g} Hz holds no whole period")
-                    verdicts[k] = self._rules[c][k].capped(hist, hist.n, self._last_references[c])
+                    verdicts[k] = self._rules[c][k].capped(hist, hist.n, self._last_scales[c])
                     self._pending -= 1
 
     def states(self) -> list[SeriesState]:
@@ -459,8 +459,8 @@ class Autointegrator:
                     n = hist.n
                 else:
                     est, unc, n = complex("nan"), float("nan"), 0
-                reference = self._last_references[c]
-                tol = self._rules[c][k].tolerance(est, reference) if n and math.isfinite(reference) else math.nan
+                scale = self._last_scales[c]
+                tol = self._rules[c][k].tolerance(est, scale) if n and math.isfinite(scale) else math.nan
                 out.append(SeriesState(name, harmonic, n, est, unc, verdict, tol))
         return out
 
@@ -504,7 +504,7 @@ class Autointegrator:
                 converged, status, within_eps = v.converged, v.status, v.within_eps
                 fold = float(folds[c, k])
                 if fold and converged and not self._fits(
-                        v, fold, self._rules[c][k].tolerance(complex(v.p, v.q), self._last_references[c])):
+                        v, fold, self._rules[c][k].tolerance(complex(v.p, v.q), self._last_scales[c])):
                     converged, status, within_eps = False, PointStatus.ALIAS_LIMITED, False
                 if noisy_divisor:
                     converged, status, within_eps = False, PointStatus.DIVISOR_LIMITED, False

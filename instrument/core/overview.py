@@ -104,7 +104,7 @@ class LineIntegrator:
         self._histories = [SeriesHistory() for _ in self.lines]
         self._rules = [rules.rule() for _ in self.lines]
         self._verdicts: list[Verdict | None] = [None] * len(self.lines)
-        self._reference = math.nan
+        self._scale = math.nan
         self.periods = 0
 
     @property
@@ -127,15 +127,15 @@ class LineIntegrator:
         sizes = np.abs(ratios)
         # the scale a line near zero is judged against: the largest response of the period, as a sine's largest
         # harmonic is for its others
-        reference = float(np.max(sizes[np.isfinite(sizes)])) if np.isfinite(sizes).any() else math.nan
-        self._reference = reference
+        scale = float(np.max(sizes[np.isfinite(sizes)])) if np.isfinite(sizes).any() else math.nan
+        self._scale = scale
         for i, (hist, rule) in enumerate(zip(self._histories, self._rules, strict=True)):
             hist.append(complex(ratios[i]))
             if self._verdicts[i] is not None:
                 continue
-            verdict = rule.check(hist, n, reference)
+            verdict = rule.check(hist, n, scale)
             if verdict is None and n >= self.settings.max_periods:
-                verdict = rule.capped(hist, n, reference)
+                verdict = rule.capped(hist, n, scale)
             self._verdicts[i] = verdict
 
     def result(self) -> list[OverviewLine]:
@@ -172,10 +172,10 @@ class LineIntegrator:
         return out
 
     @property
-    def reference(self) -> float:
+    def scale(self) -> float:
         """The largest line response of the latest period (output units per input unit): the tolerance's floor is
         :data:`~bodebench.core.rules.RESOLUTION` of it."""
-        return self._reference
+        return self._scale
 
 
 def _rms(values: Sequence[float] | np.ndarray) -> float:

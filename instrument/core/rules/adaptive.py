@@ -106,7 +106,7 @@ class AdaptiveRule(StoppingRule):
        every fitted mode has visibly decayed over its window, and the fit made on the older window
        predicts the newer window's data (the model is confirmed on data it has not seen).
 
-    Tolerance: ``eps/100 * max(|Z|, RESOLUTION * reference)``: a coefficient far below the channel's largest
+    Tolerance: ``eps/100 * max(|Z|, RESOLUTION * channel_scale)``: a coefficient far below the channel's largest
     one is measured to an absolute floor and reported as below resolution when its confidence region
     contains zero. Points that reach ``max_periods`` end ``noise_limited`` when only the statistical part is
     too wide (with the periods the requested eps would need), else ``capped``.
@@ -151,13 +151,13 @@ class AdaptiveRule(StoppingRule):
         self._screening = False  # whether the next fit is screened first
         self._screens_passed = 0  # screens passed in a row since the last that spared a fit
 
-    def check(self, hist: SeriesHistory, n: int, reference: float) -> Verdict | None:
+    def check(self, hist: SeriesHistory, n: int, channel_scale: float) -> Verdict | None:
         analysed = n - self.skip
         if analysed < self.min_periods:
             return None
         # a settled estimate is bounded only with eight batches in each quarter-block
         if analysed >= _BLOCKS * _SUB_BATCHES:
-            verdict = self._settled_check(hist, n, reference)
+            verdict = self._settled_check(hist, n, channel_scale)
             if verdict is not None:
                 return verdict
         # the fit costs more than the mean: once windows are long, try it on a sparser schedule
@@ -165,40 +165,40 @@ class AdaptiveRule(StoppingRule):
             self._next_fit = _next_fit_after(n, self.skip)
             if n < self._fit_put_off:  # skipped, the schedule kept: a put-off never moves the fits after it
                 return None
-            return self._fit_verdict(n, self._extrapolated(hist, n, reference), reference)
+            return self._fit_verdict(n, self._extrapolated(hist, n, channel_scale), channel_scale)
         return None
 
-    def _settled_verdict(self, hist: SeriesHistory, q: _QuarterStats, reference: float,
+    def _settled_verdict(self, hist: SeriesHistory, q: _QuarterStats, channel_scale: float,
                          lag: float | None = None) -> Verdict | None:
         """A verdict from the settled estimate at period q[0]: converged, or noise-limited already; None to go on."""
         settled = _settle(hist, q, lag)
         if not settled.bounded:
             return None
         n = q[0]
-        tol = self.tolerance(settled.value, reference)
+        tol = self.tolerance(settled.value, channel_scale)
         if settled.uncertainty <= tol:
-            return self._finish(n, settled.estimate(), self.tolerance(0.0, reference), "settled mean")
+            return self._finish(n, settled.estimate(), self.tolerance(0.0, channel_scale), "settled mean")
         needed = _periods_needed(n, settled.statistical, settled.uncertainty - settled.statistical, tol)
         if _hopeless(settled.white, needed, self.max_periods, n - self.skip):
             # the noise alone keeps eps out of reach within the budget: say so now, not at max_periods
             return self._noise_limited(n, settled.estimate(), needed)
         return None
 
-    def _fit_verdict(self, n: int, fit: tuple[complex, float] | None, reference: float) -> Verdict | None:
+    def _fit_verdict(self, n: int, fit: tuple[complex, float] | None, channel_scale: float) -> Verdict | None:
         """A verdict from the limit two windows' fits confirm (with its bound, output units) where the bound is
         within the tolerance at that limit; None to go on."""
         if fit is None:
             return None
         limit, bound = fit
-        if bound <= self.tolerance(limit, reference):
-            return self._finish(n, Estimate(limit, bound, bound, 0.0, True), self.tolerance(0.0, reference),
+        if bound <= self.tolerance(limit, channel_scale):
+            return self._finish(n, Estimate(limit, bound, bound, 0.0, True), self.tolerance(0.0, channel_scale),
                                 "extrapolated")
         return None
 
-    def _settled_check(self, hist: SeriesHistory, n: int, reference: float) -> Verdict | None:
+    def _settled_check(self, hist: SeriesHistory, n: int, channel_scale: float) -> Verdict | None:
         """The settled estimate's verdict at n where the screen leaves one possible; None to go on."""
         if not self.screened:
-            return self._settled_verdict(hist, _quarters(hist, self.skip, n), reference)
+            return self._settled_verdict(hist, _quarters(hist, self.skip, n), channel_scale)
         table = self._table
         if table is None or table.hist is not hist or not table.first <= n <= table.last:
             table = None
@@ -215,23 +215,24 @@ class AdaptiveRule(StoppingRule):
                                                    _noise_budget(self.max_periods) / _SLACK, fits, self.min_window)
         if table is None:
             q = _quarters(hist, self.skip, n)
-            possible, lag = _settled_may_stop(hist, q, reference, self.eps / 100.0, self.skip, self.max_periods)
+            possible, lag = _settled_may_stop(hist, q, channel_scale, self.eps / 100.0, self.skip, self.max_periods)
             if possible:
-                return self._settled_verdict(hist, q, reference, lag)
+                return self._settled_verdict(hist, q, channel_scale, lag)
             screen = "settled screen"
         else:
             i = n - table.first
-            if (reference >= table.conv[i] or table.low[i] < reference < table.high[i] or reference < table.below[i]
-                    or reference != reference):
+            scale = channel_scale
+            if (scale >= table.conv[i] or table.low[i] < scale < table.high[i] or scale < table.below[i]
+                    or scale != scale):
                 length = (n - self.skip) // _BLOCKS
                 q = (n, length, n - _BLOCKS * length, table.m2[i], table.m3[i], table.m4[i], table.within[i])
-                return self._settled_verdict(hist, q, reference, table.lag[i])
+                return self._settled_verdict(hist, q, channel_scale, table.lag[i])
             screen = "settled screen table"
         if self.check_screens:
-            self._spared(n, screen, self._settled_verdict(hist, _quarters(hist, self.skip, n), reference))
+            self._spared(n, screen, self._settled_verdict(hist, _quarters(hist, self.skip, n), channel_scale))
         return None
 
-    def _extrapolated(self, hist: SeriesHistory, n: int, reference: float) -> tuple[complex, float] | None:
+    def _extrapolated(self, hist: SeriesHistory, n: int, channel_scale: float) -> tuple[complex, float] | None:
         """(limit, error bound) of the modal fit confirmed on two windows, or None where it is not confirmed.
 
         Screened, None also where the bound cannot come within the tolerance: where the running sums show that
@@ -245,24 +246,25 @@ class AdaptiveRule(StoppingRule):
         screened = self.screened and e < 1.0
         if screened and self.modes == 2:
             table = self._table
-            floor = table.fit.get(n) if table is not None and table.fit is not None and table.hist is hist else None
-            if floor is not None:
-                if reference < floor:
-                    self._check_fit_spared(hist, n, w, e, reference, "two-mode fit screen table")
+            fits = table.fit if table is not None and table.hist is hist else None
+            least_scale = fits.get(n) if fits is not None else None
+            if least_scale is not None:
+                if channel_scale < least_scale:
+                    self._check_fit_spared(hist, n, w, e, channel_scale, "two-mode fit screen table")
                     return None
             elif self._screening:
-                if not _two_mode_fit_may_pass(hist, n - 2 * w, w, e, RESOLUTION * reference):
+                if not _two_mode_fit_may_pass(hist, n - 2 * w, w, e, RESOLUTION * channel_scale):
                     self._screens_passed = 0
-                    self._check_fit_spared(hist, n, w, e, reference, "two-mode fit screen")
+                    self._check_fit_spared(hist, n, w, e, channel_scale, "two-mode fit screen")
                     return None
                 self._screens_passed += 1
                 self._screening = self._screens_passed < _SCREENS_IN_VAIN
-        confirmed, needed, screen = _fit_two_windows(hist.arrays()[0], n, w, self.modes, e, RESOLUTION * reference,
+        confirmed, needed, screen = _fit_two_windows(hist.arrays()[0], n, w, self.modes, e, RESOLUTION * channel_scale,
                                                      screened, hist.all_finite(n - 2 * w, n))
         if screen == _RESIDUAL_SCREEN:
             self._screening, self._screens_passed = True, 0  # a screen might have spared this fit
         if screen:
-            self._check_fit_spared(hist, n, w, e, reference, screen)
+            self._check_fit_spared(hist, n, w, e, channel_scale, screen)
         # a mode refused for its slow decay twice running at rates that agree: no fit before the windows are long
         # enough for it to decay (the first period whose w reaches needed), nor later than fit_delay periods after
         # the next one due
@@ -271,13 +273,14 @@ class AdaptiveRule(StoppingRule):
             self._fit_put_off = min(n + 1 + self.fit_delay, self.skip + _FIT_WINDOW_SHARE * math.ceil(needed))
         return confirmed
 
-    def _check_fit_spared(self, hist: SeriesHistory, n: int, w: int, e: float, reference: float, screen: str) -> None:
+    def _check_fit_spared(self, hist: SeriesHistory, n: int, w: int, e: float, channel_scale: float,
+                          screen: str) -> None:
         """In the check mode, the fit verdict the unscreened fits of the windows at n would give, for
         :meth:`_spared`; nothing otherwise."""
         if self.check_screens:
-            fit = _fit_two_windows(hist.arrays()[0], n, w, self.modes, e, RESOLUTION * reference, False,
+            fit = _fit_two_windows(hist.arrays()[0], n, w, self.modes, e, RESOLUTION * channel_scale, False,
                                    hist.all_finite(n - 2 * w, n))[0]
-            self._spared(n, screen, self._fit_verdict(n, fit, reference))
+            self._spared(n, screen, self._fit_verdict(n, fit, channel_scale))
 
     @staticmethod
     def _spared(n: int, screen: str, verdict: Verdict | None) -> None:
@@ -302,10 +305,10 @@ class AdaptiveRule(StoppingRule):
         return Verdict(n, est.value.real, est.value.imag, est.uncertainty, NOISE_LIMITED, "settled mean",
                        uncertainty_1d=est.uncertainty_1d, within_eps=False, periods_needed=needed)
 
-    def capped(self, hist: SeriesHistory, n: int, reference: float) -> Verdict:
+    def capped(self, hist: SeriesHistory, n: int, channel_scale: float) -> Verdict:
         """At max_periods: noise-limited (with the periods eps would need) when only the statistics are too wide."""
         est = settled_estimate(hist, self.skip, n)
-        tol = self.tolerance(est.value, reference)
+        tol = self.tolerance(est.value, channel_scale)
         needed = _periods_needed(n, est.statistical, est.bias, tol) if est.bounded and est.white else 0
         if needed:
             return self._noise_limited(n, est, needed)

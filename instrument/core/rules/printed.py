@@ -53,12 +53,12 @@ class _PrintedRule(StoppingRule):
     def compare(self, hist: SeriesHistory, n: int) -> tuple[complex, complex]:
         """(reference value, compared value) at n; the reference value is the reported estimate."""
 
-    def check(self, hist: SeriesHistory, n: int, reference: float) -> Verdict | None:
+    def check(self, hist: SeriesHistory, n: int, channel_scale: float) -> Verdict | None:
         if n < self.first_period():
             return None
         a, b = self.compare(hist, n)
         if _both_within(a, b, self.eps):
-            return self.verdict(hist, n, a, CONVERGED, reference)
+            return self.verdict(hist, n, a, CONVERGED, channel_scale)
         return None
 
     def estimate(self, hist: SeriesHistory, n: int) -> tuple[complex, float]:
@@ -151,10 +151,10 @@ class FixedScheme(StoppingRule):
         self.average = average
         self.name = name
 
-    def check(self, hist: SeriesHistory, n: int, reference: float) -> Verdict | None:
+    def check(self, hist: SeriesHistory, n: int, channel_scale: float) -> Verdict | None:
         if n < self.skip + self.average:
             return None
-        return self.verdict(hist, n, self.estimate(hist, n)[0], FIXED, reference)
+        return self.verdict(hist, n, self.estimate(hist, n)[0], FIXED, channel_scale)
 
     def estimate(self, hist: SeriesHistory, n: int) -> tuple[complex, float]:
         return hist.mean(min(self.skip, n - 1), n), math.nan

@@ -55,7 +55,7 @@ RESOLUTION = 1e-3
 
 def _tolerance(e: float, size: float, floor: float) -> float:
     """e max(size, floor): the tolerance of a value of magnitude ``size`` (output units), e = eps / 100, floor the
-    absolute floor (RESOLUTION times the channel's reference, output units)."""
+    absolute floor (RESOLUTION times the channel scale, output units)."""
     return e * max(size, floor)
 
 
@@ -72,15 +72,15 @@ class StoppingRule(ABC):
         self.eps = tolerance_percent
         self.skip = skip_periods
 
-    def tolerance(self, z: complex, reference: float) -> float:
-        """eps/100 * max(|z|, RESOLUTION * reference), output units."""
-        return _tolerance(self.eps / 100.0, abs(z), RESOLUTION * reference)
+    def tolerance(self, z: complex, channel_scale: float) -> float:
+        """eps/100 * max(|z|, RESOLUTION * channel_scale), output units."""
+        return _tolerance(self.eps / 100.0, abs(z), RESOLUTION * channel_scale)
 
     @abstractmethod
-    def check(self, hist: SeriesHistory, n: int, reference: float) -> Verdict | None:
+    def check(self, hist: SeriesHistory, n: int, channel_scale: float) -> Verdict | None:
         """Verdict at period n (n <= hist.n), or None to go on integrating.
 
-        reference: magnitude of the channel's largest coefficient (output units),
+        channel_scale: magnitude of the channel's largest coefficient (output units),
         the scale against which a coefficient near zero is judged.
         """
 
@@ -88,7 +88,7 @@ class StoppingRule(ABC):
     def estimate(self, hist: SeriesHistory, n: int) -> tuple[complex, float]:
         """The rule's current estimate and uncertainty at period n (progress displays, capped points)."""
 
-    def verdict(self, hist: SeriesHistory, n: int, value: complex, status: str, reference: float) -> Verdict:
+    def verdict(self, hist: SeriesHistory, n: int, value: complex, status: str, channel_scale: float) -> Verdict:
         """A verdict on ``value`` with the uncertainty the history supports: |value - E| + U(E).
 
         E is the settled estimate at n (:func:`settled_estimate`); where its transient is not yet bounded
@@ -99,11 +99,11 @@ class StoppingRule(ABC):
             return Verdict(n, value.real, value.imag, math.nan, status, self.name)
         gap = abs(value - settled.value)
         u = gap + settled.uncertainty
-        within = settled.bounded and u <= self.tolerance(value, reference)
+        within = settled.bounded and u <= self.tolerance(value, channel_scale)
         return Verdict(n, value.real, value.imag, u, status, self.name, uncertainty_1d=gap + settled.uncertainty_1d,
                        within_eps=within)
 
-    def capped(self, hist: SeriesHistory, n: int, reference: float) -> Verdict:
+    def capped(self, hist: SeriesHistory, n: int, channel_scale: float) -> Verdict:
         """The verdict when max_periods is reached before the rule stopped."""
-        return self.verdict(hist, n, self.estimate(hist, n)[0], CAPPED, reference)
+        return self.verdict(hist, n, self.estimate(hist, n)[0], CAPPED, channel_scale)
 

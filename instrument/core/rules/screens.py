@@ -58,7 +58,7 @@ def _fit_ceiling(e: float, first_limit: complex, floor: float) -> float:
     return _tolerance(e, abs(first_limit) / (1.0 - e), floor) * _SLACK
 
 
-def _settled_may_stop(hist: SeriesHistory, q: _QuarterStats, reference: float, e: float, skip: int,
+def _settled_may_stop(hist: SeriesHistory, q: _QuarterStats, channel_scale: float, e: float, skip: int,
                       max_periods: int) -> tuple[bool, float | None]:
     """(False, _) where the settled estimate cannot give a verdict at period q[0]; from the running sums, O(1).
 
@@ -73,7 +73,7 @@ def _settled_may_stop(hist: SeriesHistory, q: _QuarterStats, reference: float, e
     needed (else None). e = eps / 100; skip: n_k; max_periods: the rule's budget.
     """
     n, length, start, m2, m3, m4, within = q
-    floor = RESOLUTION * reference
+    floor = RESOLUTION * channel_scale
     tol3 = _tolerance(e, abs((m2 + m3 + m4) / 3), floor)  # the tolerance at each candidate value
     tol2 = _tolerance(e, abs((m3 + m4) / 2), floor)
     dof = _pooled_dof(length)
@@ -165,11 +165,11 @@ def _two_mode_fit_may_pass(hist: SeriesHistory, s: int, w: int, e: float, floor:
 class _ScreenTable:
     """The settled screen of periods first..last of one history, worked out at once with numpy.
 
-    Per period: the reference (the channel's scale, output units) at and above which a converged verdict is
-    possible (conv), the open interval (low, high) and the bound below which (below) a noise-limited one is;
-    and the quarter-block statistics and lag-1 correlation the settled estimate then takes. The same
-    necessary conditions as :func:`_settled_may_stop`, solved for the reference. fit: for the
-    periods ``fits`` lists (the modal fit's schedule), the reference at and above which the two-mode fit's
+    Per period: the channel scale (the magnitude of the channel's largest coefficient, output units) at and above
+    which a converged verdict is possible (conv), the open interval (low, high) and the bound below which (below) a
+    noise-limited one is; and the quarter-block statistics and lag-1 correlation the settled estimate then takes.
+    The same necessary conditions as :func:`_settled_may_stop`, solved for the channel scale. fit: for the
+    periods ``fits`` lists (the modal fit's schedule), the channel scale at and above which the two-mode fit's
     screen passes (None where the schedule has too few in the stretch to pay).
     """
 
@@ -208,9 +208,9 @@ class _ScreenTable:
             a3 = np.abs(means[1:].sum(axis=0) / 3)
             a2 = np.abs(means[2:].sum(axis=0) / 2)
             d3 = np.abs(means[3] - means[2])
-            scale = e * RESOLUTION  # the tolerance floor per unit reference
+            scale = e * RESOLUTION  # the tolerance floor per unit of channel scale
             # converged: the tolerance at the value of the last three (two) blocks must reach the half-width
-            # (plus _TAIL |d3|); the tolerance is e max(|value|, RESOLUTION reference)
+            # (plus _TAIL |d3|); the tolerance is e max(|value|, RESOLUTION channel_scale)
             need3 = np.sqrt(low / 3.0)
             need2 = _TAIL * d3 + np.sqrt(low / 2.0)
             conv = np.minimum(np.where(e * a3 * _SLACK2 >= need3, -np.inf, need3 / (scale * _SLACK2)),
@@ -242,9 +242,9 @@ class _ScreenTable:
 
 
 def _two_mode_fit_floors(hist: SeriesHistory, skip: int, n: np.ndarray, min_window: int, e: float) -> np.ndarray:
-    """For each period n, the least reference at which :func:`_two_mode_fit_may_pass` holds for the first window
-    of the fit made at n (-inf: at any), worked out for all n at once (the same bound solved for the reference:
-    the floor term of its tolerance, 4 floor e / 2, is 2 e RESOLUTION reference)."""
+    """For each period n, the least channel scale at which :func:`_two_mode_fit_may_pass` holds for the first window
+    of the fit made at n (-inf: at any), worked out for all n at once (the same bound solved for the channel scale:
+    the floor term of its tolerance, 4 floor e / 2, is 2 e RESOLUTION channel_scale)."""
     w = np.maximum(min_window, (n - skip) // _FIT_WINDOW_SHARE)
     s = np.maximum(n - 2 * w, 0)
     rows = w - 2
