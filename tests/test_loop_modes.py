@@ -244,29 +244,39 @@ def test_a_divisor_drowned_in_noise_ends_divisor_limited_not_with_a_short_interv
 
 def test_the_divisor_scatter_is_the_spread_of_its_fundamental_over_its_size() -> None:
     """Two-channel feed of a noiseless output over a reference whose fundamental is 1 + n per period, n drawn
-    with a known relative spread: divisor_scatter gives that spread (numpy on the same draws), and a spread above
-    MAX_DIVISOR_SCATTER ends every point divisor_limited."""
+    with a known relative spread: divisor_scatter gives that spread over the settled periods (numpy on the same
+    draws, the periods a coherence is taken over), and a spread above MAX_DIVISOR_SCATTER ends every point
+    divisor_limited. A divisor that starts at three times its size and settles within the skipped periods (a
+    loop's effort as the loop settles) is judged on its settled spread alone."""
     from bodebench.core.autointegration import MAX_DIVISOR_SCATTER, Autointegrator
+    from bodebench.core.quality import coherence_periods
 
     f, steps = 10.0, 200
     rng = np.random.default_rng(5)
-    for spread in (0.05, 0.4):
+    for spread, transient in ((0.05, False), (0.4, False), (0.05, True)):
         periods = 64
         draws = 1 + spread / math.sqrt(2) * (rng.standard_normal(periods) + 1j * rng.standard_normal(periods))
+        analysis = case_of("loop", "velocity PI", PLANTS["velocity PI"][1]).analysis
+        if transient:
+            draws = draws * (1 + 2 * np.exp(-np.arange(periods) / 2.0))
         t = np.arange(periods * steps + 1) / (f * steps)
         phase = 2 * math.pi * f * t
         index = np.minimum((t * f).astype(int), periods - 1)
         reference = (draws[index] * np.exp(1j * phase)).imag  # P + jQ = draw, as the integrator defines them
         output = 0.5 * np.sin(phase)
-        analysis = case_of("loop", "velocity PI", PLANTS["velocity PI"][1]).analysis
         sampler = Autointegrator(f, 1.0, ("loop",), analysis, reference="effort", grid_steps_per_period=steps)
         sampler.feed(t, np.stack([output, reference], axis=1))
         if not sampler.done:
             sampler.end_of_record()
-        used = draws[: sampler.periods]
+        start, stop = coherence_periods(analysis.skip_periods, sampler.periods)
+        used = draws[start:stop]
         want = float(np.sqrt(np.mean(np.abs(used - used.mean()) ** 2)) / abs(used.mean()))
         # (each period's edge sample is the next period's draw: the coefficients differ from the draws slightly)
         assert sampler.divisor_scatter() == pytest.approx(want, rel=2e-2)
+        everything = draws[: sampler.periods]
+        if transient:  # over every period the transient alone would have called the divisor drowned
+            assert float(np.sqrt(np.mean(np.abs(everything - everything.mean()) ** 2))
+                         / abs(everything.mean())) > MAX_DIVISOR_SCATTER > want
         limited = {p.status == PointStatus.DIVISOR_LIMITED for p in sampler.points()}
         assert limited == {want > MAX_DIVISOR_SCATTER}
 

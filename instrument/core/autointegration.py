@@ -212,9 +212,8 @@ class Autointegrator:
         # returned while a rule was still open, and their count
         self._drift_sum = np.zeros(len(self.channels))
         self._drift_periods = 0
-        # two-channel mode: the sum of the reference fundamentals of the periods integrated, of their squared sizes,
-        # and their count, for the divisor's scatter
-        self._divisor_sum, self._divisor_power, self._divisor_periods = 0j, 0.0, 0
+        # two-channel mode: the reference fundamental of each period integrated, for the divisor's scatter
+        self._divisors: list[np.ndarray] = []
 
     @property
     def done(self) -> bool:
@@ -367,9 +366,7 @@ class Autointegrator:
         z = p + 1j * q  # (m, channel, harmonic)
         if self.reference is not None:
             divisor = z[:, -1, self._ref_index]
-            self._divisor_sum += complex(divisor.sum())
-            self._divisor_power += float(np.sum(np.abs(divisor) ** 2))
-            self._divisor_periods += m
+            self._divisors.append(divisor)
             z = self._relative_to_reference(z[:, :-1, : len(self.harmonics)], divisor, self.harmonics)
         if m <= _FEW_PERIODS:
             values = z.ravel().tolist()
@@ -470,11 +467,20 @@ class Autointegrator:
 
     def divisor_scatter(self) -> float:
         """Two-channel mode: the spread of the reference fundamental from period to period relative to its mean (the
-        standard deviation of the complex coefficient over its size; NaN without a reference or a period)."""
-        if not self._divisor_periods or not self._divisor_sum:
+        standard deviation of the complex coefficient over its size), over the periods a coherence is taken over
+        (:func:`~bodebench.core.quality.coherence_periods`: the later half of those after the skipped ones, where
+        a transient has gone); NaN without a reference or a period."""
+        if len(self._divisors) > 1:
+            self._divisors = [np.concatenate(self._divisors)]
+        if not self._divisors:
             return math.nan
-        mean = self._divisor_sum / self._divisor_periods
-        return math.sqrt(max(0.0, self._divisor_power / self._divisor_periods - abs(mean) ** 2)) / abs(mean)
+        divisors = self._divisors[0]
+        start, stop = coherence_periods(self.skip_periods, len(divisors))
+        settled = divisors[start:stop]
+        mean = complex(settled.mean()) if settled.size else 0j
+        if not mean:
+            return math.nan
+        return float(np.sqrt(np.mean(np.abs(settled - mean) ** 2))) / abs(mean)
 
     def points(self) -> list[ResponsePoint]:
         """The measured points, one per series (requires ``done``); ValueError saying why for a failed point."""
