@@ -653,7 +653,7 @@ async def test_layout_degrades_to_one_view_at_80x24(tmp_path: Path, size: tuple[
     app = BodeBenchApp(config, tmp_path / "out")
     async with app.run_test(size=size) as pilot:
         await pilot.pause(0.1)
-        panels = app.sweep_screen.panels().values()
+        panels = app.sweep_screen.views.panels().values()
         visible = [p for p in panels if p.display and p.region.width > 0 and p.region.height > 0]
         assert len(visible) == shown
         for panel in visible:

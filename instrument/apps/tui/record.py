@@ -137,6 +137,34 @@ class SweepRecord:
                 responses.append((self.config.cases[i].name, response))
         return responses
 
+    def outcome(self, report: WorkerReport) -> str:
+        """How the sweep whose thread ended with ``report`` went: done, aborted (by the user) or failed."""
+        fault = self.last_fault
+        if report.completed:
+            return "done"
+        if (fault is not None and fault.kind == FaultKind.ABORT) or report.aborted:
+            return "aborted"
+        return "failed"
+
+    def abort_notice(self, report: WorkerReport) -> str:
+        """What an aborted sweep left: the drive's state, the points kept and where."""
+        fault, ended = self.last_fault, self.last_ended
+        kept = fault.kept if fault is not None else 0
+        drive = "" if ended is None else f"{ended.drive_state()}; "
+        where = f" in {report.saved}" if report.saved else ""
+        return f"aborted: {drive}{kept} points kept{where}"
+
+    def failure_text(self, report: WorkerReport) -> str:
+        """Why a failed sweep stopped, the points it kept and where, and how the drive was left (lines)."""
+        fault, ended = self.last_fault, self.last_ended
+        lines = [report.error or "the sweep stopped"]
+        kept = fault.kept if fault is not None else len(self.points)
+        lines.append(f"{kept} measured points kept" + (f" in {report.saved}" if report.saved else " (nothing written)"))
+        if ended is not None:
+            state = ended.drive_state()
+            lines.append(f"{state[0].upper()}{state[1:]} ({ended.reason}).")
+        return "\n".join(lines)
+
     def stop_line(self, report: WorkerReport, stopped_by: str, quitting: bool) -> str:
         """One line on a sweep that did not complete, as the command line's run gives it: why it stopped (the
         signal ``stopped_by``, the user's abort, on quitting or not, an error), the points kept and where, and

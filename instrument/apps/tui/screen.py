@@ -14,19 +14,15 @@ from typing import TYPE_CHECKING, cast
 
 from textual.app import ComposeResult
 from textual.binding import Binding
-from textual.containers import Vertical
 from textual.screen import Screen
-from textual.widget import Widget
 
-from bodebench.apps.tui.bode import BodePanel
 from bodebench.apps.tui.bridge import SessionEvent, WorkerReport
-from bodebench.apps.tui.bus import BusPanel
-from bodebench.apps.tui.dialogs import ChoiceDialog, InputDialog, MessageDialog
-from bodebench.apps.tui.files import earlier_results, load_cases, load_results, save_case
-from bodebench.apps.tui.live import LivePanel
+from bodebench.apps.tui.dialogs import EarlierResultsDialog, MessageDialog, OverlayDialog, ToleranceDialog
+from bodebench.apps.tui.files import earlier_results, load_cases, save_case
 from bodebench.apps.tui.record import SweepRecord
 from bodebench.apps.tui.status import StatusLine, ViewBar
-from bodebench.apps.tui.table import SweepPanel, SweepTable
+from bodebench.apps.tui.table import SweepTable
+from bodebench.apps.tui.views import VIEW_TITLES, VIEWS, Views
 from bodebench.apps.tui.widgets import BenchFooter
 from bodebench.bench.events import (
     CaseBegins,
@@ -40,16 +36,10 @@ from bodebench.bench.events import (
 )
 from bodebench.bench.procedure import case_directory
 from bodebench.core.response import FrequencyResponse
-from bodebench.io.config import AnalysisConfig, CaseConfig, ExperimentConfig
-from bodebench.io.results import ResultsError
-from bodebench.io.schema import check_value
-from bodebench.status import FaultKind
+from bodebench.io.config import CaseConfig, ExperimentConfig
 
 if TYPE_CHECKING:
     from bodebench.apps.tui.app import BodeBenchApp
-
-VIEWS = ("live", "sweep", "bode", "bus")
-VIEW_TITLES = {"live": "Live", "sweep": "Sweep", "bode": "Bode", "bus": "Bus"}
 
 #: the screen's actions (keys), as :meth:`SweepScreen.check_action` judges them
 SWEEP_ACTIONS = frozenset({"start", "pause", "resume", "skip", "remeasure", "tolerance", "save", "open", "view"})
@@ -94,13 +84,13 @@ class SweepScreen(Screen[None]):
         self.refresh_hz = refresh_hz
         self.record = SweepRecord(config)
         self.tolerance_percent: float | None = None  # the user's, for the points not yet started (None: as configured)
-        self.view = "live"
         self.status = StatusLine(id="status")
         self.viewbar = ViewBar(id="viewbar")
-        self.live = LivePanel(id="live", classes="view -current")
-        self.bode = BodePanel(id="bode", classes="view")
-        self.sweep_panel = SweepPanel(id="sweep", classes="view")
-        self.bus = BusPanel(id="bus", classes="view")
+        self.views = Views(id="panels")
+        self.live = self.views.live
+        self.sweep_panel = self.views.sweep
+        self.bode = self.views.bode
+        self.bus = self.views.bus
         self._bindings_state: tuple[bool, ...] = ()
 
     @property
@@ -118,30 +108,20 @@ class SweepScreen(Screen[None]):
         """The case being shown."""
         return self.record.case
 
-    def panels(self) -> dict[str, Widget]:
-        """The views by name."""
-        return {"live": self.live, "sweep": self.sweep_panel, "bode": self.bode, "bus": self.bus}
-
     def compose(self) -> ComposeResult:
         yield self.status
         yield self.viewbar
-        with Vertical(id="panels"):
-            yield self.live
-            yield self.bode
-            yield self.sweep_panel
-            yield self.bus
+        yield self.views
         yield BenchFooter()
 
     def on_mount(self) -> None:
-        for view, panel in self.panels().items():
-            panel.border_title = VIEW_TITLES[view]
         results, problems = load_cases(self.config, self.out)
         for problem in problems:
             self.notify(f"previous results not shown: {problem}", severity="warning", timeout=8)
         if self.record.load(results):
             self.status.state = "loaded"
         self.sweep_panel.fill(self.record.model)
-        self._show_views()
+        self._show_view(self.views.current)
         self.refresh_status()
         self.refresh_bus(force=True)
         self.refresh_bode()
@@ -183,15 +163,13 @@ class SweepScreen(Screen[None]):
 
     def action_view(self, view: str) -> None:
         if view in VIEWS:
-            self.view = view
-            self._show_views()
+            self._show_view(view)
             if view == "sweep":
                 self.table.focus()
 
-    def _show_views(self) -> None:
-        for view, panel in self.panels().items():
-            panel.set_class(view == self.view, "-current")
-        self.viewbar.show_views([VIEW_TITLES[view] for view in VIEWS], VIEWS.index(self.view))
+    def _show_view(self, view: str) -> None:
+        self.views.show(view)
+        self.viewbar.show_views([VIEW_TITLES[name] for name in VIEWS], VIEWS.index(view))
 
     def action_start(self) -> None:
         if self.bench.running:
@@ -208,17 +186,7 @@ class SweepScreen(Screen[None]):
             elif answer == "replace":
                 self._launch(None)
 
-        where = "; ".join(earlier.found)
-        if earlier.refused:
-            self.app.push_screen(ChoiceDialog(f"Results are already in {where}, and cannot be resumed: "
-                                              f"{earlier.refused}. Replace them with a new sweep?",
-                                              [("replace", "Replace", "x", "error"), (None, "Cancel", "c", "default")]),
-                                 answered)
-            return
-        self.app.push_screen(ChoiceDialog(f"Results are already in {where}. Resume measures only the missing "
-                                          "frequencies and keeps the others; replace starts again and overwrites them.",
-                                          [("resume", "Resume", "r", "primary"), ("replace", "Replace", "x", "error"),
-                                           (None, "Cancel", "c", "default")]), answered)
+        self.app.push_screen(EarlierResultsDialog("; ".join(earlier.found), earlier.refused), answered)
 
     def action_pause(self) -> None:
         control = self.bench.control
@@ -261,16 +229,6 @@ class SweepScreen(Screen[None]):
         self._launch(row.frequency_hz)
 
     def action_tolerance(self) -> None:
-        current = self._tolerance()
-
-        def check(text: str) -> str | None:
-            try:
-                value = float(text)
-            except ValueError:
-                return f"not a number: {text!r}"
-            problem = check_value(AnalysisConfig, "tolerance_percent", value)
-            return f"the tolerance {problem}" if problem else None
-
         def done(text: str | None) -> None:
             if text is None:
                 return
@@ -281,7 +239,7 @@ class SweepScreen(Screen[None]):
             self.notify(f"tolerance {self.tolerance_percent:g} % for the points not yet started")
             self.refresh_status()
 
-        self.app.push_screen(InputDialog("Tolerance for the next points (%)", f"{current:g}", check), done)
+        self.app.push_screen(ToleranceDialog(self._tolerance()), done)
 
     def _tolerance(self) -> float:
         """The tolerance of the points not yet started (%): the user's, or the current case's."""
@@ -308,28 +266,18 @@ class SweepScreen(Screen[None]):
                                                f"{', '.join(f.name for f in files)} to {directory}")
 
     def action_open(self) -> None:
-        pending: list[tuple[str, FrequencyResponse]] = []
-
-        def check(text: str) -> str | None:
-            if not text:
-                return "enter a results directory"
-            try:
-                pending[:] = load_results(Path(text).expanduser())
-            except ResultsError as exc:
-                return str(exc)
-            return None
+        dialog = OverlayDialog(str(self.out.parent))
 
         def done(text: str | None) -> None:
             if text is None:
                 return
-            self.bode.overlay(pending)
-            self.notify(f"overlaid {', '.join(label for label, _ in pending)}")
+            self.bode.overlay(dialog.loaded)
+            self.notify(f"overlaid {', '.join(label for label, _ in dialog.loaded)}")
             self.refresh_bode()
-            if self.view != "bode":
+            if self.views.current != "bode":
                 self.action_view("bode")
 
-        self.app.push_screen(InputDialog("Open a results directory to overlay on the Bode plot",
-                                         str(self.out.parent), check, placeholder="path/to/results"), done)
+        self.app.push_screen(dialog, done)
 
     def _launch(self, frequency_hz: float | None, resume: dict[int, FrequencyResponse] | None = None) -> None:
         """Start a sweep of every case (``frequency_hz``: re-measure that frequency of the current case; ``resume``:
@@ -414,26 +362,13 @@ class SweepScreen(Screen[None]):
             self.live.stale = True
         self.bus.sweep_ended()
         record.model.session_ended(time.monotonic())
-        fault, ended = record.last_fault, record.last_ended
-        if message.completed:
-            self.status.state = "done"
+        self.status.state = record.outcome(message)
+        if self.status.state == "done":
             self.notify(f"sweep complete: results in {message.saved}", timeout=8)
-        elif (fault is not None and fault.kind == FaultKind.ABORT) or message.aborted:
-            self.status.state = "aborted"
-            kept = fault.kept if fault is not None else 0
-            drive = "" if ended is None else f"{ended.drive_state()}; "
-            where = f" in {message.saved}" if message.saved else ""
-            self.notify(f"aborted: {drive}{kept} points kept{where}", severity="warning", timeout=10)
+        elif self.status.state == "aborted":
+            self.notify(record.abort_notice(message), severity="warning", timeout=10)
         else:
-            self.status.state = "failed"
-            lines = [message.error or "the sweep stopped"]
-            kept = fault.kept if fault is not None else len(record.points)
-            lines.append(f"{kept} measured points kept" + (f" in {message.saved}" if message.saved else
-                                                           " (nothing written)"))
-            if ended is not None:
-                state = ended.drive_state()
-                lines.append(f"{state[0].upper()}{state[1:]} ({ended.reason}).")
-            self.app.push_screen(MessageDialog("Sweep stopped", "\n".join(lines), error=True))
+            self.app.push_screen(MessageDialog("Sweep stopped", record.failure_text(message), error=True))
         self._show_all()
 
     # ---------------------------------------------------------------------------------------- refreshing
