@@ -232,7 +232,7 @@ async def _with_ui(config, out: Path, probe: Probe, seconds: float) -> int:  # t
         await pilot.press("a")
         await asyncio.sleep(2.0)
         unwritten = (PENDING, SKIPPED, FAILED, *ACTIVE_STATES)  # a failed row is the point the abort cut short
-        return sum(row.state not in unwritten for row in app.model.rows.values())
+        return sum(row.state not in unwritten for row in app.sweep_screen.record.model.rows.values())
 
 
 if __name__ == "__main__":

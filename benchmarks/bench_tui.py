@@ -84,8 +84,8 @@ async def _with_ui(config: ExperimentConfig, out: Path) -> tuple[float, float]:
         cpu = time.thread_time() - cpu0
         await pilot.pause(0.2)
         control = app.control
-        if app.state != "done":
-            raise RuntimeError(f"the sweep in the UI ended {app.state}: {app.worker_errors}")
+        if app.sweep_screen.status.state != "done":
+            raise RuntimeError(f"the sweep in the UI ended {app.sweep_screen.status.state}: {app.worker_errors}")
     UI_CPU.append(cpu / control.session_s)
     pacing = control.health.pacing if control.health is not None else None
     return control.session_s, pacing.p99 if pacing is not None else float("nan")

@@ -47,6 +47,7 @@ from bodebench.apps.tui.model import (
     relative_error_percent,
     row_key,
 )
+from bodebench.apps.tui.status import StatusLine
 from bodebench.apps.tui.widgets import PlotView, percent_cell
 from bodebench.bench.events import PointProgress, PointStarted
 from bodebench.core.autointegration import SeriesState
@@ -276,8 +277,8 @@ async def wait_for(pilot, predicate: Callable[[], bool], what: str, timeout: flo
 
 
 def finished(app: BodeBenchApp) -> bool:
-    return app.control is not None and app.control.done.is_set() and app.state not in ("starting", "running",
-                                                                                         "paused", "aborting")
+    return app.control is not None and app.control.done.is_set() and app.sweep_screen.status.state not in (
+        "starting", "running", "paused", "aborting")
 
 
 class Gate:
@@ -316,7 +317,7 @@ class Gate:
 
 
 def states(app: BodeBenchApp, frequency_hz: float) -> set[str]:
-    return {r.state for r in app.model.rows.values() if r.frequency_hz == frequency_hz}
+    return {r.state for r in app.sweep_screen.record.model.rows.values() if r.frequency_hz == frequency_hz}
 
 
 def footer_keys(app: BodeBenchApp) -> set[str]:
@@ -339,8 +340,8 @@ async def expect_footer(pilot, app: BodeBenchApp, keys: set[str], timeout: float
 
 def table_states(app: BodeBenchApp) -> list[str]:
     """The state column as the table shows it (cells addressed by row and column keys)."""
-    table = app.w_table
-    return [str(table.get_cell(key, "state")) for key in app.model.rows]
+    table = app.sweep_screen.table
+    return [str(table.get_cell(key, "state")) for key in app.sweep_screen.record.model.rows]
 
 
 @pytest.mark.slow
@@ -351,38 +352,41 @@ async def test_start_runs_the_sweep_and_the_screen_follows(tmp_path: Path, monke
     out = tmp_path / "out"
     app = BodeBenchApp(config, out)
     async with app.run_test(size=(80, 24)) as pilot:
-        assert app.state == "idle" and table_states(app) == [PENDING] * 6
+        assert app.sweep_screen.status.state == "idle" and table_states(app) == [PENDING] * 6
         await pilot.press("s")
         await gate.wait(pilot, "the first point integrating")
-        assert app.state == "running" and table_states(app)[:2] == [INTEGRATING] * 2
-        convergence = app.w_live.query_one("#convergence", PlotView).traces
+        assert app.sweep_screen.status.state == "running" and table_states(app)[:2] == [INTEGRATING] * 2
+        convergence = app.sweep_screen.live.query_one("#convergence", PlotView).traces
         assert len(convergence) == 2 and convergence[0].x[-1] >= 4  # relative error per period, both series
-        scope = app.w_live.query_one("#scope", PlotView).traces
+        scope = app.sweep_screen.live.query_one("#scope", PlotView).traces
         assert len(scope) == 2 and scope[0].x[-1] == pytest.approx(2 / 3.0, rel=0.02)  # the last two periods
         gate.open()
         await wait_for(pilot, lambda: finished(app), "the end of the sweep")
         await pilot.pause(0.3)
-        assert app.state == "done", app.worker_errors
+        assert app.sweep_screen.status.state == "done", app.worker_errors
         assert table_states(app) == [CONVERGED] * 6
-        assert "3/3" in app.w_status.render().plain and "DONE" in app.w_status.render().plain
-        assert len(app.w_live.query_one("#scope", PlotView).traces) == 2  # the last point's periods stay shown
+        status = app.sweep_screen.status.text_view
+        assert "3/3" in status.render().plain and "DONE" in status.render().plain
+        live = app.sweep_screen.live
+        assert len(live.query_one("#scope", PlotView).traces) == 2  # the last point's periods stay shown
         on_disk = load_response(out)
         assert sorted((p.frequency_hz, p.harmonic) for p in on_disk.points) == sorted(
             (f, k) for f in FREQS for k in (1, 3))
         assert (out / "bode.png").exists() and (out / "periods.png").exists()
         for p in on_disk.points:  # the table shows what is on disk
-            row = app.model.rows[row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel)]
-            assert str(app.w_table.get_cell(row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel),
-                                            "gain")) == f"{p.gain_db:+.2f}"
+            row = app.sweep_screen.record.model.rows[row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel)]
+            assert str(app.sweep_screen.table.get_cell(row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel),
+                                                       "gain")) == f"{p.gain_db:+.2f}"
             assert row.periods == p.periods
-            cell = str(app.w_table.get_cell(row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel), "thd"))
+            cell = str(app.sweep_screen.table.get_cell(row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel),
+                                                       "thd"))
             assert cell == (percent_cell(p.thd) if p.harmonic == 1 else "--")
-            assert str(app.w_table.get_cell(row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel),
-                                            "coh")) == f"{p.coherence:.3f}"
-        assert len(app.w_bode.query_one("#bode-gain", PlotView).traces) == 1
+            assert str(app.sweep_screen.table.get_cell(row_key(FREQS.index(p.frequency_hz), p.harmonic, p.channel),
+                                                       "coh")) == f"{p.coherence:.3f}"
+        assert len(app.sweep_screen.bode.query_one("#bode-gain", PlotView).traces) == 1
         # the summary figures under the Bode plot: those of the sidecar, on one line
         (summary,) = json.loads((out / "response.json").read_text())["summary"]
-        shown = str(app.w_bode.query_one("#bode-summary", Static).render())
+        shown = str(app.sweep_screen.bode.query_one("#bode-summary", Static).render())
         for figure in summary["figures"]:
             short = {"bandwidth (-3 dB)": "BW", "resonance peak": "peak", "phase -90 deg": "-90°",
                      "phase -180 deg": "-180°"}[figure["name"]]
@@ -404,7 +408,8 @@ async def test_pause_skip_and_remeasure_during_a_sweep(tmp_path: Path, monkeypat
         await gate.wait(pilot, "3 Hz integrating")
         assert states(app, 3.0) == {INTEGRATING}
         await pilot.press("p")
-        assert app.state == "paused" and "PAUSED" in app.w_status.render().plain
+        assert (app.sweep_screen.status.state == "paused"
+                and "PAUSED" in app.sweep_screen.status.text_view.render().plain)
         gate.open()
         await pilot.pause(0.3)
         held = app.bridge.latest_progress.periods
@@ -413,17 +418,18 @@ async def test_pause_skip_and_remeasure_during_a_sweep(tmp_path: Path, monkeypat
         await pilot.press("2")  # the sweep view; the cursor is on the first row (3 Hz)
         await pilot.press("r")  # measure 3 Hz again after this point
         await pilot.press("p")
-        assert app.state == "running"
+        assert app.sweep_screen.status.state == "running"
         await gate.wait(pilot, "8 Hz integrating")
         await pilot.press("p")  # 3 Hz measured: the time left is known, and stands still while paused
-        eta = app.model.eta(time.monotonic())
+        eta = app.sweep_screen.record.model.eta(time.monotonic())
         await pilot.pause(0.5)
-        assert eta is not None and app.model.eta(time.monotonic()) == eta, "the ETA ran down while paused"
+        assert eta is not None and app.sweep_screen.record.model.eta(time.monotonic()) == eta, \
+            "the ETA ran down while paused"
         await pilot.press("p")
         await pilot.press("n")  # skip 8 Hz
         gate.open()
         await wait_for(pilot, lambda: finished(app), "the end of the sweep")
-        assert app.state == "done", app.worker_errors
+        assert app.sweep_screen.status.state == "done", app.worker_errors
         assert states(app, 8.0) == {SKIPPED} and states(app, 3.0) == states(app, 20.0) == {CONVERGED}
         measured = [p.frequency_hz for p in app.control.procedure.current.session.response.points]
         assert measured.count(3.0) == 4 and 8.0 not in measured  # 3 Hz twice (2 harmonics each)
@@ -448,11 +454,12 @@ async def test_abort_leaves_a_zero_setpoint_and_keeps_the_measured_points(tmp_pa
             await pilot.press("a")
             gate.open()
             await wait_for(pilot, lambda: finished(app), "the end of the aborted sweep")
-            assert app.state == "aborted"
+            assert app.sweep_screen.status.state == "aborted"
             assert states(app, 3.0) == {CONVERGED} and states(app, 8.0) == {FAILED}
             assert states(app, 20.0) == {PENDING}
             assert not isinstance(app.screen, MessageDialog)  # a user abort is a notice, not an error
-            assert app.last_ended is not None and app.last_ended.last_setpoint == 0.0 and app.last_ended.disabled
+            ended = app.sweep_screen.record.last_ended
+            assert ended is not None and ended.last_setpoint == 0.0 and ended.disabled
     finally:
         value, disabled = recorder.close()
     assert value == 0.0 and disabled
@@ -482,7 +489,7 @@ async def test_resume_after_an_abort_measures_only_the_missing_frequencies(tmp_p
         await pilot.press("a")
         gate.open()
         await wait_for(pilot, lambda: finished(app), "the end of the aborted sweep")
-        assert app.state == "aborted"
+        assert app.sweep_screen.status.state == "aborted"
         assert app.exit_line == (f"bodebench: bench: stopped: aborted by the user; 2 points kept in {out}; "
                                  "drive left at setpoint 0, disabled")
         kept = load_response(out)
@@ -493,7 +500,7 @@ async def test_resume_after_an_abort_measures_only_the_missing_frequencies(tmp_p
         assert "(1 of 3 frequencies measured)" in str(app.screen.query_one("#dialog-text").render())
         await pilot.press("r")  # resume
         await wait_for(pilot, lambda: app.control.run == 2 and finished(app), "the resumed sweep")
-        assert app.state == "done", app.worker_errors
+        assert app.sweep_screen.status.state == "done", app.worker_errors
         assert table_states(app) == [CONVERGED] * 6  # the kept 3 Hz rows as well as the new ones
         assert app.exit_line == ""
     assert [f for run, f in gate.started if run == 1] == [3.0, 8.0]
@@ -524,16 +531,16 @@ async def test_tolerance_remeasure_after_the_sweep_save_and_overlay(tmp_path: Pa
         assert isinstance(app.screen, InputDialog)  # refused, with the reason
         assert "not a number" in str(app.screen.query_one("#dialog-error").render())
         await pilot.press("ctrl+a", "ctrl+k", *"0.2", "enter")
-        assert not isinstance(app.screen, InputDialog) and app.tolerance_percent == 0.2
+        assert not isinstance(app.screen, InputDialog) and app.sweep_screen.tolerance_percent == 0.2
         await pilot.press("s")
         await wait_for(pilot, lambda: finished(app), "the first sweep")
-        assert app.state == "done" and app.model.tolerance_percent == 0.2
+        assert app.sweep_screen.status.state == "done" and app.sweep_screen.record.model.tolerance_percent == 0.2
         first = {(p.frequency_hz, p.harmonic): p for p in load_response(out).points}
         # tighter tolerance, then re-measure the selected row (20 Hz) after the sweep
         await pilot.press("t", "ctrl+a", "ctrl+k", *"0.02", "enter")
         await pilot.press("2", "down", "down", "r")
         await wait_for(pilot, lambda: app.control.run == 2 and finished(app), "the re-measure")
-        assert app.state == "done", app.worker_errors
+        assert app.sweep_screen.status.state == "done", app.worker_errors
         second = {(p.frequency_hz, p.harmonic): p for p in load_response(out).points}
         assert second.keys() == first.keys()
         assert second[(8.0, 1)] == first[(8.0, 1)]  # untouched
@@ -557,8 +564,8 @@ async def test_tolerance_remeasure_after_the_sweep_save_and_overlay(tmp_path: Pa
         assert "not a directory" in str(app.screen.query_one("#dialog-error").render())
         await pilot.press("ctrl+a", "ctrl+k", *other.name, "enter")
         await pilot.pause(0.1)
-        assert [label for label, _ in app.overlays] == ["lag"]
-        traces = app.w_bode.query_one("#bode-gain", PlotView).traces
+        assert [label for label, _ in app.sweep_screen.bode.overlays] == ["lag"]
+        traces = app.sweep_screen.bode.query_one("#bode-gain", PlotView).traces
         assert len(traces) == 2 and traces[0].style != traces[1].style
         np.testing.assert_allclose(traces[1].y, reference.select(harmonic=1).gain_db)
 
@@ -628,12 +635,12 @@ async def test_a_fault_is_explained_in_a_dialog(tmp_path: Path) -> None:
             await pilot.press("s")
             await wait_for(pilot, lambda: finished(app), "the watchdog trip")
             await pilot.pause(0.1)
-            assert app.state == "failed" and isinstance(app.screen, MessageDialog)
+            assert app.sweep_screen.status.state == "failed" and isinstance(app.screen, MessageDialog)
             text = str(app.screen.query_one("#dialog-text").render())
             assert "watchdog" in text and "0 measured points kept" in text and "setpoint 0" in text
             await pilot.press("enter")
             await pilot.press("4")
-            assert "TRIPPED" in str(app.w_bus.render())
+            assert "TRIPPED" in str(app.sweep_screen.bus.render())
     finally:
         value, disabled = recorder.close()
     assert value == 0.0 and disabled
@@ -646,7 +653,7 @@ async def test_layout_degrades_to_one_view_at_80x24(tmp_path: Path, size: tuple[
     app = BodeBenchApp(config, tmp_path / "out")
     async with app.run_test(size=size) as pilot:
         await pilot.pause(0.1)
-        panels = app._panels().values()
+        panels = app.sweep_screen.views.panels().values()
         visible = [p for p in panels if p.display and p.region.width > 0 and p.region.height > 0]
         assert len(visible) == shown
         for panel in visible:
@@ -684,12 +691,12 @@ def test_a_finished_sweep_is_loaded_from_its_results_directory(tmp_path: Path) -
         app = loaded_app(tmp_path)
         async with app.run_test(size=(80, 24)) as pilot:
             await pilot.pause(0.1)
-            assert app.state == "loaded" and table_states(app) == [CONVERGED] * 6
+            assert app.sweep_screen.status.state == "loaded" and table_states(app) == [CONVERGED] * 6
             for i, f in enumerate(SNAP_FREQS):
                 gain_db = 20 * math.log10(abs(1 / (1 + 1j * 2 * math.pi * f * LAG_TIME_CONSTANT_S)))
                 phase = math.degrees(cmath.phase(1 / (1 + 1j * 2 * math.pi * f * LAG_TIME_CONSTANT_S)))
-                assert str(app.w_table.get_cell(row_key(i, 1, "position"), "gain")) == f"{gain_db:+.2f}"
-                assert str(app.w_table.get_cell(row_key(i, 1, "position"), "phase")) == f"{phase:.1f}"
+                assert str(app.sweep_screen.table.get_cell(row_key(i, 1, "position"), "gain")) == f"{gain_db:+.2f}"
+                assert str(app.sweep_screen.table.get_cell(row_key(i, 1, "position"), "phase")) == f"{phase:.1f}"
             await expect_footer(pilot, app, {"s", "r", "t", "w", "o", "q"})  # no sweep runs: nothing to abort or pause
             await pilot.press("s")  # a new sweep would replace these results: asked first
             assert isinstance(app.screen, ChoiceDialog) and app.control is None
@@ -700,7 +707,8 @@ def test_a_finished_sweep_is_loaded_from_its_results_directory(tmp_path: Path) -
             await pilot.press("r")  # no resume offered: nothing happens
             assert isinstance(app.screen, ChoiceDialog) and app.control is None
             await pilot.press("c")
-            assert app.control is None and app.state == "loaded" and not isinstance(app.screen, ChoiceDialog)
+            assert app.control is None and app.sweep_screen.status.state == "loaded"
+            assert not isinstance(app.screen, ChoiceDialog)
             await pilot.pause(0.1)
             await expect_footer(pilot, app, {"s", "r", "t", "w", "o", "q"})
             await pilot.press("s")
@@ -760,7 +768,7 @@ def test_every_column_of_the_sweep_table_fits_its_panel(tmp_path: Path, size: tu
             for key in keys:
                 await pilot.press(key)
             await pilot.pause(0.1)
-            table = app.w_table
+            table = app.sweep_screen.table
             assert 0 < table.virtual_size.width <= table.scrollable_content_region.width
             assert not table.show_horizontal_scrollbar
 
@@ -897,28 +905,30 @@ async def test_a_loop_sweep_fills_its_rows_named_by_the_mode(tmp_path: Path) -> 
     path.write_text(text)
     app = BodeBenchApp(load_config(path), tmp_path / "out")
     async with app.run_test(size=(160, 48)) as pilot:
-        assert [key.split(":")[2] for key in app.model.rows] == ["loop", "loop"]
+        assert [key.split(":")[2] for key in app.sweep_screen.record.model.rows] == ["loop", "loop"]
         await pilot.press("s")
         await wait_for(pilot, lambda: finished(app), "the end of the sweep")
         await pilot.pause(0.3)
-        assert app.state == "done", app.worker_errors
+        assert app.sweep_screen.status.state == "done", app.worker_errors
         assert table_states(app) == [CONVERGED] * 2
-        assert "effort" in app.w_live.query_one("#scope", PlotView).legend.plain
+        assert "effort" in app.sweep_screen.live.query_one("#scope", PlotView).legend.plain
 
 
-class StatusRecorder(BodeBenchApp):
-    """The app, keeping every status line it shows."""
+class StatusRecorder(StatusLine):
+    """The status line, keeping every line it shows."""
 
     shown: list[str]
 
-    def _refresh_status(self) -> None:
-        super()._refresh_status()
-        self.__dict__.setdefault("shown", []).append(self.w_status.render().plain)
+    def show(self, case_name: str, model: SweepModel, tolerance_percent: float, running: bool, now: float) -> bool:
+        changed = super().show(case_name, model, tolerance_percent, running, now)
+        self.__dict__.setdefault("shown", []).append(self.text_view.render().plain)
+        return changed
 
 
 @pytest.mark.slow
 @pytest.mark.asyncio
-async def test_the_overview_an_adaptive_plan_runs_first_shows_its_periods_in_the_status(tmp_path: Path) -> None:
+async def test_the_overview_an_adaptive_plan_runs_first_shows_its_periods_in_the_status(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """from_overview, on the virtual bus: while the multisine runs the status line counts its periods, one more
     each time; once the points start it says so no more, and the rows the overview called for are in the table."""
     path = tmp_path / "seeded.toml"
@@ -960,19 +970,22 @@ max_amplitude = 0.03
 watchdog_s = 5.0
 [simulator]
 """)
-    app = StatusRecorder(load_config(path), tmp_path / "out")
+    monkeypatch.setattr("bodebench.apps.tui.screen.StatusLine", StatusRecorder)
+    app = BodeBenchApp(load_config(path), tmp_path / "out")
+    status = app.sweep_screen.status
+    assert isinstance(status, StatusRecorder)
     async with app.run_test(size=(160, 48)) as pilot:
         await pilot.press("s")
         await wait_for(pilot, lambda: finished(app), "the end of the sweep", timeout=300.0)
         await pilot.pause(0.3)
-        assert app.state == "done", app.worker_errors
-    told = [int(line.split("overview first: ")[1].split()[0]) for line in app.shown if "overview first: " in line]
+        assert app.sweep_screen.status.state == "done", app.worker_errors
+    told = [int(line.split("overview first: ")[1].split()[0]) for line in status.shown if "overview first: " in line]
     assert told and told == sorted(told) and told[-1] > told[0]
-    last = max(i for i, line in enumerate(app.shown) if "overview first: " in line)
-    assert all("overview first" not in line for line in app.shown[last + 1:])
-    assert "overview first" not in app.w_status.render().plain
+    last = max(i for i, line in enumerate(status.shown) if "overview first: " in line)
+    assert all("overview first" not in line for line in status.shown[last + 1:])
+    assert "overview first" not in app.sweep_screen.status.text_view.render().plain
     on_disk = sorted(p.frequency_hz for p in load_response(tmp_path / "out").points)
-    assert any(6.5 < f < 8.0 for f in on_disk) and len(app.model.rows) == len(on_disk)
+    assert any(6.5 < f < 8.0 for f in on_disk) and len(app.sweep_screen.record.model.rows) == len(on_disk)
 
 
 @pytest.mark.slow
@@ -1010,15 +1023,15 @@ watchdog_s = 5.0
     out = tmp_path / "out"
     app = BodeBenchApp(load_config(path), out)
     async with app.run_test(size=(160, 48)) as pilot:
-        assert len(app.model.rows) == 3
+        assert len(app.sweep_screen.record.model.rows) == 3
         await pilot.press("s")
         await wait_for(pilot, lambda: finished(app), "the end of the sweep", timeout=600.0)
         await pilot.pause(0.3)
-        assert app.state == "done", app.worker_errors
+        assert app.sweep_screen.status.state == "done", app.worker_errors
         on_disk = sorted(p.frequency_hz for p in load_response(out).points)
         assert 3 < len(on_disk) <= 8
-        table = app.w_table
+        table = app.sweep_screen.table
         shown = [float(str(table.get_cell(row.key.value, "f"))) for row in table.ordered_rows]
         assert shown == pytest.approx(on_disk, rel=1e-5)
         assert table_states(app) == [CONVERGED] * len(on_disk)
-        assert f"{len(on_disk)}/{len(on_disk)}" in app.w_status.render().plain
+        assert f"{len(on_disk)}/{len(on_disk)}" in app.sweep_screen.status.text_view.render().plain

@@ -1,4 +1,5 @@
-"""Modal dialogs: a yes/no question, a choice among a few answers, a one-line input with validation, a message.
+"""Modal dialogs: a yes/no question, a choice among a few answers, a one-line input with validation, a message;
+and the main screen's own: resume or replace earlier results, the tolerance, a results directory to overlay.
 
 The question, the choice and the message pass two of the app's keys on: ``q`` quits (the app asks first
 while a sweep runs) and ``a`` aborts a running sweep (``APP_KEYS`` names them, so the app's footer shows what
@@ -8,6 +9,7 @@ works). The input dialog passes none: every printable key is typed (Ctrl+Q, the 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from textual import events
 from textual.app import ComposeResult
@@ -15,6 +17,12 @@ from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.screen import ModalScreen
 from textual.widgets import Button, Input, Static
+
+from bodebench.apps.tui.files import load_results
+from bodebench.core.response import FrequencyResponse
+from bodebench.io.config import AnalysisConfig
+from bodebench.io.results import ResultsError
+from bodebench.io.schema import check_value
 
 DIALOG_CSS = """
 .dialog-box { width: 70; max-width: 95%; height: auto; max-height: 90%; padding: 1 2;
@@ -98,6 +106,21 @@ class ChoiceDialog(ModalScreen["str | None"]):
         self.dismiss(answer)
 
 
+class EarlierResultsDialog(ChoiceDialog):
+    """Results are already where a new sweep would write (``where``): resume them (r), replace them (x) or cancel
+    (c); ``refused`` says why they cannot be resumed (then only replace or cancel)."""
+
+    def __init__(self, where: str, refused: str = "") -> None:
+        if refused:
+            super().__init__(f"Results are already in {where}, and cannot be resumed: {refused}. Replace them with a "
+                             "new sweep?", [("replace", "Replace", "x", "error"), (None, "Cancel", "c", "default")])
+        else:
+            super().__init__(f"Results are already in {where}. Resume measures only the missing frequencies and keeps "
+                             "the others; replace starts again and overwrites them.",
+                             [("resume", "Resume", "r", "primary"), ("replace", "Replace", "x", "error"),
+                              (None, "Cancel", "c", "default")])
+
+
 class InputDialog(ModalScreen["str | None"]):
     """One line of input; ``validate`` returns an error text (shown, the dialog stays) or None to accept.
     Escape cancels (None)."""
@@ -134,6 +157,44 @@ class InputDialog(ModalScreen["str | None"]):
 
     def action_cancel(self) -> None:
         self.dismiss(None)
+
+
+class ToleranceDialog(InputDialog):
+    """The tolerance for the next points (%), starting from ``current``; a value [analysis] would refuse is
+    refused with the reason."""
+
+    def __init__(self, current: float) -> None:
+        super().__init__("Tolerance for the next points (%)", f"{current:g}", self.problem)
+
+    @staticmethod
+    def problem(text: str) -> str | None:
+        """Why ``text`` is no tolerance (None: it is one)."""
+        try:
+            value = float(text)
+        except ValueError:
+            return f"not a number: {text!r}"
+        problem = check_value(AnalysisConfig, "tolerance_percent", value)
+        return f"the tolerance {problem}" if problem else None
+
+
+class OverlayDialog(InputDialog):
+    """A results directory (or a directory of them) to overlay on the Bode plot, starting from ``start``; once
+    accepted, ``loaded`` holds its responses, (label, response)."""
+
+    def __init__(self, start: str) -> None:
+        super().__init__("Open a results directory to overlay on the Bode plot", start, self.load,
+                         placeholder="path/to/results")
+        self.loaded: list[tuple[str, FrequencyResponse]] = []
+
+    def load(self, text: str) -> str | None:
+        """Load the responses in the directory ``text``; what is wrong with it (None: nothing)."""
+        if not text:
+            return "enter a results directory"
+        try:
+            self.loaded = load_results(Path(text).expanduser())
+        except ResultsError as exc:
+            return str(exc)
+        return None
 
 
 class MessageDialog(ModalScreen[None]):
