@@ -5,7 +5,7 @@ Run: python benchmarks/bench_tui.py [--only lockstep|realtime]
 1. Lockstep: the wall time of the sweep of configs/sim_can.toml (BenchSession.run, the simulated drive on a
    virtual CAN bus) without the UI (no listener) and with the UI open (the app headless via run_test, the
    sweep started with its start key; the time is that of session.run inside the app's worker thread).
-   The UI runs the bus worker in its own process (BodeBenchApp.worker_mode); without the UI the sweep is
+   The UI runs the bus worker where [bench] says beside a UI (BenchConfig.worker_mode(beside_a_ui=True)); without the UI the sweep is
    timed both that way and with the worker in a thread (what ``bodebench run`` does on the lockstep clock).
 2. Realtime: the pacing error's p99 (Health.pacing, the bus worker in its own process) of a short realtime
    run over a serial pty - configs/sim_serial.toml with clock = "realtime", reference_channel =
@@ -100,7 +100,7 @@ def compare(label: str, config: ExperimentConfig, index: int, unit: str, scale: 
     """Alternate runs without and with the UI; print the medians and the UI's cost: relative to the figure without
     the UI, or with ``budget`` relative to that (a p99 of a few us is the clock's floor, so 10 % of it means
     nothing; 10 % of the 50 us pacing target does)."""
-    ui_mode = BodeBenchApp.worker_mode(config.cases[0])
+    ui_mode = config.cases[0].on_bench.bench.worker_mode(beside_a_ui=True)
     variants: dict[str, list[float]] = {f"without UI (worker: {ui_mode})": []}
     if extra_thread_baseline:
         variants["without UI (worker: thread)"] = []
