@@ -56,7 +56,9 @@ def test_an_exception_in_the_session_zeroes_and_disables_and_is_not_called_compl
 
 
 def _malformed_command(session: BenchSession) -> None:
-    session._conn.send(Credit(None))  # type: ignore[arg-type]  # the worker fails on it, zeroes, ends
+    pipe = session._worker.pipe
+    assert pipe is not None
+    pipe.send(Credit(None))  # type: ignore[arg-type]  # the worker fails on it, zeroes, ends
 
 
 def _command_after_the_worker_ended(session: BenchSession) -> None:
@@ -64,7 +66,7 @@ def _command_after_the_worker_ended(session: BenchSession) -> None:
     for thread in threading.enumerate():
         if thread.name == "bodebench-bus":
             thread.join(timeout=30)
-    session._tell(Credit(10**9))  # finds the pipe closed
+    session._worker.send(Credit(10**9))  # finds the pipe closed
 
 
 @pytest.mark.parametrize("trigger", [_malformed_command, _command_after_the_worker_ended])
@@ -90,10 +92,10 @@ def test_a_worker_that_ended_with_only_its_report_still_says_how_it_left_the_dri
     report = Stopped("drive: quick stop", 0.0, True, zero_sent=True, frames_out=42)
     theirs.send(report)
     theirs.close()
-    session._conn = MessagePipe(ours)
+    session._worker.pipe = MessagePipe(ours)
     with pytest.raises(SessionError, match="the bus worker stopped: drive: quick stop"):
-        session._tell(Credit(10))
-    assert session._shutdown("test", abort=True) == report
+        session._worker.send(Credit(10))
+    assert session._worker.shutdown("test", abort=True) == report
 
 
 @pytest.mark.slow

@@ -6,29 +6,16 @@ out."""
 
 from __future__ import annotations
 
-import contextlib
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from bodebench.bench.connection import LinkPlan
+from bodebench.bench.conversation import WorkerConversation
 from bodebench.bench.events import SessionEnded, SessionError
 from bodebench.bench.offline import OUTPUT_CHANNEL, build_plant
-from bodebench.bench.worker import (
-    Credit,
-    Fault,
-    Ready,
-    Samples,
-    SineStarted,
-    StartTable,
-    Stop,
-    Stopped,
-    session_ended,
-    start_worker,
-    worker_spec,
-)
+from bodebench.bench.worker import Credit, Ready, Samples, SineStarted, StartTable
 from bodebench.core.multisine import Multisine
 from bodebench.core.overview import LineIntegrator, OverviewLine, RuleSettings
 from bodebench.io.config import CaseConfig
@@ -126,51 +113,22 @@ def measure_overview_on_bench(case: CaseConfig, plan: LinkPlan, on_period: Calla
     ``on_end`` (and the result's ``ended``) gets what the drive was last sent. SessionError on a trip, or where
     more than :data:`MAX_DISCARDED_SHARE` of the periods missed samples."""
     tables = case.on_bench
-    bench, safety = tables.bench, tables.safety
+    bench = tables.bench
     design = case.multisine()
     channel = bench.output_channels[0]
-    conn, handle = start_worker(worker_spec(plan.open_link, bench, safety), worker_mode or bench.worker_mode())
     integrator = LineIntegrator(design, channel, rule_settings(case))
     setpoint = design.waveform()
     discarded = 0
-    stopped: Stopped | None = None
-    completed = False
-    reason = "overview complete"
-
-    def receive(timeout: float) -> object | None:
-        nonlocal stopped
-        try:
-            if not conn.poll(timeout):
-                return None
-            message = conn.recv()
-        except (EOFError, OSError):
-            raise SessionError(FaultKind.BUS, "the bus worker ended unexpectedly") from None
-        if isinstance(message, Fault):
-            raise SessionError(FaultKind(message.kind), message.message)
-        if isinstance(message, Stopped):
-            stopped = message
-            raise SessionError(FaultKind.BUS, f"the bus worker stopped: {message.reason}")
-        return message
-
-    def expect(kind: type, timeout: float) -> object:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            message = receive(0.1)
-            if isinstance(message, kind):
-                return message
-        raise SessionError(FaultKind.TIMEOUT, f"no {kind.__name__} from the bus worker within {timeout:g} s")
-
-    try:
-        ready = expect(Ready, 60.0)
-        assert isinstance(ready, Ready)
-        column = ready.channels.index(channel)
-        conn.send(StartTable(tuple(float(u) for u in setpoint), bench.ramp_in_periods, bench.ramp_out_periods))
-        started = expect(SineStarted, 60.0)
-        assert isinstance(started, SineStarted)
+    worker = WorkerConversation(plan, bench, tables.safety, worker_mode, finished="overview complete",
+                                reason_for=_ending_reason, on_end=on_end or (lambda ended: None))
+    with worker:
+        column = worker.expect(Ready, 60.0).channels.index(channel)
+        worker.send(StartTable(tuple(float(u) for u in setpoint), bench.ramp_in_periods, bench.ramp_out_periods))
+        started = worker.expect(SineStarted, 60.0)
         periods = _PeriodAssembler(started.tick + bench.ramp_in_periods * design.samples, design.samples,
                                    1.0 / bench.rate_hz)
         while not integrator.done:
-            message = receive(1.0)
+            message = worker.receive(1.0)
             if not isinstance(message, Samples):
                 continue
             for output in periods.add(message.t, message.values[:, column]):
@@ -187,30 +145,10 @@ def measure_overview_on_bench(case: CaseConfig, plan: LinkPlan, on_period: Calla
                 if on_period is not None:
                     on_period(integrator.periods)
             if bench.clock == "lockstep" and not integrator.done:
-                conn.send(Credit(message.last_tick + design.samples))
-        completed = True
-    except KeyboardInterrupt:
-        reason = "interrupted"
-        raise
-    except BaseException as exc:
-        reason = str(exc)
-        raise
-    finally:
-        with contextlib.suppress(OSError, BrokenPipeError):
-            conn.send(Stop(reason, abort=not completed))
-        deadline = time.monotonic() + 10.0
-        while stopped is None and time.monotonic() < deadline:
-            try:
-                if conn.poll(0.2):
-                    message = conn.recv()
-                    if isinstance(message, Stopped):
-                        stopped = message
-            except (EOFError, OSError):
-                break
-        handle.join(timeout=10)
-        plan.close()
-        layout = plan.layout
-        ended = session_ended(reason, completed, stopped, layout)
-        if on_end is not None:
-            on_end(ended)
-    return OverviewResult(design, tuple(integrator.result()), integrator.periods, discarded, ended)
+                worker.send(Credit(message.last_tick + design.samples))
+    return OverviewResult(design, tuple(integrator.result()), integrator.periods, discarded, worker.ended)
+
+
+def _ending_reason(exc: BaseException) -> str:
+    """The reason an overview that ``exc`` ended gives."""
+    return "interrupted" if isinstance(exc, KeyboardInterrupt) else str(exc)

@@ -9,7 +9,6 @@ UI) receive typed events; they never touch the measurement.
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 from dataclasses import dataclass, replace
@@ -20,6 +19,7 @@ import numpy as np
 from bodebench.bench.adaptive import GrowingPlan, extra_periods
 from bodebench.bench.connection import LinkPlan
 from bodebench.bench.controls import SweepControls
+from bodebench.bench.conversation import WorkerConversation
 from bodebench.bench.events import (
     BusStatus,
     Listener,
@@ -34,24 +34,17 @@ from bodebench.bench.events import (
 from bodebench.bench.window import PointWindow
 from bodebench.bench.worker import (
     Credit,
-    Fault,
     Health,
     Ready,
     Samples,
     SineStarted,
     StartSine,
-    Stop,
-    Stopped,
-    session_ended,
-    start_worker,
-    worker_spec,
 )
 from bodebench.core.autointegration import Autointegrator, period_budget
 from bodebench.core.benchgrid import flag_disturbed, mark_untied
 from bodebench.core.liveness import FlatWatch, no_fundamental
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.drivers.layout import SETPOINT_ECHO
-from bodebench.drivers.scheduling import pacing_cpu_left_alone
 from bodebench.drivers.stop_signals import StopSignal
 from bodebench.io.config import AnalysisConfig, BenchConfig, CaseConfig
 from bodebench.io.results import CSV_NAME, ResultsWriter, RowsOnDiskError, check_output
@@ -102,7 +95,6 @@ class BenchSession:
         self.controls = controls if controls is not None else SweepControls()
         self.response = FrequencyResponse(resume.points if resume else (), config=case.raw, case=case.name)
         self.period = 1.0 / tables.bench.rate_hz
-        self.last_health: Health | None = None
         self.ended: SessionEnded | None = None
         self.refused: list[tuple[float, str]] = []  # (frequency, reason) of points not written
         self.periods_discarded = 0  # periods not integrated for gaps in the feedback, all points so far
@@ -110,7 +102,10 @@ class BenchSession:
         self.last_samples: PointSamples | None = None
         """The samples of the frequency measured last (saved in ``samples/`` when there is a results directory)."""
         self._writer: ResultsWriter | None = None
-        self._stopped: Stopped | None = None  # the worker's last message, where it came before the shutdown
+        self._worker = WorkerConversation(
+            plan, self.bench, self.safety, self.worker_mode, finished="sweep complete", reason_for=_ending_reason,
+            on_fault=self._fault, on_health=lambda health: self.listener(BusStatus(health)),
+            before_wait=self._check_abort, on_end=self._end, keep_off_pacing_cpu=True)
         self.growing = growing if growing is not None else GrowingPlan.of(case)
         """An adaptive case's plan as it grows (None: the planned frequencies only); ``growing``: one already
         begun (an overview's frequencies added to the case)."""
@@ -151,57 +146,50 @@ class BenchSession:
                 self.out_dir.rmdir()  # nothing measured: leave no empty directory behind
 
     def _run(self) -> SessionResult:
-        conn, handle = start_worker(worker_spec(self.plan.open_link, self.bench, self.safety), self.worker_mode)
-        self._conn = conn
-        self._stopped = None
-        stopped: Stopped | None = None
-        completed = False
-        reason = "sweep complete"  # replaced by the cause of any other way out
-        # a pacing process gets a CPU of its own: this process (analysis, UI) keeps off it while the sweep runs
-        cpu_yielded = contextlib.ExitStack()
-        if self.bench.clock == "realtime" and self.worker_mode == "process":
-            cpu_yielded.enter_context(pacing_cpu_left_alone(self.bench.pacing_cpu))
-        try:
-            ready = self._expect(Ready, timeout=60.0)
-            self.channels = ready.channels
-            done = completed_frequencies(self.response, self.case.analysed_channels, self.analysis.harmonics)
-            self.listener(self._started(ready.channels, done))
-            queue = [f for f in self.case.excitation.frequencies_hz if f not in done]
-            attempted = set(done)
-            index = 0
-            while True:
-                while queue or self.controls.remeasure:
-                    f = self.controls.remeasure.pop(0) if self.controls.remeasure else queue.pop(0)
-                    attempted.add(f)
-                    self._measure(index, f)
-                    index += 1
-                queue = self._grow(attempted)
-                if not queue:
-                    break
-            completed = True
-        except SessionError as exc:
-            reason = str(exc)
-            raise
-        except KeyboardInterrupt as exc:
-            reason = f"interrupted ({exc.signame})" if isinstance(exc, StopSignal) else "interrupted"
-            self.controls.abort.set()
-            raise
-        except BaseException as exc:
-            reason = f"error: {type(exc).__name__}: {exc}"
-            raise
-        finally:
-            stopped = self._shutdown(reason, abort=not completed)
-            join = handle.join
-            join(timeout=10)
-            cpu_yielded.close()
-            self.plan.close()
-            layout = self.plan.layout
-            self.ended = session_ended(reason, completed, stopped, layout)
-            self.listener(self.ended)
-        rt = self.last_health.round_trip_s if self.last_health else math.nan
-        return SessionResult(self.response, completed, reason, stopped.last_setpoint if stopped else math.nan,
-                             stopped.disabled if stopped else False, rt, self.last_health, self.periods_discarded,
-                             stopped.log_failure if stopped else "", self.stale_samples)
+        with self._worker:
+            try:
+                self._sweep()
+            except KeyboardInterrupt:
+                self.controls.abort.set()
+                raise
+        assert self.ended is not None
+        stopped, rt = self._worker.stopped, self.last_health.round_trip_s if self.last_health else math.nan
+        return SessionResult(self.response, self.ended.completed, self.ended.reason,
+                             stopped.last_setpoint if stopped else math.nan, stopped.disabled if stopped else False,
+                             rt, self.last_health, self.periods_discarded, stopped.log_failure if stopped else "",
+                             self.stale_samples)
+
+    def _sweep(self) -> None:
+        """Every frequency of the case not measured yet, those asked to be measured again, and an adaptive case's
+        additions, in turn."""
+        ready = self._worker.expect(Ready, timeout=60.0)
+        self.channels = ready.channels
+        done = completed_frequencies(self.response, self.case.analysed_channels, self.analysis.harmonics)
+        self.listener(self._started(ready.channels, done))
+        queue = [f for f in self.case.excitation.frequencies_hz if f not in done]
+        attempted = set(done)
+        index = 0
+        while True:
+            while queue or self.controls.remeasure:
+                f = self.controls.remeasure.pop(0) if self.controls.remeasure else queue.pop(0)
+                attempted.add(f)
+                self._measure(index, f)
+                index += 1
+            queue = self._grow(attempted)
+            if not queue:
+                break
+
+    @property
+    def last_health(self) -> Health | None:
+        """The bus worker's latest health report (None before the first)."""
+        return self._worker.last_health
+
+    def _fault(self, kind: FaultKind, message: str) -> None:
+        self.listener(SessionFault(kind, message, len(self.response.points)))
+
+    def _end(self, ended: SessionEnded) -> None:
+        self.ended = ended
+        self.listener(ended)
 
     def _grow(self, attempted: set[float]) -> list[float]:
         """An adaptive case's next round of frequencies, announced (none: the plan is done or there is none)."""
@@ -224,64 +212,6 @@ class BenchSession:
         budgets = tuple(period_budget(self.analysis, f, on_bench=True) for f in excitation.frequencies_hz)
         return SessionStarted(excitation.frequencies_hz, channels, self.plan.where, tuple(measured.items()), extra,
                               budgets, bench.clock == "realtime")
-
-    def _shutdown(self, reason: str, abort: bool) -> Stopped | None:
-        with contextlib.suppress(OSError, BrokenPipeError):
-            self._conn.send(Stop(reason, abort=abort))
-        if self._stopped is not None:  # the worker had ended already, and said how
-            return self._stopped
-        deadline = time.monotonic() + 10.0
-        while time.monotonic() < deadline:
-            try:
-                if not self._conn.poll(0.2):
-                    continue
-                message = self._conn.recv()
-            except (EOFError, OSError):
-                return None
-            if isinstance(message, Stopped):
-                return message
-            if isinstance(message, Health):
-                self.last_health = message
-        return None
-
-    def _tell(self, message: object) -> None:
-        """Send a command to the worker. A worker that has already ended (a trip between its last batch and this
-        command) left its Fault and Stopped in the pipe: the SessionError raised is that fault's."""
-        try:
-            self._conn.send(message)
-        except OSError:
-            deadline = time.monotonic() + 1.0
-            while time.monotonic() < deadline:
-                self._receive(0.1)  # raises on the worker's Fault, its Stopped, or the pipe's end
-            raise SessionError(FaultKind.BUS, "the bus worker ended unexpectedly") from None
-
-    def _receive(self, timeout: float) -> object | None:
-        try:
-            if not self._conn.poll(timeout):
-                return None
-            message = self._conn.recv()
-        except (EOFError, OSError):
-            raise SessionError(FaultKind.BUS, "the bus worker ended unexpectedly") from None
-        if isinstance(message, Fault):
-            kind = FaultKind(message.kind)
-            self.listener(SessionFault(kind, message.message, len(self.response.points)))
-            raise SessionError(kind, message.message)
-        if isinstance(message, Stopped):
-            self._stopped = message  # how the worker left the drive, for _shutdown to report
-            raise SessionError(FaultKind.BUS, f"the bus worker stopped: {message.reason}")
-        if isinstance(message, Health):
-            self.last_health = message
-            self.listener(BusStatus(message))
-        return message
-
-    def _expect(self, kind: type, timeout: float):  # type: ignore[no-untyped-def]
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            self._check_abort()
-            message = self._receive(0.1)
-            if isinstance(message, kind):
-                return message
-        raise SessionError(FaultKind.TIMEOUT, f"no {kind.__name__} from the bus worker within {timeout:g} s")
 
     def _results_writer(self) -> ResultsWriter:
         """The writer of the results directory, opened with the first point (an interrupted sweep's file is
@@ -340,9 +270,9 @@ class BenchSession:
             if SETPOINT_ECHO in self.channels and reference != SETPOINT_ECHO else columns
         watch = FlatWatch([self.channels[i] for i in watched], f)
         last_sent = math.nan  # the setpoint the host sent at the sample before this batch
-        self._tell(StartSine(f, amplitude, bench.ramp_in_periods, bench.ramp_out_periods))
+        self._worker.send(StartSine(f, amplitude, bench.ramp_in_periods, bench.ramp_out_periods))
         self.listener(PointStarted(index, f, analysis.tolerance_percent, analysis.criterion))
-        started = self._expect(SineStarted, timeout=60.0)
+        started = self._worker.expect(SineStarted, timeout=60.0)
         t0 = started.tick * self.period + (bench.ramp_in_periods + settle) / f
 
         def start(t0: float) -> tuple[Autointegrator, PointSamples]:
@@ -363,7 +293,7 @@ class BenchSession:
             if self.controls.pause.is_set():
                 time.sleep(0.05)
                 continue
-            message = self._receive(1.0)
+            message = self._worker.receive(1.0)
             if not isinstance(message, Samples):
                 continue
             t, values = message.t, message.values[:, watched]
@@ -382,14 +312,14 @@ class BenchSession:
                 sampler, record = start(window.t0)
             if t.size == 0:  # still before period 1 (the ramp, the settle periods): the drive goes on
                 if bench.clock == "lockstep":
-                    self._tell(Credit(message.last_tick + ticks_per_period))
+                    self._worker.send(Credit(message.last_tick + ticks_per_period))
                 continue
             values = formed.combine(values)
             record.add(t, values)
             with np.errstate(all="ignore"):  # garbage that got this far is refused below, not warned about
                 sampler.feed(t, values)
             if bench.clock == "lockstep" and not sampler.done:
-                self._tell(Credit(message.last_tick + ticks_per_period))
+                self._worker.send(Credit(message.last_tick + ticks_per_period))
             self.listener(PointProgress(index, f, sampler.periods, tuple(sampler.states()), scope.view(),
                                         discarded=sampler.discarded))
         self.periods_discarded += sampler.discarded
@@ -428,6 +358,15 @@ class BenchSession:
         for p in points:
             self.response.add(p)
         self.listener(PointFinished(index, tuple(points)))
+
+
+def _ending_reason(exc: BaseException) -> str:
+    """The reason a sweep that ``exc`` ended gives."""
+    if isinstance(exc, SessionError):
+        return str(exc)
+    if isinstance(exc, KeyboardInterrupt):
+        return f"interrupted ({exc.signame})" if isinstance(exc, StopSignal) else "interrupted"
+    return f"error: {type(exc).__name__}: {exc}"
 
 
 def sine_dating(bench: BenchConfig, channels: tuple[str, ...], frequency_hz: float) -> tuple[str, float, bool]:
