@@ -6,7 +6,8 @@ Run: python benchmarks/bench_tui.py [--only lockstep|realtime]
    virtual CAN bus) without the UI (no listener) and with the UI open (the app headless via run_test, the
    sweep started with its start key; the time is that of session.run inside the app's worker thread).
    The UI runs the bus worker where [bench] says beside a UI (BenchConfig.worker_mode(beside_a_ui=True));
-   without the UI the sweep is timed both that way and with the worker in a thread (what ``bodebench run`` does on the lockstep clock).
+   without the UI the sweep is timed both that way and with the worker in a thread (what ``bodebench run`` does
+   on the lockstep clock).
 2. Realtime: the pacing error's p99 (Health.pacing, the bus worker in its own process) of a short realtime
    run over a serial pty - configs/sim_serial.toml with clock = "realtime", reference_channel =
    "setpoint_echo", tolerance 1 %, 2 frequencies, at most MAX_PERIODS_REALTIME periods each - without and with

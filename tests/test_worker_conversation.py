@@ -62,3 +62,31 @@ def test_every_way_out_of_the_with_block_leaves_the_drive_at_zero_and_disabled(e
     assert worker.ended.drive_state() == "drive left at setpoint 0, disabled"
     assert worker.stopped is not None and worker.stopped.reason == worker.ended.reason
 
+
+
+def test_a_ramp_out_longer_than_the_stop_wait_is_waited_for_while_the_worker_reports(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Realtime clock, a 0.25 Hz sine ramped out over one period (4 s), the silence the stop waits for cut to
+    1.5 s (the worker reports every 0.1 s) and no allowance for a slew: the worker reports its health while it ramps out, so the stop waits for
+    its report and the drive is told to be left at zero and disabled, not "state unknown"."""
+    import bodebench.bench.conversation as conversation
+
+    monkeypatch.setattr(conversation, "STOP_WAIT_S", 1.5)
+    monkeypatch.setattr(conversation, "MAX_SLEW_STEPS", 0)
+    channel = "conversation-slow-ramp"
+    recorder = BusRecorder(channel)
+    case = parse_config(config(can={"channel": channel}, bench={"clock": "realtime"}), "ramp.toml").cases[0]
+    worker = WorkerConversation(plan_link(case), case.on_bench.bench, case.on_bench.safety, "thread",
+                                finished="all done", reason_for=lambda exc: f"ended by {type(exc).__name__}")
+    with worker:
+        worker.expect(Ready, 60.0)
+        worker.send(StartSine(0.25, 0.01, 0, 1))
+        worker.expect(SineStarted, 60.0)
+        time.sleep(0.5)
+        started = time.monotonic()
+        stopped = worker.shutdown("all done", abort=False)
+        waited = time.monotonic() - started
+    value, disabled = recorder.close()
+    assert stopped is not None and waited > 3.0  # it outlasted the silence it would have been given up after
+    assert value == 0.0 and disabled
+    assert worker.ended is not None and worker.ended.drive_state() == "drive left at setpoint 0, disabled"

@@ -14,7 +14,17 @@ from types import TracebackType
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from bodebench.bench.events import SessionEnded, SessionError
-from bodebench.bench.worker import Fault, Health, MessagePipe, Stop, Stopped, session_ended, start_worker, worker_spec
+from bodebench.bench.worker import (
+    MAX_SLEW_STEPS,
+    Fault,
+    Health,
+    MessagePipe,
+    Stop,
+    Stopped,
+    session_ended,
+    start_worker,
+    worker_spec,
+)
 from bodebench.drivers.scheduling import pacing_cpu_left_alone
 from bodebench.status import FaultKind
 
@@ -27,7 +37,9 @@ __all__ = ["WorkerConversation"]
 Message = TypeVar("Message")
 
 STOP_WAIT_S = 10.0
-"""How long the worker is given to report how it left the drive, after the stop, and then to end (s)."""
+"""How long the worker may stay silent after the stop before it is given up on, and then how long it is given to
+end (s). While it ramps out it reports its health, and each report gives it this long again; the slew to zero
+under safety.max_rate, which reports nothing, is allowed for on top."""
 
 
 def _nothing(*_: object) -> None:
@@ -129,13 +141,14 @@ class WorkerConversation:
 
     def shutdown(self, reason: str, abort: bool) -> Stopped | None:
         """Ask the worker to stop (``abort``: slew straight to zero rather than ramp out) and wait for its report
-        (None: it did not report within :data:`STOP_WAIT_S`, or the pipe ended)."""
+        (None: it fell silent for longer than :data:`STOP_WAIT_S` and the slew allows, or the pipe ended)."""
         assert self.pipe is not None
         with contextlib.suppress(OSError, BrokenPipeError):
             self.pipe.send(Stop(reason, abort=abort))
         if self.stopped is not None:  # the worker had ended already, and said how
             return self.stopped
-        deadline = time.monotonic() + STOP_WAIT_S
+        silence = STOP_WAIT_S + (MAX_SLEW_STEPS / self.bench.rate_hz if self.safety.max_rate is not None else 0.0)
+        deadline = time.monotonic() + silence
         while time.monotonic() < deadline:
             try:
                 if not self.pipe.poll(0.2):
@@ -148,6 +161,7 @@ class WorkerConversation:
                 return message
             if isinstance(message, Health):
                 self.last_health = message
+            deadline = time.monotonic() + silence  # the worker is still at work: a ramp out at a low frequency
         return None
 
     def close(self, reason: str, completed: bool) -> SessionEnded:

@@ -38,6 +38,8 @@ if TYPE_CHECKING:
     from bodebench.drivers.layout import Layout
     from bodebench.io.tables import BenchConfig, SafetyConfig
 
+MAX_SLEW_STEPS = 10_000
+"""The most ticks the way out slews the setpoint to zero over, under safety.max_rate (after them it jumps)."""
 ZERO_SETPOINTS = 3
 """Setpoints of zero the worker sends on its way out, after any slew to zero and before the disable frame: one lost
 frame still leaves the drive at zero."""
@@ -813,7 +815,7 @@ class BusWorker:
             lim = self.spec.limits
             steps = 0
             if lim.max_rate is not None:
-                steps = min(10_000, math.ceil(abs(self.last_sent) / (lim.max_rate * self.h)))
+                steps = min(MAX_SLEW_STEPS, math.ceil(abs(self.last_sent) / (lim.max_rate * self.h)))
             for _ in range(steps):
                 self._send(self._limit(0.0))
                 self.tick += 1
