@@ -12,7 +12,9 @@ __all__ = ["SweepControls"]
 @dataclass
 class SweepControls:
     """abort: stop the sweep (every case); skip: end the point being measured without a result (cleared as each
-    point starts); pause: hold the analysis (the drive goes on); tolerance_percent: the tolerance of every point not
+    point starts); pause: hold the analysis (on the realtime clock the drive goes on with its sine; on the lockstep
+clock it waits for setpoints, which stop, and a drive watchdog with no heartbeat frame then trips after
+frames.drive_watchdog_s); tolerance_percent: the tolerance of every point not
     yet started (None: the configuration's); remeasure: frequencies (Hz) to measure again, next, in the running
     session."""
 

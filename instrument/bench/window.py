@@ -1,7 +1,8 @@
 """Which of a bench point's samples are analysed, and from when: :class:`PointWindow`. Pure: no I/O, no clock.
 
 Period 1 of a point starts at t0, after the ramp and the settle periods. The window hands the analysis the samples
-after t0, led by the last sample at or before t0 (so the first period is integrated from its start); moves t0 on by
+after t0, led by the last sample at or before t0 (the integrator takes a stream that starts at or before t0, and
+starts period 1 on the first sample at or after it); moves t0 on by
 whole periods when the drive's first sample of the point comes after it (the excitation's phase stays zero at t0);
 and leaves out the samples of stretches in which the drive held a stale setpoint for longer than the longest gap a
 period may hold (the realtime clock: a setpoint sent late, ticks skipped), whose feedback answers no sine.
