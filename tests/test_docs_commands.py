@@ -216,3 +216,13 @@ def test_the_site_home_page_shows_the_readme_commands() -> None:
 def test_the_documents_run_are_the_ones_with_commands() -> None:
     assert {"README.md", "docs/first-real-sweep.md", "docs/getting-started.md", "docs/canopen.md"} <= set(DOCUMENTS)
     assert "docs/python-api.md" in PYTHON_DOCUMENTS
+
+
+def test_the_tests_index_lists_every_test_file_once() -> None:
+    """tests/README.md groups the test files by the part of the package they check: each file once, none that is
+    not there."""
+    index = (ROOT / "tests" / "README.md").read_text()
+    listed = re.findall(r"^\| `(test_\w+\.py)` \|", index, flags=re.MULTILINE)
+    present = sorted(p.name for p in (ROOT / "tests").glob("test_*.py"))
+    assert sorted(listed) == present, (sorted(set(present) - set(listed)), sorted(set(listed) - set(present)))
+    assert len(listed) == len(set(listed))
