@@ -914,6 +914,22 @@ async def test_a_loop_sweep_fills_its_rows_named_by_the_mode(tmp_path: Path) -> 
         assert "effort" in app.sweep_screen.live.query_one("#scope", PlotView).legend.plain
 
 
+def lockstep_bench(max_amplitude: float) -> str:
+    """The tables of a simulated drive on a virtual CAN bus of its own, 1 kHz lockstep, as TOML."""
+    return f"""[bench]
+transport = "can"
+rate_hz = 1000
+clock = "lockstep"
+[can]
+interface = "virtual"
+channel = "{channel_name()}"
+[safety]
+max_amplitude = {max_amplitude!r}
+watchdog_s = 5.0
+[simulator]
+"""
+
+
 class StatusRecorder(StatusLine):
     """The status line, keeping every line it shows."""
 
@@ -958,18 +974,7 @@ stop_hz = 30
 amplitude = 0.02
 lines_per_decade = 6
 tolerance_percent = 1
-[bench]
-transport = "can"
-rate_hz = 1000
-clock = "lockstep"
-[can]
-interface = "virtual"
-channel = "{channel_name()}"
-[safety]
-max_amplitude = 0.03
-watchdog_s = 5.0
-[simulator]
-""")
+{lockstep_bench(0.03)}""")
     monkeypatch.setattr("bodebench.apps.tui.screen.StatusLine", StatusRecorder)
     app = BodeBenchApp(load_config(path), tmp_path / "out")
     status = app.sweep_screen.status
@@ -1008,18 +1013,7 @@ frequencies = {{ start_hz = 3, stop_hz = 30, per_decade = 2, adaptive = {{ figur
 [analysis]
 harmonics = [1]
 tolerance_percent = 0.1
-[bench]
-transport = "can"
-rate_hz = 1000
-clock = "lockstep"
-[can]
-interface = "virtual"
-channel = "{channel_name()}"
-[safety]
-max_amplitude = 0.02
-watchdog_s = 5.0
-[simulator]
-""")
+{lockstep_bench(0.02)}""")
     out = tmp_path / "out"
     app = BodeBenchApp(load_config(path), out)
     async with app.run_test(size=(160, 48)) as pilot:
