@@ -137,7 +137,7 @@ def run(rate_hz: int, worker: str, busy: bool, frequencies_hz: list[float]) -> R
     session = BenchSession(case, plan, listener=listener, worker_mode=worker)
     ui = BusyUi()
     error = ""
-    cap = threading.Timer(CAP_S, session.request_abort)
+    cap = threading.Timer(CAP_S, session.controls.request_abort)
     cap.daemon = True
     start = time.perf_counter()
     cap.start()

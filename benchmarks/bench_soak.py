@@ -200,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         while time.monotonic() < end and runner.is_alive():
             probe.sample()
             time.sleep(5.0)
-        session.request_abort()
+        session.controls.request_abort()
         runner.join(30)
     ui_finished = None
     if not args.no_ui:

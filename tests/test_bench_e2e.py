@@ -185,7 +185,7 @@ def test_abort_leaves_zero_setpoint_and_disable_on_the_bus(tmp_path: Path) -> No
 
     def listener(event: object) -> None:
         if isinstance(event, PointProgress) and event.index == 1 and event.periods >= 2:
-            holder["s"].request_abort()
+            holder["s"].controls.request_abort()
 
     case = parse_config(config(can={"channel": "e2e-abort"}), "e2e.toml").cases[0]
     session = holder["s"] = BenchSession(case, plan_link(case), tmp_path, listener)

@@ -123,8 +123,8 @@ def _paused_sweep(frames: dict, channel: str, resume: bool) -> tuple[int, int, l
     def listener(event: object) -> None:
         if isinstance(event, PointProgress) and event.periods >= 1 and not paused:
             paused.append(True)
-            holder["s"].set_paused(True)
-            then = (lambda: holder["s"].set_paused(False)) if resume else holder["s"].request_abort
+            holder["s"].controls.set_paused(True)
+            then = (lambda: holder["s"].controls.set_paused(False)) if resume else holder["s"].controls.request_abort
             threading.Timer(4 * layout.drive_watchdog_s, then).start()
 
     try:

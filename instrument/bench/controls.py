@@ -24,9 +24,25 @@ frames.drive_watchdog_s); tolerance_percent: the tolerance of every point not
     tolerance_percent: float | None = None
     remeasure: list[float] = field(default_factory=list)
 
+    def request_abort(self) -> None:
+        """Stop the sweep, every case of it."""
+        self.abort.set()
+
+    def request_skip(self) -> None:
+        """End the point being measured without a result."""
+        self.skip.set()
+
     def set_paused(self, paused: bool) -> None:
         """Pause or resume the analysis."""
         (self.pause.set if paused else self.pause.clear)()
+
+    def set_tolerance(self, tolerance_percent: float) -> None:
+        """The stopping tolerance (percent) of every point not yet started."""
+        self.tolerance_percent = tolerance_percent
+
+    def request_remeasure(self, frequency_hz: float) -> None:
+        """Measure ``frequency_hz`` (Hz) again, next."""
+        self.remeasure.append(frequency_hz)
 
     @property
     def aborted(self) -> bool:

@@ -222,26 +222,28 @@ class SweepProcedure:
 
     # --- requests (any thread)
     def request_abort(self) -> None:
-        self.controls.abort.set()
+        """Stop the sweep, every case of it."""
+        self.controls.request_abort()
 
     def set_paused(self, paused: bool) -> None:
+        """Pause or resume the analysis."""
         self.controls.set_paused(paused)
 
     def request_skip(self) -> None:
         """End the point being measured, without a result (nothing while no session runs)."""
         if self.current is not None and self.current.session is not None:
-            self.controls.skip.set()
+            self.controls.request_skip()
 
     def request_remeasure(self, frequency_hz: float) -> bool:
         """Measure ``frequency_hz`` again, next, in the running session; False when no session runs yet."""
         if self.current is None or self.current.session is None:
             return False
-        self.controls.remeasure.append(frequency_hz)
+        self.controls.request_remeasure(frequency_hz)
         return True
 
     def set_tolerance(self, tolerance_percent: float) -> None:
         """The stopping tolerance (percent) of every point not yet started."""
-        self.controls.tolerance_percent = tolerance_percent
+        self.controls.set_tolerance(tolerance_percent)
 
     @property
     def aborted(self) -> bool:

@@ -114,22 +114,6 @@ class BenchSession:
             self.case = self.growing.case
 
     # --- user requests (any thread)
-    def request_abort(self) -> None:
-        self.controls.abort.set()
-
-    def request_skip(self) -> None:
-        self.controls.skip.set()
-
-    def set_paused(self, paused: bool) -> None:
-        self.controls.set_paused(paused)
-
-    def set_tolerance(self, tolerance_percent: float) -> None:
-        """Tolerance for the points not yet started."""
-        self.controls.tolerance_percent = tolerance_percent
-
-    def request_remeasure(self, frequency_hz: float) -> None:
-        self.controls.remeasure.append(frequency_hz)
-
     # --- the sweep
     def run(self) -> SessionResult:
         """Run the whole sweep; never leaves the drive moving. Raises SessionError after a trip (points kept), and
@@ -150,7 +134,7 @@ class BenchSession:
             try:
                 self._sweep()
             except KeyboardInterrupt:
-                self.controls.abort.set()
+                self.controls.request_abort()
                 raise
         assert self.ended is not None
         stopped, rt = self._worker.stopped, self.last_health.round_trip_s if self.last_health else math.nan
