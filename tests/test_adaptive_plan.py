@@ -48,6 +48,41 @@ def two_mass(f1: float, f2: float, zeta: float, delay_s: float) -> Response:
     return g
 
 
+def lag(tau_s: float, delay_s: float = 0.0) -> Response:
+    """A first-order lag and a dead time: the phase crosses -90 and -180 deg with no resonance."""
+    return lambda f: cmath.exp(-2j * math.pi * f * delay_s) / (1.0 + 2j * math.pi * f * tau_s)
+
+
+def butterworth(fc: float, order: int) -> Response:
+    """An analogue Butterworth low-pass, its poles on the unit circle (in units of 2 pi fc)."""
+    poles = [cmath.exp(1j * math.pi * (2 * k + order + 1) / (2 * order)) for k in range(order)]
+
+    def g(f: float) -> complex:
+        s, out = 1j * f / fc, 1.0 + 0j
+        for p in poles:
+            out *= -p / (s - p)
+        return out
+    return g
+
+
+def product(*parts: Response) -> Response:
+    """The response of parts in series."""
+    def g(f: float) -> complex:
+        out = 1.0 + 0j
+        for part in parts:
+            out *= part(f)
+        return out
+    return g
+
+
+def notch(f0: float, zeta_zero: float, zeta_pole: float) -> Response:
+    """A notch: a lightly damped pair of zeros over a well damped pair of poles at f0."""
+    def g(f: float) -> complex:
+        s, w = 2j * math.pi * f, 2.0 * math.pi * f0
+        return (s * s + 2.0 * zeta_zero * w * s + w * w) / (s * s + 2.0 * zeta_pole * w * s + w * w)
+    return g
+
+
 def points(g: Response, frequencies: list[float], amplitude: float = 0.5) -> FrequencyResponse:
     out = []
     for f in frequencies:
@@ -155,6 +190,11 @@ CLOSED = [
     ("moderate resonance", second_order(3.17, 0.2, 0.004), 0.5, 50.0),
     ("well damped", second_order(13.9, 0.6, 0.001), 1.0, 200.0),
     ("two-mass drive", two_mass(4.3, 37.0, 0.03, 0.001), 1.0, 150.0),
+    ("lag and dead time", lag(0.02, 0.01), 0.5, 200.0),
+    ("fourth-order Butterworth", butterworth(20.0, 4), 1.0, 200.0),
+    ("two resonances", product(second_order(5.0, 0.05), second_order(31.0, 0.01)), 1.0, 100.0),
+    ("a notch in a loop", product(second_order(40.0, 0.5), notch(12.0, 0.01, 0.3)), 1.0, 200.0),
+    ("a sharp mode and a delay", second_order(61.8, 0.003, 0.001), 2.0, 300.0),
 ]
 
 
