@@ -22,9 +22,9 @@ from bodebench.drivers.ports import CanPort, Frame, FramePort, SerialPort
 from bodebench.sim.canopen_device import ServingCanopen, serve_canopen
 from bodebench.sim.controller import ControllerTiming, FeedbackSensing, SimulatedController
 from bodebench.sim.faults import CanopenFaults, FaultConfig, FaultyPort, ValueFaults
+from bodebench.sim.loop_config import LoopConfig
 from bodebench.sim.models import plant_from_config
 from bodebench.sim.pty_link import POSIX_ONLY, FdStream, Pty, PtyUnavailable, SlcanAdapterPort, pty_available
-from bodebench.sim.servo_loop import LoopConfig
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection

@@ -18,43 +18,14 @@ L(z) = z^-1 C(z) P(z), C(z) = kp + ki h / (1 - z^-1) + kd (1 - z^-1) / h.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
+from bodebench.sim.loop_config import CONTROL, EFFORT, INJECTIONS, LoopConfig
 from bodebench.sim.plants import Plant, PlantState
 
 __all__ = ["EFFORT", "CONTROL", "INJECTIONS", "LoopConfig", "LoopState", "ServoLoop"]
-
-EFFORT = "effort"
-"""Channel of the plant input u = u_c + d over the period just ended."""
-CONTROL = "control"
-"""Channel of the controller output u_c over the period just ended."""
-INJECTIONS = ("setpoint", "effort")
-"""Where the host's value enters the loop: as its reference, or added to the controller's output."""
-
-
-@dataclass(frozen=True)
-class LoopConfig:
-    """``[simulator.loop]``: the simulated drive's PID around [plant] (none while ``inject`` is empty)."""
-
-    inject: str = field(default="", metadata={
-        "choices": ("", *INJECTIONS),
-        "doc": "where the host's value enters the drive's loop: setpoint (its reference) or effort (added to the "
-               "controller's output, as a torque offset); empty: no loop, the value drives the plant"})
-    kp: float = field(default=0.0, metadata={"doc": "proportional gain, plant input units per output unit"})
-    ki: float = field(default=0.0, metadata={"doc": "integral gain, plant input units per output unit and s"})
-    kd: float = field(default=0.0, metadata={"doc": "derivative gain (backward difference), plant input units "
-                                                    "per output unit per s"})
-    feedback: str = field(default="", metadata={"doc": "the plant output the loop regulates (default: its first, "
-                                                       "position)"})
-
-    def around(self, plant: Plant) -> Plant:
-        """``plant`` inside this loop (itself where there is none)."""
-        if not self.inject:
-            return plant
-        return ServoLoop(plant, self.kp, self.ki, self.kd, self.inject, self.feedback)
-
 
 @dataclass
 class LoopState(PlantState):

@@ -861,3 +861,16 @@ def test_a_bench_rate_beyond_any_bus_is_refused() -> None:
     from test_bench_config import error
 
     assert "bench.rate_hz: must be <= 100000.0, got 9.2e+18" in error(lambda d: d["bench"].update(rate_hz=9.2e18))
+
+
+def test_loading_a_configuration_and_running_a_bench_session_import_no_simulator() -> None:
+    """The loader and the bench session, imported in a fresh interpreter, bring in no plant, no numba and no scipy:
+    a real drive's sweep starts without the simulator's import time, and a machine without numba loads configs."""
+    import subprocess
+    import sys
+
+    code = ("import sys, bodebench.io.config, bodebench.bench.session, bodebench.bench.procedure; "
+            "print(' '.join(sorted(m for m in sys.modules if m.startswith('bodebench.sim.') "
+            "or m.split('.')[0] in ('numba', 'scipy'))))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert set(loaded) <= {"bodebench.sim.faults", "bodebench.sim.loop_config"}, loaded

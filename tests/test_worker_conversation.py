@@ -67,8 +67,9 @@ def test_every_way_out_of_the_with_block_leaves_the_drive_at_zero_and_disabled(e
 def test_a_ramp_out_longer_than_the_stop_wait_is_waited_for_while_the_worker_reports(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Realtime clock, a 0.25 Hz sine ramped out over one period (4 s), the silence the stop waits for cut to
-    1.5 s (the worker reports every 0.1 s) and no allowance for a slew: the worker reports its health while it ramps out, so the stop waits for
-    its report and the drive is told to be left at zero and disabled, not "state unknown"."""
+    1.5 s (the worker reports every 0.1 s) and no allowance for a slew: the worker reports its health while it
+    ramps out, so the stop waits for its report and the drive is told to be left at zero and disabled, not
+    "state unknown"."""
     import bodebench.bench.conversation as conversation
 
     monkeypatch.setattr(conversation, "STOP_WAIT_S", 1.5)

@@ -139,8 +139,8 @@ def simulator_spec(case: CaseConfig, *, wire_faults: bool = True) -> SimulatorSp
     if case.plant is None:
         raise ConfigError(f"{case.source}: plant: missing: the simulated drive needs a [plant] table", "plant")
     from bodebench.sim.controller import ControllerTiming, FeedbackSensing
+    from bodebench.sim.loop_config import LoopConfig
     from bodebench.sim.serve import SimulatorSpec
-    from bodebench.sim.servo_loop import LoopConfig
 
     timing = ControllerTiming(bench.rate_hz, bench.clock, sim.jitter if sim else 0.0,
                               sim.seed if sim else 0, bench.pacing_cpu)

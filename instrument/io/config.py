@@ -540,8 +540,8 @@ def _check_simulated_outputs(plant: PlantConfig, simulator: SimulatorConfig, lay
     :class:`_Fault`."""
     from dataclasses import asdict
 
+    from bodebench.sim.loop_config import CONTROL, EFFORT
     from bodebench.sim.models import plant_from_config
-    from bodebench.sim.servo_loop import CONTROL, EFFORT
 
     params = asdict(plant)
     outputs = plant_from_config(params.pop("model"), **params).output_names

@@ -22,7 +22,7 @@ from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS
 from bodebench.drivers.device_profile import PROFILES
 from bodebench.io.schema import FieldError
 from bodebench.sim.faults import CanopenFaults, FaultConfig
-from bodebench.sim.servo_loop import LoopConfig
+from bodebench.sim.loop_config import LoopConfig
 
 DEFAULT_DISTURBANCE_HZ = (50.0,)
 """[analysis] disturbance_hz on a real drive when the configuration gives none: mains."""
