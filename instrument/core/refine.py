@@ -10,12 +10,12 @@ frequency:
   measured there, the figure's bracket closes around it, and its interpolation error with it. For the resonance
   peak the distance between the vertex and the largest measured point counts as its frequency's error; a peak the
   points do not resolve gets the middles of the two intervals around the largest point.
-- **A curve that bends between two points.** Where the gain or the phase interpolated halfway between two
-  neighbours may be off by more than the curve's accuracy (their curvature, as the summary estimates it), the
-  middle (in log frequency) is added. This finds what no figure names: a lightly damped mode between two coarse
-  points shows as a phase drop that bends the curve there. Where the interval is too narrow to take a point (see
-  below), the curve's standing says it is not within its accuracy there: a jump, or a mode narrower than the
-  resolution asked for.
+- **A curve that bends between two points** (unless the plan asks for its figures alone, ``curve`` false).
+  Where the gain or the phase interpolated halfway between two neighbours may be off by more than the curve's
+  accuracy (their curvature, as the summary estimates it), the middle (in log frequency) is added. This finds
+  what no figure names: a lightly damped mode between two coarse points shows as a phase drop that bends the
+  curve there. Where the interval is too narrow to take a point (see below), the curve's standing says it is
+  not within its accuracy there: a jump, or a mode narrower than the resolution asked for.
 
 A figure whose 95 % interval is wider than its accuracy is limited by the measurement, not by the spacing:
 more frequencies do not help it and none are added for it; its standing says so. Nothing is added closer to a
