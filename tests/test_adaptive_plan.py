@@ -373,6 +373,21 @@ def test_an_offline_sweep_grows_its_plan_and_records_why(tmp_path: Path) -> None
     assert_figures_within_accuracy(outcome, oscillator)
 
 
+def test_an_offline_sweep_for_the_figures_alone_says_nothing_of_the_curve(tmp_path: Path) -> None:
+    """``curve = false`` through the sweep: every added frequency names a figure, the record's account has no
+    curve standing and its end says nothing of the curve, and the figures are within their accuracy."""
+    data = {"plant": {"model": "linear", "mass": MASS, "stiffness": 1.0, "damping_ratio": ZETA},
+            "excitation": {"amplitude": 0.01, "frequencies": {**ADAPTIVE, "adaptive": {
+                **ADAPTIVE["adaptive"], "curve": False}}},
+            "analysis": {"harmonics": [1], "tolerance_percent": 0.1, "steps_per_period": 200}}
+    (outcome,) = SweepProcedure(parse_config(data, "figures.toml"), tmp_path).run()
+    record = json.loads((tmp_path / SIDECAR_NAME).read_text())["plan"]
+    assert record["added"] and not any("the curve" in a["reason"] for a in record["added"])
+    assert {f["figure"] for f in record["figures"]} == set(ADAPTIVE["adaptive"]["figures"])
+    assert record["ended"] == "every requested figure found within its accuracy"
+    assert_figures_within_accuracy(outcome, oscillator)
+
+
 @pytest.mark.slow
 def test_a_bench_sweep_grows_its_plan_on_the_virtual_bus(tmp_path: Path) -> None:
     """An adaptive plan over python-can's virtual bus to the simulated drive, lockstep at 1 kHz: the figures are

@@ -81,7 +81,8 @@ class GrowingPlan:
         if not step.additions:
             unmet = [s.figure for s in step.standings if s.found and not s.met]
             absent = sum(not s.found for s in step.standings)
-            self.ended = ("every requested figure found within its accuracy, and the curve within its own" if not unmet
+            curve = ", and the curve within its own" if plan.curve else ""
+            self.ended = (f"every requested figure found within its accuracy{curve}" if not unmet
                           else f"no frequency it may add would bring within its accuracy: {', '.join(unmet)}")
             if absent:
                 self.ended += f" ({absent} not found in the measured range)"
