@@ -487,3 +487,24 @@ def test_an_interrupted_adaptive_sweep_resumes_with_the_frequencies_its_plan_had
     earlier = {a.frequency_hz for a in resumed.plan.added if a.reason == "added by an earlier run of this sweep"}
     assert earlier == kept - grid
     assert_figures_within_accuracy(resumed, oscillator)
+
+
+def test_a_trip_during_the_overview_a_bench_sweep_runs_first_says_how_it_left_the_drive(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """configs/sim_can.toml with an adaptive plan that runs the overview first and a feedback window the
+    multisine leaves: the sweep stops in one line that gives the overview's own account of the drive, not
+    "nothing was sent to the drive"."""
+    from bodebench.apps.cli import main
+
+    status = main(["run", str(Path(__file__).parent.parent / "configs" / "sim_can.toml"), "--out",
+                   str(tmp_path / "out"), "-q",
+                   "--set", "overview={start_hz = 5, stop_hz = 100, amplitude = 0.01, lines_per_decade = 5}",
+                   "--set", 'plant={model = "linear", mass = 2.533e-4, stiffness = 1.0, damping_ratio = 0.05}',
+                   "--set", "excitation={amplitude = 0.01, frequencies = {start_hz = 5, stop_hz = 50, per_decade = 2, "
+                            "adaptive = {from_overview = true}}}",
+                   "--set", "safety.feedback_limits={position = [-1e-3, 1e-3]}",
+                   "--set", f"can.channel=overview-trip-{uuid.uuid4().hex[:8]}"])
+    err = capsys.readouterr().err.strip()
+    assert status == 1 and len(err.splitlines()) == 1, err
+    assert err.startswith("bodebench: sim_can: stopped: feedback_limit: position = ")
+    assert err.endswith("no point measured; drive left at setpoint 0, disabled"), err

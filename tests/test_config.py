@@ -863,13 +863,16 @@ def test_a_bench_rate_beyond_any_bus_is_refused() -> None:
     assert "bench.rate_hz: must be <= 100000.0, got 9.2e+18" in error(lambda d: d["bench"].update(rate_hz=9.2e18))
 
 
-def test_loading_a_configuration_and_running_a_bench_session_import_no_simulator() -> None:
-    """The loader and the bench session, imported in a fresh interpreter, bring in no plant, no numba and no scipy:
-    a real drive's sweep starts without the simulator's import time, and a machine without numba loads configs."""
+def test_a_real_drive_s_configuration_and_its_bench_session_import_no_simulator() -> None:
+    """A real drive's configuration (configs/real_can.toml) loaded and the bench session imported, in a fresh
+    interpreter: no plant, no numba and no scipy come with them, so a real drive's sweep starts without the
+    simulator's import time. (A configuration with a [simulator] builds its plant to check the channels the
+    simulated drive can send.)"""
     import subprocess
     import sys
 
     code = ("import sys, bodebench.io.config, bodebench.bench.session, bodebench.bench.procedure; "
+            f"bodebench.io.config.load_config({str(Path(__file__).parent.parent / 'configs' / 'real_can.toml')!r}); "
             "print(' '.join(sorted(m for m in sys.modules if m.startswith('bodebench.sim.') "
             "or m.split('.')[0] in ('numba', 'scipy'))))")
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()

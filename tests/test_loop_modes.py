@@ -247,14 +247,14 @@ def test_the_divisor_scatter_is_the_spread_of_its_fundamental_over_its_size() ->
     with a known relative spread: divisor_scatter gives that spread over the settled periods (numpy on the same
     draws, the periods a coherence is taken over), and a spread above MAX_DIVISOR_SCATTER ends every point
     divisor_limited. A divisor that starts at three times its size and settles within the skipped periods (a
-    loop's effort as the loop settles) is judged on its settled spread alone."""
-    from bodebench.core.autointegration import MAX_DIVISOR_SCATTER, Autointegrator
+    loop's effort as the loop settles) is judged on its settled spread alone; a point too short for a settled
+    half of MIN_SCATTER_PERIODS is judged on every period after the skipped ones."""
+    from bodebench.core.autointegration import MAX_DIVISOR_SCATTER, MIN_SCATTER_PERIODS, Autointegrator
     from bodebench.core.quality import coherence_periods
 
     f, steps = 10.0, 200
     rng = np.random.default_rng(5)
-    for spread, transient in ((0.05, False), (0.4, False), (0.05, True)):
-        periods = 64
+    for spread, transient, periods in ((0.05, False, 64), (0.4, False, 64), (0.05, True, 64), (0.6, False, 6)):
         draws = 1 + spread / math.sqrt(2) * (rng.standard_normal(periods) + 1j * rng.standard_normal(periods))
         analysis = case_of("loop", "velocity PI", PLANTS["velocity PI"][1]).analysis
         if transient:
@@ -269,6 +269,8 @@ def test_the_divisor_scatter_is_the_spread_of_its_fundamental_over_its_size() ->
         if not sampler.done:
             sampler.end_of_record()
         start, stop = coherence_periods(analysis.skip_periods, sampler.periods)
+        if stop - start < MIN_SCATTER_PERIODS:
+            start = analysis.skip_periods
         used = draws[start:stop]
         want = float(np.sqrt(np.mean(np.abs(used - used.mean()) ** 2)) / abs(used.mean()))
         # (each period's edge sample is the next period's draw: the coefficients differ from the draws slightly)

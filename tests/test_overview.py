@@ -325,3 +325,26 @@ def test_bench_overview_intervals_cover_the_exact_response_under_noise() -> None
             total += 1
     assert total >= 40
     assert inside / total >= 0.85, (inside, total)
+
+
+def test_an_abort_during_a_bench_overview_stops_it_within_a_second_and_leaves_the_drive_at_zero() -> None:
+    """``aborted`` turning true after the third period: the overview stops with the abort's own fault, before
+    its lines are measured, and the end it reports leaves the drive at setpoint 0, disabled."""
+    from bodebench.bench.connection import plan_link
+    from bodebench.bench.events import SessionEnded, SessionError
+    from bodebench.bench.overview import measure_overview_on_bench
+    from bodebench.io.config import load_config
+    from bodebench.io.document import parse_override
+    from bodebench.status import FaultKind
+
+    case = load_config(CONFIGS / "sim_can.toml", [parse_override(text) for text in ON_CAN[1::2]]).cases[0]
+    periods: list[int] = []
+    ended: list[SessionEnded] = []
+    with pytest.raises(SessionError) as info:
+        measure_overview_on_bench(case, plan_link(case, direct=True), periods.append, on_end=ended.append,
+                                  aborted=lambda: len(periods) >= 3)
+    assert info.value.kind == FaultKind.ABORT and str(info.value) == "abort: aborted by the user"
+    assert 3 <= len(periods) < 10
+    (end,) = ended
+    assert not end.completed and end.reason == "abort: aborted by the user"
+    assert end.drive_state() == "drive left at setpoint 0, disabled"

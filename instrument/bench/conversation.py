@@ -26,20 +26,31 @@ from bodebench.bench.worker import (
     worker_spec,
 )
 from bodebench.drivers.scheduling import pacing_cpu_left_alone
+from bodebench.drivers.stop_signals import StopSignal
 from bodebench.status import FaultKind
 
 if TYPE_CHECKING:
     from bodebench.bench.connection import LinkPlan
     from bodebench.io.tables import BenchConfig, SafetyConfig
 
-__all__ = ["WorkerConversation"]
+__all__ = ["WorkerConversation", "ending_reason"]
 
 Message = TypeVar("Message")
 
 STOP_WAIT_S = 10.0
 """How long the worker may stay silent after the stop before it is given up on, and then how long it is given to
 end (s). While it ramps out it reports its health, and each report gives it this long again; the slew to zero
-under safety.max_rate, which reports nothing, is allowed for on top."""
+under safety.max_rate, which reports nothing, is allowed for on top (two ticks' time a step: on the realtime clock
+each step's sleep oversleeps)."""
+
+
+def ending_reason(exc: BaseException) -> str:
+    """The reason a run that ``exc`` ended gives: a trip's own text, the stop signal, or the error."""
+    if isinstance(exc, SessionError):
+        return str(exc)
+    if isinstance(exc, KeyboardInterrupt):
+        return f"interrupted ({exc.signame})" if isinstance(exc, StopSignal) else "interrupted"
+    return f"error: {type(exc).__name__}: {exc}"
 
 
 def _nothing(*_: object) -> None:
@@ -147,7 +158,8 @@ class WorkerConversation:
             self.pipe.send(Stop(reason, abort=abort))
         if self.stopped is not None:  # the worker had ended already, and said how
             return self.stopped
-        silence = STOP_WAIT_S + (MAX_SLEW_STEPS / self.bench.rate_hz if self.safety.max_rate is not None else 0.0)
+        silence = STOP_WAIT_S + (2.0 * MAX_SLEW_STEPS / self.bench.rate_hz if self.safety.max_rate is not None
+                                 else 0.0)
         deadline = time.monotonic() + silence
         while time.monotonic() < deadline:
             try:

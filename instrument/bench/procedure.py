@@ -31,6 +31,7 @@ from bodebench.bench.events import (
     PlanGrew,
     PointFinished,
     PointStarted,
+    SessionEnded,
     SessionError,
 )
 from bodebench.bench.runinfo import RunClock, run_record
@@ -172,6 +173,15 @@ class CaseOutcome:
     resumed: bool = False
     plan: GrowingPlan | None = None
     """An adaptive case's plan as it grew (None: the planned frequencies only)."""
+    overview_ended: SessionEnded | None = None
+    """How the overview an adaptive plan ran first on the bench ended (None: none ran)."""
+
+    @property
+    def ended(self) -> SessionEnded | None:
+        """How the case's last run on the drive ended: its session's, else its overview's (None: nothing ran)."""
+        if self.session is not None and self.session.ended is not None:
+            return self.session.ended
+        return self.overview_ended
 
 
 LEAST_ANALYSED_PERIODS = 8
@@ -347,7 +357,8 @@ class SweepProcedure:
             log.info("case %s: the overview first", outcome.case.name)
             self.listener(self._seed(outcome, growing, measure_overview_on_bench(
                 outcome.case, plan_link(outcome.case, direct=self.direct),
-                functools.partial(self._overview_progress, outcome.case.name))))
+                functools.partial(self._overview_progress, outcome.case.name),
+                on_end=functools.partial(self._overview_ended, outcome), aborted=lambda: self.controls.aborted)))
         plan = plan_link(outcome.case, direct=self.direct, log=bus_log)
         log.info("case %s: the drive is reached %s%s", outcome.case.name, plan.where or "directly",
                  f"; bus log {bus_log}" if bus_log else "")
@@ -462,6 +473,13 @@ class SweepProcedure:
 
     def _overview_progress(self, case: str, periods: int) -> None:
         self.listener(OverviewProgress(case, periods))
+
+    def _overview_ended(self, outcome: CaseOutcome, ended: SessionEnded) -> None:
+        """A bench overview's end, kept on its case; told where it ended the case (a trip, an abort, an error),
+        as a session's end is."""
+        outcome.overview_ended = ended
+        if not ended.completed:
+            self.listener(ended)
 
     def _seed(self, outcome: CaseOutcome, plan: GrowingPlan, overview: OverviewResult) -> PlanGrew:
         """An adaptive case's grid grown from its overview's lines before it is measured (the event that tells of

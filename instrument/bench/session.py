@@ -19,7 +19,7 @@ import numpy as np
 from bodebench.bench.adaptive import GrowingPlan, extra_periods
 from bodebench.bench.connection import LinkPlan
 from bodebench.bench.controls import SweepControls
-from bodebench.bench.conversation import WorkerConversation
+from bodebench.bench.conversation import WorkerConversation, ending_reason
 from bodebench.bench.events import (
     BusStatus,
     Listener,
@@ -45,7 +45,6 @@ from bodebench.core.benchgrid import flag_disturbed, mark_untied
 from bodebench.core.liveness import FlatWatch, no_fundamental
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.drivers.layout import SETPOINT_ECHO
-from bodebench.drivers.stop_signals import StopSignal
 from bodebench.io.config import AnalysisConfig, BenchConfig, CaseConfig
 from bodebench.io.results import CSV_NAME, ResultsWriter, RowsOnDiskError, check_output
 from bodebench.io.samples import PointSamples
@@ -103,7 +102,7 @@ class BenchSession:
         """The samples of the frequency measured last (saved in ``samples/`` when there is a results directory)."""
         self._writer: ResultsWriter | None = None
         self._worker = WorkerConversation(
-            plan, self.bench, self.safety, self.worker_mode, finished="sweep complete", reason_for=_ending_reason,
+            plan, self.bench, self.safety, self.worker_mode, finished="sweep complete", reason_for=ending_reason,
             on_fault=self._fault, on_health=lambda health: self.listener(BusStatus(health)),
             before_wait=self._check_abort, on_end=self._end, keep_off_pacing_cpu=True)
         self.growing = growing if growing is not None else GrowingPlan.of(case)
@@ -113,7 +112,6 @@ class BenchSession:
             self.growing.resume(resume)
             self.case = self.growing.case
 
-    # --- user requests (any thread)
     # --- the sweep
     def run(self) -> SessionResult:
         """Run the whole sweep; never leaves the drive moving. Raises SessionError after a trip (points kept), and
@@ -342,15 +340,6 @@ class BenchSession:
         for p in points:
             self.response.add(p)
         self.listener(PointFinished(index, tuple(points)))
-
-
-def _ending_reason(exc: BaseException) -> str:
-    """The reason a sweep that ``exc`` ended gives."""
-    if isinstance(exc, SessionError):
-        return str(exc)
-    if isinstance(exc, KeyboardInterrupt):
-        return f"interrupted ({exc.signame})" if isinstance(exc, StopSignal) else "interrupted"
-    return f"error: {type(exc).__name__}: {exc}"
 
 
 def sine_dating(bench: BenchConfig, channels: tuple[str, ...], frequency_hz: float) -> tuple[str, float, bool]:

@@ -22,7 +22,7 @@ import numpy as np
 
 from bodebench.core.benchgrid import alias_fit_order, fold_bound
 from bodebench.core.fourier import ExactPeriodIntegrator, GridPeriodIntegrator
-from bodebench.core.quality import coherence, coherence_periods, total_harmonic_distortion
+from bodebench.core.quality import MIN_COHERENCE_PERIODS, coherence, coherence_periods, total_harmonic_distortion
 from bodebench.core.response import ResponsePoint
 from bodebench.core.rules import MIN_NOISE_EVIDENCE, RESOLUTION, SeriesHistory, StoppingRule, Verdict, make_rule
 from bodebench.status import PointStatus
@@ -96,6 +96,10 @@ period's Fourier coefficient is circular, so its powers average to zero and the 
 while |n| < |Z_r|; at a relative scatter s a period's noise exceeds the divisor with probability exp(-1 / s^2)
 (1e-7 at a quarter), and beyond that the ratios' mean is biased more than their spread shows. Above it the points
 end ``divisor_limited``."""
+
+MIN_SCATTER_PERIODS = 8
+"""The fewest settled periods (the later half of those after the skipped ones) the divisor's scatter is taken over;
+a shorter point's is taken over every period after the skipped ones, too few to tell a transient from noise."""
 
 MAX_COEFFICIENT = 1e100
 """Largest coefficient a period may have (output units): beyond any sensor's range in any unit, and far enough below
@@ -469,18 +473,23 @@ class Autointegrator:
         """Two-channel mode: the spread of the reference fundamental from period to period relative to its mean (the
         standard deviation of the complex coefficient over its size), over the periods a coherence is taken over
         (:func:`~bodebench.core.quality.coherence_periods`: the later half of those after the skipped ones, where
-        a transient has gone); NaN without a reference or a period."""
+        a transient has gone), or over every period after the skipped ones where that half holds fewer than
+        :data:`MIN_SCATTER_PERIODS` (every period where fewer than two are left after the skip);
+        inf where the divisor's mean is zero and it is not; NaN without a reference or a period."""
         if len(self._divisors) > 1:
             self._divisors = [np.concatenate(self._divisors)]
-        if not self._divisors:
+        if not self._divisors or not self._divisors[0].size:
             return math.nan
         divisors = self._divisors[0]
         start, stop = coherence_periods(self.skip_periods, len(divisors))
+        if stop - start < MIN_SCATTER_PERIODS:
+            start = self.skip_periods if stop - self.skip_periods >= MIN_COHERENCE_PERIODS else 0
         settled = divisors[start:stop]
-        mean = complex(settled.mean()) if settled.size else 0j
+        mean = complex(settled.mean())
+        spread = float(np.sqrt(np.mean(np.abs(settled - mean) ** 2)))
         if not mean:
-            return math.nan
-        return float(np.sqrt(np.mean(np.abs(settled - mean) ** 2))) / abs(mean)
+            return math.inf if spread else math.nan
+        return spread / abs(mean)
 
     def points(self) -> list[ResponsePoint]:
         """The measured points, one per series (requires ``done``); ValueError saying why for a failed point."""

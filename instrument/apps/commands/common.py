@@ -110,8 +110,7 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
             traceback.print_exc()
         kept = len(current.response.points)  # each of them saved when it was measured
         where = f"{kept} points kept in {current.directory}" if kept else "no point measured"
-        drive = (session.ended.drive_state() if session is not None and session.ended is not None
-                 else "nothing was sent to the drive")
+        drive = current.ended.drive_state() if current.ended is not None else "nothing was sent to the drive"
         print(f"bodebench: {current.case.name}: stopped: {_cause(exc)}; {where}; {drive}", file=sys.stderr)
         return 128 + exc.signum if isinstance(exc, StopSignal) else 130 if isinstance(exc, KeyboardInterrupt) \
             else 1
