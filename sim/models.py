@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from pathlib import Path
+from typing import Any
 
 from bodebench.sim.hydraulic import HYDRAULIC_DEFAULTS, SUBSTEPS_PER_PERIOD, ElectrohydraulicDrive
 from bodebench.sim.plants import CoulombOscillator, FirstOrderLag, LinearOscillator, Plant, ProportionalValve
 
-__all__ = ["COMPILE_S", "compile_note", "load_kernels", "plant_from_config", "uncompiled"]
+__all__ = ["COMPILE_S", "compile_note", "load_kernels", "plant_from_config", "plant_from_table", "uncompiled"]
 
 COMPILE_S = {"coulomb": 3.3, "linear": 1.6, "lag": 1.6, "valve": 1.6, "hydraulic": 3.3}
 """Seconds numba takes to compile each model's step loops where its cache has none (a 2-core machine, measured with
@@ -40,6 +41,13 @@ def plant_from_config(model: str, *, mass: float = 1.0, stiffness: float = 1.0, 
             raise ValueError(f"unknown hydraulic plant parameters {unknown}")
         return ElectrohydraulicDrive(**hydraulic, substeps_per_period=SUBSTEPS_PER_PERIOD)
     raise ValueError(f"unknown plant model {model!r}")
+
+
+def plant_from_table(table: Mapping[str, Any]) -> Plant:
+    """The plant a ``[plant]`` table's values describe (its "model" and the keyword parameters of
+    :func:`plant_from_config`)."""
+    params = dict(table)
+    return plant_from_config(params.pop("model"), **params)
 
 
 def load_kernels(models: Collection[str]) -> None:

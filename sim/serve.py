@@ -23,7 +23,7 @@ from bodebench.sim.canopen_device import ServingCanopen, serve_canopen
 from bodebench.sim.controller import ControllerTiming, FeedbackSensing, SimulatedController
 from bodebench.sim.faults import CanopenFaults, FaultConfig, FaultyPort, ValueFaults
 from bodebench.sim.loop_config import LoopConfig
-from bodebench.sim.models import plant_from_config
+from bodebench.sim.models import plant_from_table
 from bodebench.sim.pty_link import POSIX_ONLY, FdStream, Pty, PtyUnavailable, SlcanAdapterPort, pty_available
 
 if TYPE_CHECKING:
@@ -58,8 +58,7 @@ class SimulatorSpec:
 
     def controller(self) -> SimulatedController:
         """A new controller around a new plant (inside the drive's loop where it has one)."""
-        params = dict(self.plant)
-        plant = self.loop.around(plant_from_config(params.pop("model"), **params))
+        plant = self.loop.around(plant_from_table(self.plant))
         return SimulatedController(plant, self.layout, self.timing,
                                    ValueFaults(self.faults) if self.faults is not None else None,
                                    sensing=self.sensing)

@@ -328,9 +328,11 @@ def test_bench_overview_intervals_cover_the_exact_response_under_noise() -> None
 
 
 def test_an_abort_during_a_bench_overview_stops_it_within_a_second_and_leaves_the_drive_at_zero() -> None:
-    """``aborted`` turning true after the third period: the overview stops with the abort's own fault, before
-    its lines are measured, and the end it reports leaves the drive at setpoint 0, disabled."""
+    """An abort requested after the third period (the sweep's controls, asked before each wait as the procedure
+    asks them): the overview stops with the abort's own fault, before its lines are measured, and the end it
+    reports leaves the drive at setpoint 0, disabled."""
     from bodebench.bench.connection import plan_link
+    from bodebench.bench.controls import SweepControls
     from bodebench.bench.events import SessionEnded, SessionError
     from bodebench.bench.overview import measure_overview_on_bench
     from bodebench.io.config import load_config
@@ -338,11 +340,18 @@ def test_an_abort_during_a_bench_overview_stops_it_within_a_second_and_leaves_th
     from bodebench.status import FaultKind
 
     case = load_config(CONFIGS / "sim_can.toml", [parse_override(text) for text in ON_CAN[1::2]]).cases[0]
+    controls = SweepControls()
     periods: list[int] = []
     ended: list[SessionEnded] = []
+
+    def period(n: int) -> None:
+        periods.append(n)
+        if n == 3:
+            controls.request_abort()
+
     with pytest.raises(SessionError) as info:
-        measure_overview_on_bench(case, plan_link(case, direct=True), periods.append, on_end=ended.append,
-                                  aborted=lambda: len(periods) >= 3)
+        measure_overview_on_bench(case, plan_link(case, direct=True), period, on_end=ended.append,
+                                  before_wait=controls.check_abort)
     assert info.value.kind == FaultKind.ABORT and str(info.value) == "abort: aborted by the user"
     assert 3 <= len(periods) < 10
     (end,) = ended

@@ -6,7 +6,13 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass, field
 
-__all__ = ["SweepControls"]
+from bodebench.bench.events import SessionError
+from bodebench.status import FaultKind
+
+__all__ = ["ABORTED", "SweepControls"]
+
+ABORTED = "aborted by the user"
+"""What a run that the user's abort ended says."""
 
 
 @dataclass
@@ -48,3 +54,8 @@ frames.drive_watchdog_s); tolerance_percent: the tolerance of every point not
     def aborted(self) -> bool:
         """Whether an abort was requested."""
         return self.abort.is_set()
+
+    def check_abort(self) -> None:
+        """SessionError (:attr:`FaultKind.ABORT`) where an abort was requested; nothing otherwise."""
+        if self.aborted:
+            raise SessionError(FaultKind.ABORT, ABORTED)

@@ -62,13 +62,14 @@ class WorkerConversation:
     a process or a thread (``mode``; None: the bench's choice).
 
     finished: the reason given when the ``with`` block ends normally; reason_for: the reason given when an
-    exception ends it. on_fault (kind, text): told of a worker's fault before it is raised; on_health: told of each
-    health report received; before_wait: called before each wait of :meth:`expect` (it may raise to stop waiting);
-    on_end: told how the run ended, on every way out. keep_off_pacing_cpu: on the realtime clock with the worker in
-    a process of its own, this process keeps off the worker's CPU until the worker is joined."""
+    exception ends it (:func:`ending_reason`). on_fault (kind, text): told of a worker's fault before it is raised;
+    on_health: told of each health report received; before_wait: called before each wait of :meth:`expect`, and
+    by a caller's own receiving loop (it may raise to stop waiting); on_end: told how the run ended, on every way
+    out. keep_off_pacing_cpu: on the realtime clock with the worker in a process of its own, this process keeps off
+    the worker's CPU until the worker is joined."""
 
     def __init__(self, plan: LinkPlan, bench: BenchConfig, safety: SafetyConfig, mode: str | None = None, *,
-                 finished: str, reason_for: Callable[[BaseException], str],
+                 finished: str, reason_for: Callable[[BaseException], str] = ending_reason,
                  on_fault: Callable[[FaultKind, str], None] = _nothing,
                  on_health: Callable[[Health], None] = _nothing, before_wait: Callable[[], None] = _nothing,
                  on_end: Callable[[SessionEnded], None] = _nothing, keep_off_pacing_cpu: bool = False) -> None:

@@ -25,7 +25,7 @@ from bodebench.core.autointegration import Autointegrator
 from bodebench.core.response import FrequencyResponse, ResponsePoint
 from bodebench.io.config import CaseConfig, PlantConfig
 from bodebench.io.samples import PointSamples
-from bodebench.sim.models import plant_from_config
+from bodebench.sim.models import plant_from_table
 from bodebench.sim.plants import Plant
 
 OUTPUT_CHANNEL = "position"
@@ -35,8 +35,7 @@ MAX_BATCH_PERIODS = 256
 
 def build_plant(plant: PlantConfig) -> Plant:
     """The simulated plant a ``[plant]`` table describes."""
-    params = asdict(plant)
-    return plant_from_config(params.pop("model"), **params)
+    return plant_from_table(asdict(plant))
 
 
 def measure_frequency(case: CaseConfig, frequency_hz: float) -> list[ResponsePoint]:

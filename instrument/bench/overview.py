@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bodebench.bench.connection import LinkPlan
-from bodebench.bench.conversation import WorkerConversation, ending_reason
+from bodebench.bench.conversation import WorkerConversation
 from bodebench.bench.events import SessionEnded, SessionError
 from bodebench.bench.offline import OUTPUT_CHANNEL, build_plant
 from bodebench.bench.worker import Credit, Ready, Samples, SineStarted, StartTable
@@ -106,14 +106,14 @@ class _PeriodAssembler:
 def measure_overview_on_bench(case: CaseConfig, plan: LinkPlan, on_period: Callable[[int], None] | None = None,
                               worker_mode: str | None = None,
                               on_end: Callable[[SessionEnded], None] | None = None,
-                              aborted: Callable[[], bool] | None = None) -> OverviewResult:
+                              before_wait: Callable[[], None] | None = None) -> OverviewResult:
     """Run a bench case's overview on the drive ``plan`` reaches: the multisine as a table of setpoints (ramped in
     over bench.ramp_in_periods of its periods, out over bench.ramp_out_periods), the first output channel
     analysed period after period from the end of the ramp in. Whatever ends it (every line measured, a trip, an
     error, a stop signal), the worker ramps out or slews to zero, sends zero setpoints and the disable frame;
-    ``on_end`` (and the result's ``ended``) gets what the drive was last sent. SessionError on a trip, on
-    ``aborted()`` turning true (asked at least once a second), or where more than :data:`MAX_DISCARDED_SHARE` of
-    the periods missed samples."""
+    ``on_end`` (and the result's ``ended``) gets what the drive was last sent; ``before_wait`` is called before
+    each wait for the worker (at least once a second) and may raise to end the run (an abort). SessionError on a
+    trip, or where more than :data:`MAX_DISCARDED_SHARE` of the periods missed samples."""
     tables = case.on_bench
     bench = tables.bench
     design = case.multisine()
@@ -122,7 +122,8 @@ def measure_overview_on_bench(case: CaseConfig, plan: LinkPlan, on_period: Calla
     setpoint = design.waveform()
     discarded = 0
     worker = WorkerConversation(plan, bench, tables.safety, worker_mode, finished="overview complete",
-                                reason_for=ending_reason, on_end=on_end or (lambda ended: None))
+                                on_end=on_end or (lambda ended: None),
+                                before_wait=before_wait or (lambda: None))
     with worker:
         column = worker.expect(Ready, 60.0).channels.index(channel)
         worker.send(StartTable(tuple(float(u) for u in setpoint), bench.ramp_in_periods, bench.ramp_out_periods))
@@ -130,8 +131,7 @@ def measure_overview_on_bench(case: CaseConfig, plan: LinkPlan, on_period: Calla
         periods = _PeriodAssembler(started.tick + bench.ramp_in_periods * design.samples, design.samples,
                                    1.0 / bench.rate_hz)
         while not integrator.done:
-            if aborted is not None and aborted():
-                raise SessionError(FaultKind.ABORT, "aborted by the user")
+            worker.before_wait()
             message = worker.receive(1.0)
             if not isinstance(message, Samples):
                 continue

@@ -358,7 +358,7 @@ class SweepProcedure:
             self.listener(self._seed(outcome, growing, measure_overview_on_bench(
                 outcome.case, plan_link(outcome.case, direct=self.direct),
                 functools.partial(self._overview_progress, outcome.case.name),
-                on_end=functools.partial(self._overview_ended, outcome), aborted=lambda: self.controls.aborted)))
+                on_end=functools.partial(self._overview_ended, outcome), before_wait=self.controls.check_abort)))
         plan = plan_link(outcome.case, direct=self.direct, log=bus_log)
         log.info("case %s: the drive is reached %s%s", outcome.case.name, plan.where or "directly",
                  f"; bus log {bus_log}" if bus_log else "")

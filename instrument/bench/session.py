@@ -18,8 +18,8 @@ import numpy as np
 
 from bodebench.bench.adaptive import GrowingPlan, extra_periods
 from bodebench.bench.connection import LinkPlan
-from bodebench.bench.controls import SweepControls
-from bodebench.bench.conversation import WorkerConversation, ending_reason
+from bodebench.bench.controls import ABORTED, SweepControls
+from bodebench.bench.conversation import WorkerConversation
 from bodebench.bench.events import (
     BusStatus,
     Listener,
@@ -102,7 +102,7 @@ class BenchSession:
         """The samples of the frequency measured last (saved in ``samples/`` when there is a results directory)."""
         self._writer: ResultsWriter | None = None
         self._worker = WorkerConversation(
-            plan, self.bench, self.safety, self.worker_mode, finished="sweep complete", reason_for=ending_reason,
+            plan, self.bench, self.safety, self.worker_mode, finished="sweep complete",
             on_fault=self._fault, on_health=lambda health: self.listener(BusStatus(health)),
             before_wait=self._check_abort, on_end=self._end, keep_off_pacing_cpu=True)
         self.growing = growing if growing is not None else GrowingPlan.of(case)
@@ -207,9 +207,9 @@ class BenchSession:
         return self._writer
 
     def _check_abort(self) -> None:
-        if self.controls.abort.is_set():
-            self.listener(SessionFault(FaultKind.ABORT, "aborted by the user", len(self.response.points)))
-            raise SessionError(FaultKind.ABORT, "aborted by the user")
+        if self.controls.aborted:
+            self.listener(SessionFault(FaultKind.ABORT, ABORTED, len(self.response.points)))
+        self.controls.check_abort()
 
     def _absurd(self, points: list[ResponsePoint]) -> str:
         """Why the points of a frequency are refused ("" when they are not)."""

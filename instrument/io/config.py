@@ -26,7 +26,7 @@ from bodebench.core.multisine import Multisine, MultisineError
 from bodebench.drivers import cia408
 from bodebench.drivers.canopen_link import CanopenSetup, ObjectRef, load_od, resolve_object
 from bodebench.drivers.cia402 import ABORT_CONNECTION_OPTIONS
-from bodebench.drivers.codec import COUNTER, CRC, SETPOINT, SETPOINT_ECHO, TIMESTAMP
+from bodebench.drivers.codec import COUNTER, SETPOINT, SETPOINT_ECHO, TIMESTAMP
 from bodebench.drivers.device_profile import PROFILES
 from bodebench.drivers.errors import LayoutError
 from bodebench.drivers.extras import missing, require
@@ -541,23 +541,22 @@ def _check_simulated_outputs(plant: PlantConfig, simulator: SimulatorConfig, lay
     from dataclasses import asdict
 
     from bodebench.sim.loop_config import CONTROL, EFFORT
-    from bodebench.sim.models import plant_from_config
+    from bodebench.sim.models import plant_from_table
 
-    params = asdict(plant)
-    outputs = plant_from_config(params.pop("model"), **params).output_names
+    outputs = plant_from_table(asdict(plant)).output_names
     loop = simulator.loop
     if loop.inject and loop.feedback and loop.feedback not in outputs:
         raise _Fault(f"{key('simulator', 'loop')}.feedback",
                      f"{loop.feedback!r} is not an output of the {plant.model} plant ({', '.join(outputs)})")
     sent = (*outputs, *((EFFORT, CONTROL) if loop.inject else ()), SETPOINT_ECHO)
-    for message in layout.feedback if transport != "canopen" else ():
-        for name in message.signal_names:
-            if name not in (COUNTER, TIMESTAMP, CRC) and name not in sent:
-                raise _Fault(_key_path("simulator"),
-                             f"feedback channel {name!r} ({message.name}, id 0x{message.id:X}) is not sent by the "
-                             f"simulated drive: it sends the {plant.model} plant's {', '.join(outputs)}"
-                             + (f", the loop's {EFFORT} and {CONTROL}" if loop.inject else "")
-                             + f" and {SETPOINT_ECHO}")
+    for name in layout.channels if transport != "canopen" else ():
+        if name not in sent:
+            message = next(m for m in layout.feedback if name in m.signal_names)
+            raise _Fault(_key_path("simulator"),
+                         f"feedback channel {name!r} ({message.name}, id 0x{message.id:X}) is not sent by the "
+                         f"simulated drive: it sends the {plant.model} plant's {', '.join(outputs)}"
+                         + (f", the loop's {EFFORT} and {CONTROL}" if loop.inject else "")
+                         + f" and {SETPOINT_ECHO}")
 
 
 def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, key: Callable[[str, str], str],
