@@ -20,7 +20,15 @@ def in_thread(fn: Callable[[], Any]) -> Any:
 
 
 def thread_cpus() -> dict[int, set[int]]:
-    return {int(tid): os.sched_getaffinity(int(tid)) for tid in os.listdir("/proc/self/task")}
+    """The CPUs each thread of this process may run on, for every thread alive while they are read (a thread of
+    the test worker's that ends between the listing and its read is left out, as it no longer runs anywhere)."""
+    out: dict[int, set[int]] = {}
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            out[int(tid)] = os.sched_getaffinity(int(tid))
+        except ProcessLookupError:
+            continue
+    return out
 
 
 def test_pacing_cpu_is_the_last_allowed_one() -> None:
