@@ -1,6 +1,6 @@
 """Does a point that says `converged` hold its eps, and does its interval mean 95 %? A battery against exact answers.
 
-Run: python benchmarks/bench_accuracy.py [--quick] [--bench [--folds move|bound]]
+Run: python benchmarks/bench_accuracy.py [--quick] [--bench [--folds bound|keep|move]]
 
 Battery (noise-free), every case simulated from rest exactly as the offline experiment does (step 1/(K_f f),
 K_f = 200), harmonics 1 to 3, the default rule replayed period by period through the Autointegrator's own order
@@ -440,7 +440,7 @@ def _folds(size: np.ndarray, samples: float) -> tuple[float, ...]:
                            {round(j * samples - k), round(j * samples + k)} if 3 < m <= top)) for k in HARMONICS)
 
 
-def scenario(kind: str, index: int, folds: str = "keep") -> Scenario:
+def scenario(kind: str, index: int, folds: str = FOLD_POLICIES[0]) -> Scenario:
     """The seeded bench case ``index`` of ``kind`` (the same for both tolerances); ``folds = "move"``: its frequency
     moved off folds as a plan with ``[analysis] folds = "move"`` moves it."""
     rng = np.random.default_rng((BENCH_SEED, BENCH_KINDS.index(kind), index))
@@ -674,7 +674,8 @@ def main() -> None:
     parser.add_argument("--bench", action="store_true",
                         help="the bench battery instead: samples at any times through the bench's sampler")
     parser.add_argument("--folds", choices=FOLD_POLICIES, default=FOLD_POLICIES[0],
-                        help="bench battery: each frequency kept, or moved off folds as [analysis] folds says")
+                        help="bench battery: [analysis] folds (default bound: each interval carries the fold "
+                             "bound; keep: none; move: each frequency moved off folds)")
     args = parser.parse_args()
     if args.bench:
         main_bench(args.quick, args.jobs, args.folds)

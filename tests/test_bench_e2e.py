@@ -23,13 +23,14 @@ from bodebench.bench.session import BenchSession
 from bodebench.core.response import FrequencyResponse
 from bodebench.io.config import parse_config
 from bodebench.io.results import load_response
+from bodebench.status import PointStatus
 
 FREQS = [5.0, 8.0, 20.0]  # below, near and above resonance (the -90 degree crossing is at 9.3 Hz)
 
 BASE: dict[str, Any] = {
     "plant": {"model": "coulomb", "mass": 2.533e-4, "stiffness": 1.0, "friction": 0.008},
     "excitation": {"amplitude": 0.01, "frequencies_hz": FREQS},
-    "analysis": {"harmonics": [1, 3], "tolerance_percent": 0.01},
+    "analysis": {"harmonics": [1, 3], "tolerance_percent": 0.01, "fold_decay": 3},  # as configs/sim_can.toml
     "bench": {"transport": "can", "rate_hz": 1000, "clock": "lockstep", "timebase": "counter"},
     "can": {"interface": "virtual", "channel": "e2e"},
     "safety": {"max_amplitude": 0.02, "max_rate": 5.0, "watchdog_s": 5.0},  # a loaded machine may stall the link
@@ -71,8 +72,10 @@ def compare(a: FrequencyResponse, b: FrequencyResponse, gain_db: float, phase_de
     assert list(first_a.frequency_hz) == list(first_b.frequency_hz) == freqs
     assert np.max(np.abs(first_a.gain_db - first_b.gain_db)) <= gain_db
     assert np.max(np.abs(first_a.phase_deg - first_b.phase_deg)) <= phase_deg
-    assert all(p.converged for p in a.points)
-    assert all(p.converged for p in b.points)
+    # each point measured to the end: converged, or alias_limited where what the rate folds onto it may exceed the
+    # tolerance (harmonic 3 at 20 Hz, 50 samples a period, where it does: tests/test_benchgrid.py)
+    assert all(p.converged or p.status == PointStatus.ALIAS_LIMITED for p in a.points)
+    assert all(p.converged or p.status == PointStatus.ALIAS_LIMITED for p in b.points)
 
 
 @pytest.fixture(scope="module")

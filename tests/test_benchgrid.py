@@ -21,10 +21,13 @@ from bodebench.core.benchgrid import (
     disturbance_lines,
     flag_disturbed,
     fold_beat,
+    fold_bound,
     folding_harmonic,
     move_off_disturbances,
     move_off_folds,
 )
+from bodebench.core.phase_average import PhaseAverage, waveform_fold_bound
+from bodebench.core.rules import RESOLUTION
 from bodebench.io.config import AnalysisConfig, parse_config
 from bodebench.status import PointStatus
 
@@ -213,7 +216,10 @@ def test_the_loader_moves_a_bench_plan_off_folds_only_when_asked() -> None:
             "simulator": {},
         }
 
-    kept = parse_config(config(None), "folds.toml").cases[0]
+    bounded = parse_config(config(None), "folds.toml").cases[0]  # the default: bound, in every interval
+    assert bounded.excitation.frequencies_hz == (5.0, 1000.0 / 97.382, 40.0)
+    assert not any("folds exactly onto measured harmonic" in note for note in bounded.plan_notes)
+    kept = parse_config(config("keep"), "folds.toml").cases[0]
     assert kept.excitation.frequencies_hz == (5.0, 1000.0 / 97.382, 40.0)
     # warned, not moved: 25 samples a period fold harmonic 22 onto 3
     assert any("folds exactly onto measured harmonic" in note for note in kept.plan_notes)
@@ -262,8 +268,8 @@ def test_a_wider_basis_takes_harmonics_above_the_measured_ones_exactly_on_a_jitt
 def test_a_fold_the_record_shows_widens_the_interval_and_ends_alias_limited() -> None:
     """A clipped sine sampled at 69 samples a period: harmonics 67 and 71 fold onto harmonic 2 (truly zero) the same
     in every period. Without the rate the sampler cannot know it and says converged with an interval that misses;
-    with it and ``folds = "bound"``, the bound read from harmonics 6 .. 8 covers the fold and the point claims
-    nothing (with the default ``keep`` it stays as it was)."""
+    with it and ``folds = "bound"`` (the default), the bound read from the record covers the fold and the point
+    claims nothing (with ``folds = "keep"`` it stays as it was)."""
     f, n_per = 2.3, 69
     t = np.arange(60 * n_per + 1) / (n_per * f)
     y = _clipped_sine(t, f)[:, None]
@@ -273,11 +279,11 @@ def test_a_fold_the_record_shows_widens_the_interval_and_ends_alias_limited() ->
     blind.feed(t, y)
     second = blind.points()[1]
     assert second.converged and abs(complex(second.p, second.q) - truth[1]) > second.uncertainty
-    kept = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=n_per)  # folds = "keep"
+    kept = Autointegrator(f, 1.0, ("y",), replace(analysis, folds="keep"), t0=0.0, samples_per_period=n_per)
     kept.feed(t, y)
     kept_second = kept.points()[1]
     assert kept_second.converged and abs(complex(kept_second.p, kept_second.q) - truth[1]) > kept_second.uncertainty
-    told = Autointegrator(f, 1.0, ("y",), replace(analysis, folds="bound"), t0=0.0, samples_per_period=n_per)
+    told = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=n_per)
     told.feed(t, y)
     for point, exact in zip(told.points(), truth, strict=True):
         assert abs(complex(point.p, point.q) - exact) <= point.uncertainty
@@ -302,7 +308,8 @@ def test_a_linear_response_with_noise_gets_no_fold_bound() -> None:
 def test_folds_bound_on_the_virtual_bus_marks_the_whole_grid_points_and_reanalysis_agrees(tmp_path: Path) -> None:
     """The friction link at 20 Hz sampled at 1 kHz (50 samples a period: its high harmonics fold exactly onto 1 and
     3) with ``folds = "bound"``: the sweep over the virtual bus ends its points ``alias_limited`` with the bound in
-    their intervals (a bound that errs large here: what folds is 0.2 to 0.3 x eps, see the fine-grid test below), and
+    their intervals (what folds is 0.2 x eps on harmonic 1 and 1.9 x eps on 3, against the fine grid of the test
+    below: the default 1/j^2 errs large on this plant, whose harmonics fall as 1/j^3), and
     the analysis again from the samples, which reads the rate from the run's configuration, gives the same statuses
     and intervals."""
     from bodebench.analysis.reanalyse import reanalyse
@@ -378,13 +385,13 @@ def _friction_link_on_a_fine_grid(frequency_hz: float, rate_hz: float, harmonics
 
 @pytest.mark.slow
 @pytest.mark.parametrize("rate_hz, frequencies_hz", [(2000.0, [20.0, 30.0, 50.0]), (1000.0, [20.0, 25.0])])
-def test_the_shipped_friction_link_on_awkward_grids_is_within_its_tolerance_of_a_fine_grid_and_bound_covers_it(
+def test_the_shipped_friction_link_on_awkward_grids_keeps_the_promise_against_a_fine_grid(
         rate_hz: float, frequencies_hz: list[float]) -> None:
     """``configs/sim_can.toml`` at 40 to 100 samples a period (66 2/3 at 30 Hz), where the friction link's high
-    harmonics fold onto 1 and 3 every period alike: each converged point is within its tolerance of the plant's
-    response taken on a grid 32 x finer (so the folds the default ``folds = "keep"`` leaves in are, on this plant,
-    below the tolerance), and with ``folds = "bound"`` every point's interval covers that response (a bound that
-    errs large: its points may end alias_limited though right)."""
+    harmonics fold onto 1 and 3 every period alike, against the plant's response taken on a grid 32 x finer: with
+    the default ``folds = "bound"`` every point's interval covers it and every converged point is within its own
+    tolerance (eps of max(|Z_k|, 1e-3 |Z_1|)); ``folds = "keep"`` states intervals that miss it by more than the
+    tolerance somewhere (harmonic 3 at 40 samples a period: why bound is the default)."""
     from bodebench.bench.connection import plan_link
     from bodebench.bench.session import BenchSession
 
@@ -393,9 +400,12 @@ def test_the_shipped_friction_link_on_awkward_grids_is_within_its_tolerance_of_a
     raw["bench"]["rate_hz"] = rate_hz
     harmonics = raw["analysis"]["harmonics"]
     truth = {f: _friction_link_on_a_fine_grid(f, rate_hz, harmonics) for f in frequencies_hz}
-    for folds in ("keep", "bound"):
-        raw["analysis"]["folds"] = folds
+    worst_kept = 0.0
+    for folds in (None, "keep"):
+        if folds is not None:
+            raw["analysis"]["folds"] = folds
         case = parse_config(raw, "sim_can.toml").cases[0]
+        assert case.analysis.fold_policy == (folds or "bound")
         session = BenchSession(case, plan_link(case, direct=True), None, None)
         session.run()
         points = [p for p in session.response.points if p.channel == "position"]
@@ -403,8 +413,71 @@ def test_the_shipped_friction_link_on_awkward_grids_is_within_its_tolerance_of_a
         for p in points:
             exact = truth[p.frequency_hz]
             error = abs(complex(p.q, -p.p) - exact[harmonics.index(p.harmonic)])
-            scale = abs(exact[0])  # the tolerance is relative to harmonic 1
-            if folds == "keep":
-                assert p.converged and error <= p.tolerance_percent / 100 * scale, (p, error / scale)
-            else:
+            tolerance = p.tolerance_percent / 100 * max(abs(exact[harmonics.index(p.harmonic)]),
+                                                        RESOLUTION * abs(exact[0]))
+            if folds is None:
                 assert error <= p.uncertainty, (p, error, p.uncertainty)
+                assert not p.converged or error <= tolerance, (p, error / tolerance)
+            else:
+                worst_kept = max(worst_kept, error / tolerance)
+    if rate_hz == 2000.0:
+        assert worst_kept > 1.0  # harmonic 3 at 50 Hz, 40 samples a period
+
+
+def _spectrum_signal(sizes: np.ndarray, phases: np.ndarray, f: float, t0: float):
+    """sum over j >= 1 of sizes[j] sin(2 pi j f (t - t0) + phases[j])."""
+    j = np.arange(sizes.size)
+
+    def signal(t: np.ndarray) -> np.ndarray:
+        return np.sin(2 * np.pi * f * np.outer(t - t0, j) + phases) @ sizes
+    return signal
+
+
+def test_the_phase_average_is_the_waveform_on_a_whole_grid_and_refuses_a_slipping_one() -> None:
+    rng = np.random.default_rng(5)
+    f, n, t0 = 3.7, 40, 0.0123
+    sizes = np.zeros(16)
+    sizes[1:] = rng.uniform(0.1, 1.0, 15)
+    phases = rng.uniform(0, 2 * np.pi, 16)
+    signal = _spectrum_signal(sizes, phases, f, t0)
+    transient = lambda t: 5.0 * np.exp(-(t - t0) * f / 2.0) * np.sin(2 * np.pi * 7.3 * f * (t - t0))  # noqa: E731
+    average = PhaseAverage(f, t0, float(n), 1, 1000)
+    t = t0 + (np.arange(200 * n) + 0.37) / (n * f)  # off the phase zero by 0.37 of a sample
+    for chunk in np.array_split(np.arange(t.size), 37):
+        average.add(t[chunk], (signal(t[chunk]) + transient(t[chunk]))[:, None])
+    waveform = average.recent(200)
+    assert waveform is not None
+    # the bins hold the samples at phases (i + 0.37) / n: the waveform there, the transient long gone from the last
+    # quarter
+    expected = signal(t0 + (np.arange(n) + 0.37) / (n * f))
+    assert np.max(np.abs(waveform[:, 0] - expected)) < 1e-9 * np.max(np.abs(expected))
+    slipping = PhaseAverage(f, t0, 40.3, 1, 1000)
+    t = t0 + np.arange(200 * 40) / (40.3 * f)
+    slipping.add(t, signal(t)[:, None])
+    assert slipping.recent(190) is None
+
+
+@pytest.mark.parametrize("decay", [2, 3])
+def test_the_waveform_fold_bound_covers_the_exact_folds_and_is_closer_than_the_solved_harmonics(decay: int) -> None:
+    """A spectrum falling as 1/j**decay (decay 2: an output with corners; 3: one whose acceleration jumps, the
+    friction link's) to j = 4000, on whole grids of 24 to 400 samples a period: what folds onto harmonics 1 to 3
+    is the sum of the harmonics m N -+ k, exactly; the waveform's bound is at least that, and where the spectrum falls
+    faster than 1/j**2 it is closer than the bound from the solved harmonics 4..8 (both through fold_bound)."""
+    rng = np.random.default_rng(decay)
+    top = 4000
+    j = np.arange(top + 1)
+    sizes = np.zeros(top + 1)
+    sizes[1:] = (1.0 + rng.uniform(0, 1, top)) / j[1:] ** decay
+    phases = rng.uniform(0, 2 * np.pi, top + 1)
+    z = sizes * np.exp(1j * (phases - np.pi / 2))  # c_j: y = sum Re(c_j e^(i j theta))... as the DFT reads it
+    for n in (24, 40, 67, 100, 400):
+        theta = 2 * np.pi * np.arange(n) / n
+        waveform = np.sin(np.outer(theta, j) + phases) @ sizes
+        for k in (1, 2, 3):
+            exact = abs(sum(z[m] if m % n == k else np.conj(z[m]) for m in range(4, top + 1)
+                            if m % n in (k, n - k) and m > 3))
+            closer = waveform_fold_bound(waveform, (1, 2, 3), float(n), k, 100)
+            solved = fold_bound(z[4:9], range(4, 9), float(n), k, 100)
+            assert closer >= exact, (n, k, closer, exact)
+            if decay == 3 and n >= 100:
+                assert closer < 0.5 * solved, (n, k, closer, solved)

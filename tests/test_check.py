@@ -60,6 +60,9 @@ def test_check_prints_each_shipped_configs_own_plan(path: Path, capsys: pytest.C
         assert "sent to the drive, on start:" in out and "sent to the drive on every way out" in out
         safety = config.cases[0].on_bench.safety
         assert f"max_amplitude {safety.max_amplitude:g}:" in out
+        analysis = config.cases[0].analysis
+        assert f"folds: {analysis.fold_policy}: " in out
+        assert (f"at least as 1/j^{analysis.fold_decay:g}" in out) == (analysis.fold_policy == "bound")
     else:
         assert "nothing is sent to any drive" in out and "sent to the drive" not in out
 

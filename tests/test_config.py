@@ -119,7 +119,7 @@ def test_valid_file_round_trips_with_defaults(tmp_path: Path) -> None:
         "analysis": {
             "harmonics": [1, 2], "tolerance_percent": 0.01, "skip_periods": 2, "criterion": "full", "window": 7,
             "max_periods": 5000, "steps_per_period": 400, "settle_periods": 50, "average_periods": 50,
-            "max_gap_cycles": 0.25, "max_discarded_percent": 50.0,
+            "max_gap_cycles": 0.25, "max_discarded_percent": 50.0, "fold_decay": 2.0,
         },
     }
     expected = ExperimentConfig(

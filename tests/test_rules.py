@@ -319,16 +319,20 @@ def test_adaptive_does_not_claim_convergence_on_a_beat() -> None:
 
 def test_adaptive_uncertainty_covers_the_truth_at_its_stated_level_under_noise() -> None:
     """White noise on every period: the 95 % disc covers the true value in 95 % of the trials, neither far
-    more (an interval too wide) nor far fewer (stopping on a spread that happened to be low)."""
+    more (an interval too wide) nor far fewer (stopping on a spread that happened to be low); and at most about 2 %
+    of the converged points are more than eps off (the stop takes the noise disc at 98 %)."""
     rng = np.random.default_rng(7)
-    zinf, sigma, covered, trials = 1.0 - 1.0j, 2e-3, 0, 200
+    zinf, sigma, covered, beyond, trials = 1.0 - 1.0j, 2e-3, 0, 0, 400
     for _ in range(trials):
         z = zinf + sigma * (rng.normal(size=4000) + 1j * rng.normal(size=4000))
         verdict = run(AdaptiveRule(0.05, 1, modes=0), z)
         assert verdict.status == CONVERGED
         assert verdict.uncertainty <= 0.05e-2 * abs(complex(verdict.p, verdict.q))
-        covered += abs(complex(verdict.p, verdict.q) - zinf) <= verdict.uncertainty
-    assert 0.91 <= covered / trials <= 0.985
+        error = abs(complex(verdict.p, verdict.q) - zinf)
+        covered += error <= verdict.uncertainty
+        beyond += error > 0.05e-2 * abs(zinf)
+    assert 0.92 <= covered / trials <= 0.98
+    assert beyond / trials <= 0.025
 
 
 def test_every_criterion_is_constructible_and_unknown_ones_are_refused() -> None:
@@ -387,9 +391,15 @@ def test_noise_beyond_the_budget_ends_noise_limited_early_with_the_periods_it_wo
     assert verdict.status == NOISE_LIMITED
     assert verdict.period < 2000  # judged hopeless early, not after the whole budget
     assert not verdict.converged and not verdict.within_eps
-    # the disc shrinks as 1/sqrt(n): reaching eps/100 |Z| takes (U / tol)^2 times the periods spent
+    # the disc shrinks as 1/sqrt(n): reaching eps/100 |Z| takes (U / tol)^2 times the periods spent, U the disc at
+    # the stop's 98 % level: the stated 95 % disc times the ratio of the two chi-square(2) quantiles (the
+    # degrees of freedom of so many periods are many)
     tol = 1e-4 * abs(zinf)
-    assert verdict.periods_needed == pytest.approx(verdict.period * (verdict.uncertainty / tol) ** 2, rel=0.01)
+    from scipy import stats
+
+    stop_over_stated = stats.chi2.ppf(0.98, 2) / stats.chi2.ppf(0.95, 2)
+    assert verdict.periods_needed == pytest.approx(
+        verdict.period * (verdict.uncertainty / tol) ** 2 * stop_over_stated, rel=0.01)
     assert verdict.periods_needed > 2 * 20000
     assert abs(complex(verdict.p, verdict.q) - zinf) <= verdict.uncertainty
 

@@ -31,6 +31,7 @@ from bodebench.apps.tui.braille import Axis, BrailleCanvas, HLine, PlotError, Tr
 from bodebench.apps.tui.bridge import SessionBridge
 from bodebench.apps.tui.dialogs import ChoiceDialog, ConfirmDialog, InputDialog, MessageDialog
 from bodebench.apps.tui.model import (
+    ALIASED,
     CAPPED,
     CONVERGED,
     DISTURBED,
@@ -245,6 +246,7 @@ frequencies_hz = [{", ".join(repr(f) for f in freqs)}]
 [analysis]
 harmonics = [1, 3]
 tolerance_percent = {tolerance!r}
+fold_decay = 3
 [bench]
 transport = "can"
 rate_hz = 1000
@@ -546,7 +548,8 @@ async def test_tolerance_remeasure_after_the_sweep_save_and_overlay(tmp_path: Pa
         assert second[(8.0, 1)] == first[(8.0, 1)]  # untouched
         redone = second[(20.0, 1)]
         assert 100 * redone.uncertainty / redone.magnitude <= 0.02  # measured again to the new tolerance
-        assert states(app, 20.0) == {CONVERGED}
+        # harmonic 3 at 50 samples a period, its folds as large as 0.02 % of it: the bound keeps it from converging
+        assert CONVERGED in states(app, 20.0) and states(app, 20.0) <= {CONVERGED, ALIASED}
         # each row records the tolerance it was measured to, whatever the configuration says
         assert {p.tolerance_percent for p in first.values()} == {0.2}
         assert redone.tolerance_percent == 0.02 and second[(8.0, 1)].tolerance_percent == 0.2

@@ -116,6 +116,7 @@ def _case_lines(case: CaseConfig) -> Iterator[str]:
         yield f"{INDENT}note: {note}"
     yield from _overview_lines(case)
     yield from _disturbance_lines(case, fewest)
+    yield from _folds(case)
     if bench is not None:
         yield from _drive_lines(case)
         yield from _safety_lines(case)
@@ -168,6 +169,19 @@ def _disturbance_lines(case: CaseConfig, fewest: int) -> Iterator[str]:
                        f"{_number(d)} Hz line: marked disturbed unless the point takes more than "
                        + ("any number of periods" if gap == 0 else f"{needed:.4g} periods")
                        + " (analysis.disturbances = \"move\" moves it off)")
+
+
+def _folds(case: CaseConfig) -> Iterator[str]:
+    """What the bench does with what its sample rate folds onto the measured harmonics (analysis.folds)."""
+    if case.bench is None:
+        return
+    policy = case.analysis.fold_policy
+    what = {"bound": "each point's interval carries a bound on what the sample rate folds onto it (its harmonics "
+                     f"taken to fall at least as 1/j^{_number(case.analysis.fold_decay)}, analysis.fold_decay), "
+                     "alias_limited where that alone exceeds the tolerance",
+            "keep": "no bound on what the sample rate folds onto a harmonic (the notes above name exact folds)",
+            "move": "frequencies moved so that every fold turns (the notes above say by how much)"}[policy]
+    yield f"{INDENT}folds: {policy}: {what} (analysis.folds)"
 
 
 def _payload(message: Codec, value: float) -> str:

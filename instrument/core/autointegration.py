@@ -22,6 +22,7 @@ import numpy as np
 
 from bodebench.core.benchgrid import alias_fit_order, fold_bound
 from bodebench.core.fourier import ExactPeriodIntegrator, GridPeriodIntegrator
+from bodebench.core.phase_average import MAX_PHASE_SLIP, PhaseAverage, waveform_fold_bound
 from bodebench.core.quality import MIN_COHERENCE_PERIODS, coherence, coherence_periods, total_harmonic_distortion
 from bodebench.core.response import ResponsePoint
 from bodebench.core.rules import MIN_NOISE_EVIDENCE, RESOLUTION, SeriesHistory, StoppingRule, Verdict, make_rule
@@ -56,6 +57,8 @@ class AnalysisSettings(Protocol):
     def max_discarded_percent(self) -> float: ...
     @property
     def fold_policy(self) -> str: ...
+    @property
+    def fold_decay(self) -> float: ...
 
 class GapsError(ValueError):
     """A point of which too many periods were discarded for gaps in its samples; the message says how many."""
@@ -189,11 +192,19 @@ class Autointegrator:
                                   max_gap=self.max_gap_periods if check_gaps else math.inf,
                                   fit_order=alias_fit_order(samples_per_period, max(harmonics))))
         self.samples_per_period = samples_per_period
+        self.fold_decay = analysis.fold_decay
+        """The power j**-d the output's harmonics are taken to fall at least as fast as in the tail the averaged
+        waveform shows (harmonics N/4 to N/2 on a whole grid); the bound from the solved harmonics, up to 8, which
+        need not be in the tail yet, extends them as j**-2."""
         # each whole period's coefficients of the harmonics above the measured ones, (channel, harmonic), while a
         # rule is open
         self._high: list[np.ndarray] = []
         self._high_count = len(getattr(self._integrator, "high_harmonics", ())) \
             if analysis.fold_policy == "bound" else 0
+        # on a grid of a whole number of samples a period, the waveform averaged phase by phase, for a closer bound
+        near_whole = abs(samples_per_period - round(samples_per_period)) * 8 <= MAX_PHASE_SLIP
+        self._phase = PhaseAverage(frequency_hz, t0, samples_per_period, columns, self.max_periods) \
+            if self._high_count and near_whole and samples_per_period >= 4 * (max(harmonics) + 1) else None
         self._histories = [[SeriesHistory() for _ in self.harmonics] for _ in self.channels]
         self._series = [hist for row in self._histories for hist in row]  # channel by channel, harmonic by harmonic
         self._rules: list[list[StoppingRule]] = [
@@ -235,6 +246,12 @@ class Autointegrator:
 
     def feed(self, t: np.ndarray, y: np.ndarray) -> int:
         """Take samples (t in s, increasing; y shaped (n, channels)); returns the whole periods completed."""
+        if self._phase is not None and not self.done:
+            sane = (np.abs(y) <= MAX_COEFFICIENT).all(axis=1)  # False for inf and NaN too
+            if sane.all():
+                self._phase.add(t, y)
+            else:
+                self._phase.add(t[sane], y[sane])
         p, q, whole = self._integrator.feed_marked(t, y)
         m = p.shape[0]
         if m == 0:
@@ -292,7 +309,9 @@ class Autointegrator:
         """The fold bound on series (channel c, harmonic index k) after ``periods`` periods, and whether the content
         above the measured harmonics it is read from has settled. That content is the mean of the last quarter of
         the periods, after most of a transient (what is left of one counts as content); it has settled when that
-        mean differs from the previous quarter's by less than half its size."""
+        mean differs from the previous quarter's by less than half its size. On a whole grid, the smaller of that
+        bound and :func:`~bodebench.core.phase_average.waveform_fold_bound` of the waveform averaged phase by
+        phase."""
         if not self._high:
             return 0.0, True
         if len(self._high) > 1:
@@ -306,7 +325,17 @@ class Autointegrator:
         before = high[periods - 2 * quarter: periods - quarter, c].mean(axis=0)
         settled = bool(np.max(np.abs(last - before)) <= 0.5 * np.max(np.abs(last)))
         orders = self._integrator.high_harmonics  # type: ignore[union-attr]
-        return fold_bound(last, orders, self.samples_per_period, self.harmonics[k], periods), settled
+        bound = fold_bound(last, orders, self.samples_per_period, self.harmonics[k], periods)  # 1/j^2: not the tail
+        waveform = self._phase.recent(periods) if self._phase is not None else None
+        if waveform is not None:
+            scale = 1.0
+            if self.reference is not None:  # relative to the reference fundamental, as the measured coefficients
+                scale = self.amplitude / abs(2.0 * np.fft.rfft(waveform[:, -1])[1] / waveform.shape[0])
+            closer = scale * waveform_fold_bound(waveform[:, c], self.harmonics, self.samples_per_period,
+                                                 self.harmonics[k], periods, self.fold_decay)
+            if closer < bound:  # False for NaN
+                bound = closer
+        return bound, settled
 
     def _reopen_for_folds(self, n: int, scales: list[float]) -> None:
         """Every series just converged whose fold bound pushes it past its tolerance, where more periods can help:

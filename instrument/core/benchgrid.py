@@ -213,16 +213,17 @@ def alias_fit_order(samples_per_period: float, highest: int) -> int:
 
 
 def fold_bound(mean: np.ndarray, high_harmonics: Sequence[int], samples_per_period: float, harmonic: int,
-               periods: int) -> float:
+               periods: int, decay: float = 2.0) -> float:
     """A bound (output units) on what the sampling folds onto measured ``harmonic`` and the average of ``periods``
     periods keeps of it.
 
     mean: the averaged coefficient of each of ``high_harmonics`` (the solved harmonics above the measured ones). Their
-    sizes over the upper half of them are extended as C / j**2 (C the largest size times its harmonic squared): the
-    spectrum of a continuous output falls at least that fast. What noise or a transient leaves in the average counts
-    as content (a bound errs large, never small): noise adds about ``(K' / N)**2`` of its own average to the bound.
+    sizes over the upper half of them are extended as C / j**decay (C the largest size times its harmonic to that
+    power): the spectrum of a continuous output falls at least as fast as j**-2, of one with a continuous slope as
+    j**-3 (``[analysis] fold_decay`` declares which). What noise or a transient leaves in the average counts
+    as content (a bound errs large, never small): noise adds about ``(K' / N)**decay`` of its own average to the bound.
     At N samples a period harmonic j folds onto ``|j - m N|``; each j = m N -+ k (m = 1 .. :data:`FOLD_IMAGES`, as
-    the plan's moves) counts with C / j**2 times what an average of ``periods`` periods keeps of a phasor turning
+    the plan's moves) counts with C / j**decay times what an average of ``periods`` periods keeps of a phasor turning
     d cycles a period against the harmonic (d: the distance of m N -+ k from a whole number), at most
     ``min(1, 1 / (2 periods d))``: whole where the fold stands still, less where it turns. Not covered: folds through
     higher images, and a discontinuous output (a step in every period), whose spectrum falls only as 1 / j."""
@@ -231,7 +232,7 @@ def fold_bound(mean: np.ndarray, high_harmonics: Sequence[int], samples_per_peri
         return 0.0
     top = slice(n // 2, n)
     orders = np.asarray(high_harmonics, dtype=float)[top]
-    envelope = float(np.max(np.abs(np.asarray(mean)[top]) * orders ** 2))
+    envelope = float(np.max(np.abs(np.asarray(mean)[top]) * orders ** decay))
     if not envelope > 0.0:
         return 0.0
     images = np.arange(1, FOLD_IMAGES + 1) * samples_per_period
@@ -239,4 +240,4 @@ def fold_bound(mean: np.ndarray, high_harmonics: Sequence[int], samples_per_peri
     turn = np.abs(folded - np.round(folded))  # cycles a period the fold turns against the harmonic
     kept = np.minimum(1.0, 1.0 / np.maximum(2.0 * periods * turn, 1e-300))  # what the average of the periods keeps
     above = folded > orders[-1]
-    return envelope * float(np.sum(kept[above] / np.round(folded[above]) ** 2))
+    return envelope * float(np.sum(kept[above] / np.round(folded[above]) ** decay))

@@ -315,8 +315,10 @@ def _build_case(
                                         built["analysis"], raw)
         built["excitation"] = built["excitation"].with_frequencies(frequencies)
         notes += moves
-    if built["bench"] is not None and built["analysis"].fold_policy != "bound":  # bound: each interval carries it
-        notes += folding_notes(built["bench"].rate_hz, built["excitation"].frequencies_hz, built["analysis"].harmonics)
+    if built["bench"] is not None:
+        if built["analysis"].fold_policy != "bound":  # bound: each interval carries it
+            notes += folding_notes(built["bench"].rate_hz, built["excitation"].frequencies_hz,
+                                   built["analysis"].harmonics)
         assert layout is not None
         notes += _check_setpoint_resolution(layout, built["excitation"], key)
     return CaseConfig(

@@ -28,7 +28,7 @@ DEFAULT_DISTURBANCE_HZ = (50.0,)
 """[analysis] disturbance_hz on a real drive when the configuration gives none: mains."""
 DISTURBANCE_POLICIES = ("flag", "move")
 """What a bench does with a frequency whose measured harmonic lies on a disturbance line ([analysis] disturbances)."""
-FOLD_POLICIES = ("keep", "move", "bound")
+FOLD_POLICIES = ("bound", "keep", "move")
 """What a bench does with a frequency at which its sample rate folds harmonics exactly onto measured ones
 ([analysis] folds)."""
 
@@ -468,16 +468,26 @@ class AnalysisConfig:
                "whose harmonic lies within 2 % of a disturbance line off it, saying so"})
     folds: str | None = field(default=None, metadata={
         "choices": FOLD_POLICIES,
-        "doc": "bench: keep (default): the frequencies as given, the loader warning where the sample rate folds "
+        "doc": "bench: bound (default): the frequencies as given, and each point's interval carries a bound on "
+               "what the sample rate folds onto it, read from the record's content above the measured harmonics "
+               "(on a whole number of samples a period, from the waveform averaged phase by phase, up to half the "
+               "samples a period); a point goes on while more periods can make room for it, and ends "
+               "alias_limited where the bound alone exceeds the tolerance; the bound assumes harmonics falling as "
+               "1/j^2, as an output with corners does (a saturated or rate-limited signal), and errs large on a "
+               "smoother one; keep: the frequencies as given and no bound, the loader warning where the rate folds "
                "harmonics up to 32 exactly onto measured ones; move: each frequency at which the rate would fold "
                "high harmonics of a nonlinear response onto measured ones, every period alike, is moved by the "
                "least that makes each fold turn (a fraction of a percent), saying so: such content then shows in "
-               "the spread of the periods and the point ends capped or noise-limited instead of converged to it; "
-               "bound: the frequencies as given, and each point's interval carries a bound on what the rate folds "
-               "onto it, read from the record's content above the measured harmonics (a point goes on while more "
-               "periods can make room for it, and ends alias_limited where the bound alone exceeds the tolerance; "
-               "it assumes harmonics falling as 1/j^2, as an output with corners does (a saturated or rate-limited "
-               "signal), and errs large on a smoother one)"})
+               "the spread of the periods and the point ends capped or noise-limited instead of converged to it"})
+    fold_decay: float = field(default=2.0, metadata={
+        "min": 2, "max": 4,
+        "doc": "bench, folds = bound: the power j^-d at least as fast as which the output's harmonics fall in "
+               "their tail, beyond those the record shows, for the fold bound on a whole number N of samples a "
+               "period (read from harmonics N/4 to N/2 of the waveform averaged phase by phase; elsewhere the "
+               "bound extends the solved harmonics, up to 8, as j^-2): 2 (default) for an output with corners (a "
+               "saturated or rate-limited signal, a velocity where the force jumps); 3 for a position whose "
+               "acceleration jumps (a mass under dry friction or a held setpoint); declared slower than the true "
+               "fall, the bound errs large, declared faster, it can miss"})
     measured: str | None = field(default=None, metadata={
         "choices": MEASURED,
         "doc": "what the sweep measures (docs/loop.md): output (default: each output channel against the excitation), "

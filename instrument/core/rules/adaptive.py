@@ -176,9 +176,9 @@ class AdaptiveRule(StoppingRule):
             return None
         n = q[0]
         tol = self.tolerance(settled.value, channel_scale)
-        if settled.uncertainty <= tol:
+        if settled.fits(tol):
             return self._finish(n, settled.estimate(), self.tolerance(0.0, channel_scale), "settled mean")
-        needed = _periods_needed(n, settled.statistical, settled.uncertainty - settled.statistical, tol)
+        needed = _periods_needed(n, settled.stop_statistical, settled.bias, tol)
         if _hopeless(settled.white, needed, self.max_periods, n - self.skip):
             # the noise alone keeps eps out of reach within the budget: say so now, not at max_periods
             return self._noise_limited(n, settled.estimate(), needed)
@@ -309,7 +309,7 @@ class AdaptiveRule(StoppingRule):
         """At max_periods: noise-limited (with the periods eps would need) when only the statistics are too wide."""
         est = settled_estimate(hist, self.skip, n)
         tol = self.tolerance(est.value, channel_scale)
-        needed = _periods_needed(n, est.statistical, est.bias, tol) if est.bounded and est.white else 0
+        needed = _periods_needed(n, est.stop_statistical, est.bias, tol) if est.bounded and est.white else 0
         if needed:
             return self._noise_limited(n, est, needed)
         return Verdict(n, est.value.real, est.value.imag, est.uncertainty, CAPPED, self.name,

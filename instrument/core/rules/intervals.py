@@ -22,6 +22,11 @@ from bodebench.core.student_t import t_quantile
 CONFIDENCE = 0.95
 """Level of every interval a rule states."""
 
+STOP_CONFIDENCE = 0.98
+"""Level of the noise disc that must fit within the tolerance, with the transient bound, for the settled estimate
+to converge: a converged point is within eps at this level (at most 2 % of noisy points outside it), while the
+interval it states stays the :data:`CONFIDENCE` one."""
+
 _BLOCKS = 4          # quarter-blocks of the analysed record
 _SUB_BATCHES = 8     # batches per block for the statistical spread
 _MAX_RATIO = 0.5     # a visible drift must shrink at least this fast from block to block
@@ -35,7 +40,7 @@ _WHITE_LAG = 0.2      # |lag-1 autocorrelation| still taken for independent peri
 
 _Count = TypeVar("_Count", int, np.ndarray)
 
-_DISC: dict[int, float] = {}
+_DISC: dict[tuple[int, float], float] = {}
 
 
 @overload
@@ -52,16 +57,16 @@ def _disc_factor_squared(dof: int | np.ndarray, confidence: float = CONFIDENCE) 
 
 def _disc_factor(dof: int, confidence: float = CONFIDENCE) -> float:
     """Radius, in standard deviations per component, of the confidence disc of a circular 2-D normal mean
-    whose variance is estimated with ``dof`` degrees of freedom (:func:`_disc_factor_squared`, kept per dof)."""
-    if confidence == CONFIDENCE:
-        found = _DISC.get(dof)
-        if found is not None:
-            return found
+    whose variance is estimated with ``dof`` degrees of freedom (:func:`_disc_factor_squared`, kept per dof and
+    level)."""
+    key = (dof, confidence)
+    found = _DISC.get(key)
+    if found is not None:
+        return found
     factor = math.sqrt(_disc_factor_squared(dof, confidence))
-    if confidence == CONFIDENCE:
-        if len(_DISC) > 4096:
-            _DISC.clear()
-        _DISC[dof] = factor
+    if len(_DISC) > 4096:
+        _DISC.clear()
+    _DISC[key] = factor
     return factor
 
 
@@ -128,7 +133,8 @@ class Estimate:
     uncertainty: 95 % disc radius, statistical + bias; uncertainty_1d: 95 % half-width along one direction,
     statistical + bias; statistical: the disc radius from noise alone; bounded: whether the history shows
     that the transient left is bounded (False: no error bound exists yet; the uncertainties are then the
-    best available but not a guarantee); white: the periods scatter like independent noise.
+    best available but not a guarantee); white: the periods scatter like independent noise; stop_statistical:
+    the noise disc radius at :data:`STOP_CONFIDENCE`, which the stop compares with the tolerance.
     """
 
     value: complex
@@ -137,6 +143,7 @@ class Estimate:
     statistical: float
     bounded: bool
     white: bool = False
+    stop_statistical: float = math.nan
 
     @property
     def bias(self) -> float:
@@ -172,7 +179,7 @@ def _quarters(hist: SeriesHistory, skip: int, n: int) -> _QuarterStats:
     return n, length, start, m2, m3, m4, within
 
 
-_DISC_BATCHES = _disc_factor(_pooled_dof(_SUB_BATCHES))  # the disc factor of eight batches a block
+_DISC_BATCHES = _disc_factor(_pooled_dof(_SUB_BATCHES), STOP_CONFIDENCE)  # the stop's disc factor, 8 batches a block
 _OFFSETS: dict[tuple[int, int], tuple[int, ...]] = {}
 
 
@@ -206,10 +213,20 @@ class _Settled:
     def uncertainty(self) -> float:
         return self.statistical + self.bias
 
+    @property
+    def stop_statistical(self) -> float:
+        """The noise disc radius at :data:`STOP_CONFIDENCE` (output units)."""
+        return _disc_factor(self.dof, STOP_CONFIDENCE) * self.sigma_mean
+
+    def fits(self, tolerance: float) -> bool:
+        """Whether the estimate may stop: its noise disc at :data:`STOP_CONFIDENCE` and its transient bound within
+        ``tolerance`` (output units)."""
+        return self.stop_statistical + self.bias <= tolerance
+
     def estimate(self) -> Estimate:
         line = _line_factor(self.dof) * self.sigma_mean
         return Estimate(self.value, self.statistical + self.bias, line + self.bias, self.statistical, self.bounded,
-                        self.white)
+                        self.white, self.stop_statistical)
 
 
 def _settle(hist: SeriesHistory, q: _QuarterStats, lag: float | None = None) -> _Settled:

@@ -25,6 +25,7 @@ from bodebench.core.rules.intervals import (
     _WHITE_LAG,
     _WHITE_RATIO,
     MIN_NOISE_EVIDENCE,
+    STOP_CONFIDENCE,
     _correlation_inflation,
     _disc_factor,
     _disc_factor_squared,
@@ -62,15 +63,15 @@ def _settled_may_stop(hist: SeriesHistory, q: _QuarterStats, channel_scale: floa
                       max_periods: int) -> tuple[bool, float | None]:
     """(False, _) where the settled estimate cannot give a verdict at period q[0]; from the running sums, O(1).
 
-    Bounds the settled verdict's two inequalities: converged, uncertainty <= tolerance; noise-limited,
-    :func:`~bodebench.core.rules.intervals._hopeless`. Whatever the batch means turn out to be, the noise
-    variance is at least the per-period variance within blocks 2-4 times its correlation inflation, and its disc
-    factor at least that of their degrees of freedom (no fewer than the batch means'), so the statistical
-    half-width is at least what those give; unless all three blocks are averaged, the bias is _TAIL |d3|. A
-    noise-limited verdict needs white periods: a lag-1 correlation within the white limit, a variance at most
-    _WHITE_RATIO times the per-period one, degrees of freedom at least the batch means'. True where either verdict
-    is still possible (or an input is not finite); second, the lag-1 correlation over blocks 2-4 where it was
-    needed (else None). e = eps / 100; skip: n_k; max_periods: the rule's budget.
+    Bounds the settled verdict's two inequalities: converged, the noise disc at STOP_CONFIDENCE plus the bias
+    within the tolerance; noise-limited, :func:`~bodebench.core.rules.intervals._hopeless`. Whatever the batch
+    means turn out to be, the noise variance is at least the per-period variance within blocks 2-4 times its
+    correlation inflation, and its disc factor at least that of their degrees of freedom (no fewer than the batch
+    means'), so the statistical half-width is at least what those give; unless all three blocks are averaged, the
+    bias is _TAIL |d3|. A noise-limited verdict needs white periods: a lag-1 correlation within the white limit, a
+    variance at most _WHITE_RATIO times the per-period one, degrees of freedom at least the batch means'. True
+    where either verdict is still possible (or an input is not finite); second, the lag-1 correlation over blocks
+    2-4 where it was needed (else None). e = eps / 100; skip: n_k; max_periods: the rule's budget.
     """
     n, length, start, m2, m3, m4, within = q
     floor = RESOLUTION * channel_scale
@@ -82,7 +83,7 @@ def _settled_may_stop(hist: SeriesHistory, q: _QuarterStats, channel_scale: floa
     if not math.isfinite(tol3 + tol2 + var + d3) or tol3 <= 0.0 or tol2 <= 0.0:
         return True, None
     # squared half-widths per averaged block, compared with squared tolerances
-    low = _disc_factor(dof) ** 2 * var / length
+    low = _disc_factor(dof, STOP_CONFIDENCE) ** 2 * var / length
     room = tol2 * _SLACK - _TAIL * d3  # what the bias of the last two blocks leaves of their tolerance
     lag = math.nan
     if low <= 3.0 * tol3 * tol3 * _SLACK2 or (room >= 0.0 and low <= 2.0 * room * room):
@@ -202,7 +203,7 @@ class _ScreenTable:
             # r of _correlation_inflation, per period
             r = np.clip(np.nan_to_num(lag - 2.0 / np.sqrt(3 * size), nan=0.0), 0.0, 0.99)
             dof = _pooled_dof(length)
-            disc2 = _disc_factor_squared(dof)
+            disc2 = _disc_factor_squared(dof, STOP_CONFIDENCE)
             var = within / dof
             low = disc2 * var / size * (1.0 + r) / (1.0 - r)
             a3 = np.abs(means[1:].sum(axis=0) / 3)
