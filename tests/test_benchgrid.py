@@ -481,3 +481,23 @@ def test_the_waveform_fold_bound_covers_the_exact_folds_and_is_closer_than_the_s
             assert closer >= exact, (n, k, closer, exact)
             if decay == 3 and n >= 100:
                 assert closer < 0.5 * solved, (n, k, closer, solved)
+
+
+def test_in_two_channel_mode_the_fold_bound_is_taken_relative_to_the_reference_as_the_coefficients_are() -> None:
+    """A clipped sine on a whole grid (50 samples a period), once alone and once over a reference of amplitude 2 (the
+    echoed setpoint, input amplitude 1): the coefficients are halved in two-channel mode, and so is each fold bound,
+    the one read from the waveform averaged phase by phase included."""
+    f, n_per = 3.1, 50
+    t = (np.arange(200 * n_per) - 0.7) / (n_per * f)  # t0 between two samples
+    y = _clipped_sine(t, f)
+    analysis = AnalysisConfig(harmonics=(1, 3), tolerance_percent=0.01)
+    alone = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=n_per)
+    alone.feed(t, y[:, None])
+    paired = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, reference="echo", samples_per_period=n_per)
+    paired.feed(t, np.column_stack((y, 2.0 * np.sin(2 * np.pi * f * t))))
+    assert alone._phase is not None and alone._phase.recent(alone.periods) is not None  # the waveform is read
+    bounds = alone.fold_bounds()
+    assert (bounds > 0).all()
+    assert paired.fold_bounds() == pytest.approx(0.5 * bounds, rel=1e-9)
+    for one, two in zip(alone.points(), paired.points(), strict=True):
+        assert complex(two.p, two.q) == pytest.approx(0.5 * complex(one.p, one.q), rel=1e-9)

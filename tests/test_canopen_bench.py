@@ -21,6 +21,7 @@ from bodebench.bench.procedure import SweepProcedure
 from bodebench.bench.session import BenchSession
 from bodebench.io.config import load_config, parse_config
 from bodebench.io.results import load_response
+from bodebench.status import PointStatus
 
 CANOPEN = {"node_id": 7, "mode": "csp", "setpoint_scale": 1e-9, "actual": {"position": "0x6064", "counter": "0x2000"},
            "actual_scale": {"position": 1e-9}, "heartbeat_ms": 50, "heartbeat_timeout_s": 1.0}
@@ -91,7 +92,10 @@ def test_bodebench_run_sweeps_the_shipped_canopen_config_and_says_how_it_left_th
     assert "(switch on disabled); NMT pre-operational sent" in last, last
     response = load_response(tmp_path / "out")
     assert sorted({p.frequency_hz for p in response.points}) == [10.0, 20.0]
-    assert all(p.converged for p in response.points)
+    # harmonic 3 at 20 Hz, 50 samples a period: what the rate folds onto it (0.4 x eps against a fine grid) and the
+    # bound on it do not both fit 0.05 %, and it may end alias_limited; every other point converges
+    assert all(p.converged for p in response.points if (p.frequency_hz, p.harmonic) != (20.0, 3))
+    assert all(p.converged or p.status == PointStatus.ALIAS_LIMITED for p in response.points)
 
 
 def test_sim_controller_serves_the_simulated_cia402_drive() -> None:

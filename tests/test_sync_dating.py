@@ -211,9 +211,10 @@ def test_a_sweep_dated_by_sync_agrees_with_one_dated_by_the_drives_counter() -> 
     by_counter = sweep(canopen_case("counter", {"position": "0x6064", "counter": "0x2000"}))
     by_sync = sweep(canopen_case("sync", {"position": "0x6064"}))
     assert_agree(by_sync, by_counter)
-    # on a busy machine a lockstep reply may come late enough to be ambiguous: dropped, never dated a SYNC off
+    # on a busy machine a lockstep reply may come late enough to be ambiguous: dropped, never dated a SYNC off; the
+    # SYNC it answered is then a lost sample as well, so each count is bounded on its own (their sum counts it twice)
     bus = by_sync.health.bus
-    assert bus.lost_samples + bus.undated <= 0.01 * bus.frames_in
+    assert bus.lost_samples <= 0.01 * bus.frames_in and bus.undated <= 0.01 * bus.frames_in
 
 
 def test_every_sample_dated_by_sync_is_dated_by_the_drives_own_tick_through_lost_late_and_missed() -> None:

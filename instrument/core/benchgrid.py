@@ -20,7 +20,8 @@ the stated interval shrinks while the value is off:
   What folds exactly cannot be told apart from the response, but the record shows what lies above the measured
   harmonics: the bench's integrator solves harmonics up to :func:`alias_fit_order` (which also stops them leaking
   into the measured ones on any grid), and :func:`fold_bound` extends their level to the harmonics the rate folds,
-  for a point to carry in its interval or to end ``alias_limited``.
+  for a point to carry in its interval or to end ``alias_limited`` (on a whole grid
+  :mod:`~bodebench.core.phase_average` shows the level up to N/2 as well).
 
 Pure numerics: no I/O.
 """

@@ -20,7 +20,11 @@ import numpy as np
 
 from bodebench.core.benchgrid import fold_bound
 
-__all__ = ["MAX_PHASE_SLIP", "PhaseAverage", "waveform_fold_bound"]
+__all__ = ["MAX_BINS", "MAX_PHASE_SLIP", "PhaseAverage", "waveform_fold_bound"]
+
+MAX_BINS = 4096
+"""The most samples a period a phase average is kept for (its snapshots hold about 80 copies of the bins): beyond,
+the harmonics that fold lie above the 4,000th, and the bound from the solved harmonics stands alone."""
 
 MAX_PHASE_SLIP = 0.25
 """The most (in samples) the grid may slip against the bins over the averaged periods, ``|N - round(N)|`` times
