@@ -62,7 +62,7 @@ def test_check_prints_each_shipped_configs_own_plan(path: Path, capsys: pytest.C
         assert f"max_amplitude {safety.max_amplitude:g}:" in out
         analysis = config.cases[0].analysis
         assert f"folds: {analysis.fold_policy}: " in out
-        assert (f"at least as 1/j^{analysis.fold_decay:g}" in out) == (analysis.fold_policy == "bound")
+        assert (f"and as 1/j^{analysis.fold_decay:g} in the tail" in out) == (analysis.fold_policy == "bound")
     else:
         assert "nothing is sent to any drive" in out and "sent to the drive" not in out
 

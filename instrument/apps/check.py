@@ -177,8 +177,9 @@ def _folds(case: CaseConfig) -> Iterator[str]:
         return
     policy = case.analysis.fold_policy
     what = {"bound": "each point's interval carries a bound on what the sample rate folds onto it (its harmonics "
-                     f"taken to fall at least as 1/j^{_number(case.analysis.fold_decay)}, analysis.fold_decay), "
-                     "alias_limited where that alone exceeds the tolerance",
+                     "taken to fall at least as 1/j^2, and as "
+                     f"1/j^{_number(case.analysis.fold_decay)} in the tail a whole number of samples a period shows, "
+                     "analysis.fold_decay), alias_limited where that alone exceeds the tolerance",
             "keep": "no bound on what the sample rate folds onto a harmonic (the notes above name exact folds)",
             "move": "frequencies moved so that every fold turns (the notes above say by how much)"}[policy]
     yield f"{INDENT}folds: {policy}: {what} (analysis.folds)"

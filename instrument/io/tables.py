@@ -474,11 +474,12 @@ class AnalysisConfig:
                "samples a period); a point goes on while more periods can make room for it, and ends "
                "alias_limited where the bound alone exceeds the tolerance; the bound assumes harmonics falling as "
                "1/j^2, as an output with corners does (a saturated or rate-limited signal), and errs large on a "
-               "smoother one; keep: the frequencies as given and no bound, the loader warning where the rate folds "
-               "harmonics up to 32 exactly onto measured ones; move: each frequency at which the rate would fold "
-               "high harmonics of a nonlinear response onto measured ones, every period alike, is moved by the "
-               "least that makes each fold turn (a fraction of a percent), saying so: such content then shows in "
-               "the spread of the periods and the point ends capped or noise-limited instead of converged to it"})
+               "smoother one (fold_decay declares a faster fall in the tail a whole grid shows); keep: the "
+               "frequencies as given and no bound, the loader warning where the rate folds harmonics up to 32 "
+               "exactly onto measured ones; move: each frequency at which the rate would fold high harmonics of a "
+               "nonlinear response onto measured ones, every period alike, is moved by the least that makes each "
+               "fold turn (a fraction of a percent), saying so: such content then shows in the spread of the "
+               "periods and the point ends capped or noise-limited instead of converged to it"})
     fold_decay: float = field(default=2.0, metadata={
         "min": 2, "max": 4,
         "doc": "bench, folds = bound: the power j^-d at least as fast as which the output's harmonics fall in "
