@@ -469,13 +469,12 @@ def test_the_waveform_fold_bound_covers_the_exact_folds_and_is_closer_than_the_s
     sizes = np.zeros(top + 1)
     sizes[1:] = (1.0 + rng.uniform(0, 1, top)) / j[1:] ** decay
     phases = rng.uniform(0, 2 * np.pi, top + 1)
-    z = sizes * np.exp(1j * (phases - np.pi / 2))  # c_j: y = sum Re(c_j e^(i j theta))... as the DFT reads it
+    z = sizes * np.exp(1j * (phases - np.pi / 2))  # c_j, as 2 X_j / N of the DFT reads sizes_j sin(j theta + phases_j)
     for n in (24, 40, 67, 100, 400):
         theta = 2 * np.pi * np.arange(n) / n
         waveform = np.sin(np.outer(theta, j) + phases) @ sizes
         for k in (1, 2, 3):
-            exact = abs(sum(z[m] if m % n == k else np.conj(z[m]) for m in range(4, top + 1)
-                            if m % n in (k, n - k) and m > 3))
+            exact = abs(sum(z[m] if m % n == k else np.conj(z[m]) for m in range(4, top + 1) if m % n in (k, n - k)))
             closer = waveform_fold_bound(waveform, (1, 2, 3), float(n), k, 100)
             solved = fold_bound(z[4:9], range(4, 9), float(n), k, 100)
             assert closer >= exact, (n, k, closer, exact)

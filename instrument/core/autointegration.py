@@ -22,7 +22,7 @@ import numpy as np
 
 from bodebench.core.benchgrid import alias_fit_order, fold_bound
 from bodebench.core.fourier import ExactPeriodIntegrator, GridPeriodIntegrator
-from bodebench.core.phase_average import MAX_BINS, MAX_PHASE_SLIP, PhaseAverage, waveform_fold_bound
+from bodebench.core.phase_average import PhaseAverage, grid_stands_still, waveform_fold_bound
 from bodebench.core.quality import MIN_COHERENCE_PERIODS, coherence, coherence_periods, total_harmonic_distortion
 from bodebench.core.response import ResponsePoint
 from bodebench.core.rules import MIN_NOISE_EVIDENCE, RESOLUTION, SeriesHistory, StoppingRule, Verdict, make_rule
@@ -202,9 +202,8 @@ class Autointegrator:
         self._high_count = len(getattr(self._integrator, "high_harmonics", ())) \
             if analysis.fold_policy == "bound" else 0
         # on a grid of a whole number of samples a period, the waveform averaged phase by phase, for a closer bound
-        near_whole = abs(samples_per_period - round(samples_per_period)) * 8 <= MAX_PHASE_SLIP
         self._phase = PhaseAverage(frequency_hz, t0, samples_per_period, columns, self.max_periods) \
-            if self._high_count and near_whole and 4 * (max(harmonics) + 1) <= samples_per_period <= MAX_BINS else None
+            if self._high_count and grid_stands_still(samples_per_period, max(harmonics)) else None
         self._histories = [[SeriesHistory() for _ in self.harmonics] for _ in self.channels]
         self._series = [hist for row in self._histories for hist in row]  # channel by channel, harmonic by harmonic
         self._rules: list[list[StoppingRule]] = [

@@ -221,8 +221,9 @@ def fold_bound(mean: np.ndarray, high_harmonics: Sequence[int], samples_per_peri
     mean: the averaged coefficient of each of ``high_harmonics`` (the solved harmonics above the measured ones). Their
     sizes over the upper half of them are extended as C / j**decay (C the largest size times its harmonic to that
     power): the spectrum of a continuous output falls at least as fast as j**-2, of one with a continuous slope as
-    j**-3 (``[analysis] fold_decay`` declares which). What noise or a transient leaves in the average counts
-    as content (a bound errs large, never small): noise adds about ``(K' / N)**decay`` of its own average to the bound.
+    j**-3 (the bound from a whole grid's averaged waveform takes ``[analysis] fold_decay``). What noise or a
+    transient leaves in the average counts as content (a bound errs large, never small): noise adds about
+    ``(K' / N)**decay`` of its own average to the bound.
     At N samples a period harmonic j folds onto ``|j - m N|``; each j = m N -+ k (m = 1 .. :data:`FOLD_IMAGES`, as
     the plan's moves) counts with C / j**decay times what an average of ``periods`` periods keeps of a phasor turning
     d cycles a period against the harmonic (d: the distance of m N -+ k from a whole number), at most

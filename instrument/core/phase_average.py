@@ -20,7 +20,7 @@ import numpy as np
 
 from bodebench.core.benchgrid import fold_bound
 
-__all__ = ["MAX_BINS", "MAX_PHASE_SLIP", "PhaseAverage", "waveform_fold_bound"]
+__all__ = ["MAX_BINS", "MAX_PHASE_SLIP", "MIN_PERIODS", "PhaseAverage", "grid_stands_still", "waveform_fold_bound"]
 
 MAX_BINS = 4096
 """The most samples a period a phase average is kept for (its snapshots hold about 80 copies of the bins): beyond,
@@ -30,7 +30,18 @@ MAX_PHASE_SLIP = 0.25
 """The most (in samples) the grid may slip against the bins over the averaged periods, ``|N - round(N)|`` times
 their number, for the average to stand for the waveform; beyond it the bins blur the harmonics near N/2."""
 
+MIN_PERIODS = 8
+"""The fewest periods :meth:`PhaseAverage.recent` averages."""
+
 _SNAPSHOT_GROWTH = 1.125  # the running sums are kept at periods 1, 2, ... 8 and then about 12.5 % apart
+
+
+def grid_stands_still(samples_per_period: float, highest: int) -> bool:
+    """Whether a phase average can show the tail at N = ``samples_per_period`` samples a period with harmonics up to
+    ``highest`` measured: N within :data:`MAX_PHASE_SLIP` of a whole number over :data:`MIN_PERIODS` periods, at
+    least four bins a cycle of the harmonic above the highest, at most :data:`MAX_BINS` bins."""
+    return (abs(samples_per_period - round(samples_per_period)) * MIN_PERIODS <= MAX_PHASE_SLIP
+            and 4 * (highest + 1) <= samples_per_period <= MAX_BINS)
 
 
 def _snapshot_periods(limit: int) -> list[int]:
@@ -91,9 +102,9 @@ class PhaseAverage:
 
     def recent(self, periods: int) -> np.ndarray | None:
         """(bins, columns) the average waveform over the latest quarter of ``periods`` periods and every period
-        added since (from the last snapshot at or before its start), or None: fewer than 8 periods, a bin with no
-        sample, or a grid that slips by more than :data:`MAX_PHASE_SLIP` samples over them."""
-        if periods < 8:
+        added since (from the last snapshot at or before its start), or None: fewer than :data:`MIN_PERIODS` periods,
+        a bin with no sample, or a grid that slips by more than :data:`MAX_PHASE_SLIP` samples over them."""
+        if periods < MIN_PERIODS:
             return None
         start = max(p for p in self._snapshots if p <= periods - periods // 4)
         spanned = self.period + 1 - start
