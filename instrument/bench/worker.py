@@ -271,6 +271,13 @@ that never sleeps is stopped for 50 ms a second by the kernel's realtime throttl
 MIN_SLEEP_S = 2e-5
 """Realtime clock: shorter sleeps are not worth their wake-up delay."""
 
+COMMAND_POLL_S = 1e-3
+"""The pacing loop looks for the session's commands (credit, a new sine, stop) at most this often (s): a look at
+the pipe costs more than a tick's own work, and a stop waits at most this long for it."""
+
+REPLY_WAIT_TICKS = 64
+"""Lockstep clock: the wait for a reply is set from the median of this many latest round trips, renewed as often."""
+
 WORKER_PRIORITY = 20
 """SCHED_FIFO priority the worker process asks for on the realtime clock (above every normal task and a simulated
 drive, below the kernel's interrupt threads at 50)."""
@@ -377,6 +384,9 @@ class BusWorker:
         self.wall0 = 0.0
         # s, the latest (few, so their median stays cheap); lockstep: setpoint to its reply; realtime: to its echo
         self.round_trips: deque[float] = deque(maxlen=256)
+        # lockstep: how long a reply is waited for (s), until this tick
+        self._reply_wait = 2e-3
+        self._reply_wait_until = 0
         self._echo_index: int | None = None  # realtime: the setpoint_echo channel, when the drive has one
         self._sent_at: dict[float, float] = {}  # realtime: recent setpoint values (float32) -> wall time sent
         self._sent_order: deque[float] = deque()
@@ -654,8 +664,12 @@ class BusWorker:
         if self.offset is None:
             wait = self.spec.limits.watchdog_s
         else:
-            typical = list(self.round_trips)[-64:]
-            wait = min(self.spec.reply_timeout_s, max(2e-3, 8 * statistics.median(typical) if typical else 2e-3))
+            if self.tick >= self._reply_wait_until:
+                typical = list(self.round_trips)[-REPLY_WAIT_TICKS:]
+                self._reply_wait = min(self.spec.reply_timeout_s,
+                                       max(2e-3, 8 * statistics.median(typical) if typical else 2e-3))
+                self._reply_wait_until = self.tick + REPLY_WAIT_TICKS
+            wait = self._reply_wait
         deadline = time.monotonic() + wait
         broken = self.driver.health.broken_frames
         while True:
@@ -725,11 +739,13 @@ class BusWorker:
             self._post(Ready(self.layout.channels, self.h))
             self.wall0 = time.time()
             self.last_feedback = time.monotonic()
-            next_ship = next_health = time.monotonic()
+            next_ship = next_health = next_poll = now = time.monotonic()
             scheduled = time.perf_counter() + self.h
             while True:
                 self._turn()
-                self._poll_commands()
+                if now >= next_poll:
+                    self._poll_commands()
+                    next_poll = now + COMMAND_POLL_S
                 self._keep_alive()
                 if self.stopping is not None and (self.program is None or self.program.finished(self.tick)):
                     reason = self.stopping.reason
