@@ -34,7 +34,7 @@ def state(periods: int, ratio: float, done: bool = False) -> SeriesState:
     from bodebench.core.rules import Verdict
 
     verdict = Verdict(periods, 1.0, 0.0, 1e-3 * ratio, "converged", "test") if done else None
-    return SeriesState("y", 1, periods, 1 + 0j, 1e-3 * ratio, verdict, 1e-3)
+    return SeriesState("y", 1, periods, 1 + 0j, 1e-3 * ratio, verdict, 1e-3, 1e-3 * ratio)
 
 
 class Bench:
@@ -134,29 +134,34 @@ def test_a_resumed_sweep_counts_what_is_on_disk_and_predicts_from_it() -> None:
     assert timer.done == 4
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3])
-def test_the_adaptive_rule_predicts_its_own_stop(seed: int) -> None:
-    """A noisy sine through the real sampler: a quarter of the way, the periods to go the rule's progress predicts
-    put the stop within a factor 1.6 of where the rule actually stops."""
+def test_the_adaptive_rule_predicts_its_own_stop() -> None:
+    """A noisy sine through the real sampler, eight noise seeds: a quarter of the way, the periods to go the rule's
+    progress predicts put the stop within a factor 1.25 of where the rule actually stops, and without a bias (their
+    geometric mean within 10 % of 1). The stop compares the noise disc at 98 %, wider than the stated 95 % one: a
+    prediction that followed the stated interval would put the stop about a quarter early."""
     f, rate = 5.0, 1000.0
     settings = AnalysisConfig(harmonics=(1,), tolerance_percent=0.2, max_periods=100_000, max_point_s=1e6)
-    sampler = Autointegrator(f, 1.0, ["y"], settings)
-    timer = SweepTimer((f,), max_periods=settings.max_periods, seconds_per_period=1.0)
-    timer.point_started(f, 0.0)
-    rng = np.random.default_rng(seed)
-    block = int(20 * rate / f)
-    start, history = 0, []
-    while not sampler.done:
-        t = (start + np.arange(block)) / rate
-        y = 0.8 * np.sin(2 * math.pi * f * t + 0.3) + 0.5 * rng.standard_normal(block)
-        sampler.feed(t, y[:, None])
-        timer.progress(sampler.periods, sampler.states(), t[-1])
-        history.append((sampler.periods, timer.current_periods_to_go()))
-        start += block
-    stopped = sampler.points()[0].periods
-    assert stopped > 400  # long enough for the prediction to mean something
-    at, to_go = next((n, g) for n, g in history if n >= stopped / 4 and g is not None)
-    assert 1 / 1.6 < (at + to_go) / stopped < 1.6
+    ratios = []
+    for seed in range(1, 9):
+        sampler = Autointegrator(f, 1.0, ["y"], settings)
+        timer = SweepTimer((f,), max_periods=settings.max_periods, seconds_per_period=1.0)
+        timer.point_started(f, 0.0)
+        rng = np.random.default_rng(seed)
+        block = int(20 * rate / f)
+        start, history = 0, []
+        while not sampler.done:
+            t = (start + np.arange(block)) / rate
+            y = 0.8 * np.sin(2 * math.pi * f * t + 0.3) + 0.5 * rng.standard_normal(block)
+            sampler.feed(t, y[:, None])
+            timer.progress(sampler.periods, sampler.states(), t[-1])
+            history.append((sampler.periods, timer.current_periods_to_go()))
+            start += block
+        stopped = sampler.points()[0].periods
+        assert stopped > 400  # long enough for the prediction to mean something
+        at, to_go = next((n, g) for n, g in history if n >= stopped / 4 and g is not None)
+        ratios.append((at + to_go) / stopped)
+    assert all(1 / 1.25 < r < 1.25 for r in ratios), ratios
+    assert 0.9 < math.exp(np.mean(np.log(ratios))) < 1.1, ratios
 
 
 def test_any_progress_gives_a_finite_time_or_none() -> None:
@@ -179,7 +184,7 @@ def test_any_progress_gives_a_finite_time_or_none() -> None:
                 u = float(rng.choice(values)) if rng.random() < 0.1 else scale * max(n, 1) ** slope \
                     if rng.random() < 0.7 else float(10 ** rng.uniform(-300, 300))
                 tol = float(rng.choice(values)) if rng.random() < 0.1 else 1.0
-                timer.progress(n, [SeriesState("y", 1, n, 1 + 0j, u, None, tol)], now)
+                timer.progress(n, [SeriesState("y", 1, n, 1 + 0j, u, None, tol, u)], now)
                 if rng.random() < 0.1:
                     (timer.pause if not timer.paused else timer.unpause)(now)
                 left = timer.remaining(now)

@@ -186,7 +186,7 @@ def test_bus_rates_from_counter_differences() -> None:
 
 
 def _state(harmonic: int, periods: int, z: complex, u: float, verdict: Verdict | None = None) -> SeriesState:
-    return SeriesState("position", harmonic, periods, z, u, verdict)
+    return SeriesState("position", harmonic, periods, z, u, verdict, stop_width=u)
 
 
 def _point(f: float, k: int, status: str = "converged", converged: bool = True) -> ResponsePoint:

@@ -116,7 +116,9 @@ class SeriesState:
 
     estimate: the rule's current coefficient estimate P + jQ (output units);
     uncertainty: its confidence half-width (NaN until the rule can tell);
-    tolerance: the half-width at which the rule stops (output units, NaN until known).
+    tolerance: the tolerance the rule stops at (output units, NaN until known);
+    stop_width: what the rule compares with the tolerance to stop (output units; the uncertainty for most rules, the
+    default rule's noise disc at 98 % plus its transient bound; NaN until known).
     """
 
     channel: str
@@ -126,6 +128,7 @@ class SeriesState:
     uncertainty: float
     verdict: Verdict | None
     tolerance: float = math.nan
+    stop_width: float = math.nan
 
 
 class Autointegrator:
@@ -483,14 +486,15 @@ class Autointegrator:
                 hist = self._histories[c][k]
                 if verdict is not None:
                     est, unc, n = complex(verdict.p, verdict.q), verdict.uncertainty, verdict.period
+                    width = unc
                 elif hist.n:
-                    est, unc = self._rules[c][k].estimate(hist, hist.n)
+                    est, unc, width = self._rules[c][k].progress(hist, hist.n)
                     n = hist.n
                 else:
-                    est, unc, n = complex("nan"), float("nan"), 0
+                    est, unc, width, n = complex("nan"), math.nan, math.nan, 0
                 scale = self._last_scales[c]
                 tol = self._rules[c][k].tolerance(est, scale) if n and math.isfinite(scale) else math.nan
-                out.append(SeriesState(name, harmonic, n, est, unc, verdict, tol))
+                out.append(SeriesState(name, harmonic, n, est, unc, verdict, tol, width))
         return out
 
     def history(self, channel: str, harmonic: int) -> np.ndarray:

@@ -1,7 +1,7 @@
 """How long a sweep still takes: the periods each point still needs times the bench's seconds per period.
 
-The current point's periods to go come from its stopping rule's own progress (each open series' confidence
-half-width against the half-width at which its rule stops, extrapolated on a power law); a point not yet
+The current point's periods to go come from its stopping rule's own progress (each open series' width its stop
+compares, ``SeriesState.stop_width``, against its tolerance, extrapolated on a power law); a point not yet
 started is predicted from the periods the measured points took (this session's and those already on disk
 from an interrupted sweep), interpolated in log frequency. Seconds per point are fitted as
 ``overhead + ratio * (periods + ramp and settle periods) / f`` on the points this session finished, so the
@@ -35,7 +35,7 @@ KEEP_VALUES = 256
 
 
 def periods_to_go(periods: Sequence[float], ratio: Sequence[float]) -> float | None:
-    """Periods left until ``ratio`` (a series' confidence half-width over its rule's stopping half-width,
+    """Periods left until ``ratio`` (a series' width its stop compares over its tolerance,
     per period in ``periods``, increasing) falls to 1, from a power law ``ratio = C n**b`` fitted (least squares
     in log-log) to the finite positive values of the last decade of periods and followed from its value at the
     last period, b at most :data:`STEADY_SLOPE`; 0 when already at or below 1; None when unknown (fewer than 4
@@ -77,7 +77,7 @@ class _Series:
         self.done = state.verdict is not None
         if state.periods <= 0:
             return
-        r = state.uncertainty / state.tolerance if state.tolerance > 0 else math.nan
+        r = state.stop_width / state.tolerance if state.tolerance > 0 else math.nan
         if self.periods and state.periods == self.periods[-1]:
             self.ratio[-1] = r
         else:

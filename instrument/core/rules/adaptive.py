@@ -296,10 +296,15 @@ class AdaptiveRule(StoppingRule):
                        uncertainty_1d=est.uncertainty_1d, within_eps=True)
 
     def estimate(self, hist: SeriesHistory, n: int) -> tuple[complex, float]:
+        return self.progress(hist, n)[:2]
+
+    def progress(self, hist: SeriesHistory, n: int) -> tuple[complex, float, float]:
+        """The settled estimate, its stated (95 %) uncertainty and the width its stop compares: the noise disc at
+        :data:`STOP_CONFIDENCE` plus the transient bound."""
         if (n - self.skip) // _BLOCKS < 2:
-            return hist.at(n), math.nan
+            return hist.at(n), math.nan, math.nan
         settled = _settle(hist, _quarters(hist, self.skip, n))
-        return settled.value, settled.uncertainty
+        return settled.value, settled.uncertainty, settled.stop_statistical + settled.bias
 
     def _noise_limited(self, n: int, est: Estimate, needed: int) -> Verdict:
         return Verdict(n, est.value.real, est.value.imag, est.uncertainty, NOISE_LIMITED, "settled mean",

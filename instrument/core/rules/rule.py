@@ -88,6 +88,12 @@ class StoppingRule(ABC):
     def estimate(self, hist: SeriesHistory, n: int) -> tuple[complex, float]:
         """The rule's current estimate and uncertainty at period n (progress displays, capped points)."""
 
+    def progress(self, hist: SeriesHistory, n: int) -> tuple[complex, float, float]:
+        """:meth:`estimate` and the half-width the rule compares with the tolerance to stop (output units): the
+        stated uncertainty, unless the rule stops on another (the ETA follows that one)."""
+        value, uncertainty = self.estimate(hist, n)
+        return value, uncertainty, uncertainty
+
     def verdict(self, hist: SeriesHistory, n: int, value: complex, status: str, channel_scale: float) -> Verdict:
         """A verdict on ``value`` with the uncertainty the history supports: |value - E| + U(E).
 
