@@ -519,7 +519,8 @@ def run_bench(task: tuple[str, int, float, str]) -> list[BenchRow]:
     rng = np.random.default_rng((BENCH_SEED, BENCH_KINDS.index(kind), index, int(round(eps * 1e4))))
     analysis = AnalysisConfig(harmonics=HARMONICS, tolerance_percent=eps, max_periods=BENCH_MAX_PERIODS, folds=folds)
     sampler = Autointegrator(sc.frequency_hz, sc.amplitude, ("y",), analysis, t0=sc.t0, grid_steps_per_period=0,
-                             samples_per_period=sc.rate_hz / sc.frequency_hz)
+                             samples_per_period=sc.rate_hz / sc.frequency_hz,
+                             disturbance_lines=disturbance_lines([sc.mains]))
     limit = (BENCH_MAX_PERIODS + 10) * sc.rate_hz / sc.frequency_hz
     watch = FlatWatch(("y",), sc.frequency_hz)
     n = 0

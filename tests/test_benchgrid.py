@@ -17,12 +17,15 @@ from bodebench.core.autointegration import Autointegrator
 from bodebench.core.benchgrid import (
     FOLD_IMAGES,
     FOLD_TURN,
+    LINE_TURNS,
     MIN_BEAT_PERIODS,
     disturbance_lines,
     flag_disturbed,
     fold_beat,
     fold_bound,
     folding_harmonic,
+    line_leak,
+    lines_beyond_fit,
     move_off_disturbances,
     move_off_folds,
 )
@@ -500,3 +503,105 @@ def test_in_two_channel_mode_the_fold_bound_is_taken_relative_to_the_reference_a
     assert paired.fold_bounds() == pytest.approx(0.5 * bounds, rel=1e-9)
     for one, two in zip(alone.points(), paired.points(), strict=True):
         assert complex(two.p, two.q) == pytest.approx(0.5 * complex(one.p, one.q), rel=1e-9)
+
+
+@pytest.mark.parametrize("jitter", [0.0, 0.1])
+def test_the_residual_at_a_line_is_its_amplitude_whatever_the_solved_harmonics_drift_and_offset(jitter: float) -> None:
+    """A line at 50 Hz of 0.31 % of a response with harmonics 1, 2 and 7, an offset and a drift, measured at
+    0.7814 Hz on a grid that fits no period (and jittered by 10 % of a sample): what each period's solved harmonics
+    leave at the line, summed over the periods, gives its amplitude to 1e-4 of itself (1e-3 jittered: the sums weigh
+    each sample by the interval before it); without the line, nothing
+    (1e-12 of the response): the harmonics and the drift the basis spans leave nothing there."""
+    from bodebench.core.fourier import ExactPeriodIntegrator
+
+    f, rate, d, h = 0.7814, 331.7, 50.0, 0.0031
+    rng = np.random.default_rng(5)
+    n = int(60 * rate / f)
+    t = (np.arange(n) + rng.uniform(-jitter, jitter, n)) / rate - 0.5 / rate
+    base = (np.sin(2 * np.pi * f * t + 0.3) + 0.2 * np.cos(4 * np.pi * f * t) + 0.05 * np.sin(14 * np.pi * f * t)
+            + 0.3 + 0.01 * t)
+    for amplitude in (h, 0.0):
+        y = base + amplitude * np.sin(2 * np.pi * d * t + 1.0)
+        integrator = ExactPeriodIntegrator(f, (1, 2, 3), 1, 0.0, fit_order=8, lines_hz=(d,))
+        kept = []
+        for start in range(0, n, 997):
+            _, _, whole = integrator.feed_marked(t[start:start + 997], y[start:start + 997, None])
+            kept.append(integrator.lines[whole, 0, 0])
+        residuals = np.concatenate(kept)
+        assert residuals.size >= 55
+        found = 2 * f * abs(residuals[5:].sum()) / residuals[5:].size
+        assert found == pytest.approx(amplitude, rel=1e-3 if jitter else 1e-4, abs=1e-12)
+
+
+def test_the_lines_bounded_are_those_the_samples_see_beyond_the_solved_harmonics() -> None:
+    """At 200 Hz 150 Hz is seen at 50 Hz and 100 Hz at 100 Hz; at 2.1 Hz with harmonics solved up to 8 both lie near
+    harmonics 24 and 48, and at 10 Hz 50 Hz is harmonic 5, solved: only what lies above is bounded."""
+    assert lines_beyond_fit((50.0, 100.0, 150.0), 2.1, 200.0 / 2.1, 8) == (50.0, 100.0)
+    assert lines_beyond_fit((50.0, 100.0, 150.0), 10.0, 20.0, 8) == (100.0,)
+    assert lines_beyond_fit((50.0,), 2.0, 0.0, 8) == (50.0,)  # a rate unknown: the line as it is
+    assert lines_beyond_fit((400.0,), 2.0, 200.0, 8) == ()  # on a multiple of the rate: a constant to the samples
+
+
+@pytest.mark.parametrize("delta", [0.005, 0.01, 0.03, -0.02])
+def test_the_leak_bound_covers_the_leak_of_a_standing_line_into_every_measured_harmonic(delta: float) -> None:
+    """A pure line at (64 + delta) f on a whole grid (423 samples a period), through the bench's integrator, over
+    three turns of the line against the harmonics: the average of every number of periods of each measured harmonic
+    before the line has turned LINE_TURNS times is at most the bound, the bound of one period at most 3 x the largest
+    leak of one period over the line's phases (the bound takes the worst phase), and after those turns the average
+    keeps less than a fifth of the bound of one period (the spread of the periods shows it)."""
+    from bodebench.core.fourier import ExactPeriodIntegrator
+
+    f, steps = 1.0, 423
+    x = 64 + delta
+    worst = {k: 0.0 for k in (1, 2, 3)}
+    for phase in np.linspace(0.0, np.pi, 4, endpoint=False):
+        t = np.arange(0, int(3.0 / abs(delta)) * steps + 1) / (steps * f)
+        y = np.sin(2 * np.pi * x * f * t + phase)
+        integrator = ExactPeriodIntegrator(f, (1, 2, 3), 1, 0.0, fit_order=8)
+        p, q = integrator.feed(t, y[:, None])
+        z = p[:, 0] + 1j * q[:, 0]
+        means = np.cumsum(z, axis=0) / np.arange(1, z.shape[0] + 1)[:, None]
+        for n in range(1, z.shape[0] + 1):
+            for i, k in enumerate((1, 2, 3)):
+                leak = abs(means[n - 1, i])
+                if n * abs(x - round(x)) < LINE_TURNS:
+                    assert leak <= line_leak(1.0, x, k, n) * (1 + 1e-9) + 1e-15, (n, k, leak)
+                else:
+                    assert line_leak(1.0, x, k, n) == 0.0 and leak < 0.2 * line_leak(1.0, x, k, 1), (n, k, leak)
+                if n == 1:
+                    worst[k] = max(worst[k], leak)
+    for k in (1, 2, 3):
+        assert line_leak(1.0, x, k, 1) <= 3 * worst[k]
+
+
+def test_hum_standing_still_against_an_unmeasured_harmonic_is_bounded_not_converged_off_its_tolerance() -> None:
+    """Mains at 63.99 times f (0.31 % of the fundamental) on a whole grid of 423 samples a period, a response with
+    harmonic 3 at 0.6 % of its fundamental and a transient that dies in a few periods, eps 0.01 %: without the lines
+    the point says harmonic 3 converged, more than its tolerance off the truth and outside its interval (the leak
+    stands still over the periods it took); with them every point's interval covers the truth, and those
+    converged are within their tolerance."""
+    f = 50.0 / 63.99
+    rate = 423 * f
+    truth = {1: 0.8 - 0.3j, 2: 0.02 + 0.01j, 3: 0.006 + 0.003j}
+    t = np.arange(0, int(410 * rate / f)) / rate - 0.5 / rate
+    y = sum(z.imag * np.sin(2 * np.pi * k * f * t) + z.real * np.cos(2 * np.pi * k * f * t) for k, z in truth.items())
+    y = y + 0.0031 * np.sin(2 * np.pi * 50.0 * t + 2.0) + np.exp(-np.maximum(t, 0.0) * f / 3) * np.cos(
+        2 * np.pi * 2.3 * f * t)
+    analysis = AnalysisConfig(harmonics=(1, 2, 3), tolerance_percent=0.01, max_periods=400)
+    found = {}
+    for lines in ((), disturbance_lines([50.0])):
+        sampler = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=rate / f,
+                                 disturbance_lines=lines)
+        for start in range(0, t.size, 4096):
+            if sampler.done:
+                break
+            sampler.feed(t[start:start + 4096], y[start:start + 4096, None])
+        found[bool(lines)] = {p.harmonic: p for p in sampler.points()}
+    third = found[False][3]
+    error = abs(complex(third.q, third.p) - truth[3])
+    assert third.converged and error > 1e-4 * abs(truth[3]) and error > third.uncertainty
+    for k, point in found[True].items():
+        error = abs(complex(point.q, point.p) - truth[k])
+        assert error <= point.uncertainty, (k, error, point.uncertainty, point.status)
+        if point.converged:
+            assert error <= 1e-4 * max(abs(truth[k]), RESOLUTION * abs(truth[1]))

@@ -10,6 +10,7 @@ samples have none); a frequency of which too many were is left out, its reason i
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -45,15 +46,17 @@ def _grid_steps_per_period(samples: PointSamples) -> int:
     return round((t.size - 1) / (samples.frequency_hz * (t[-1] - t[0])))
 
 
-def reanalyse_point(samples: PointSamples, analysis: AnalysisSettings, rate_hz: float = 0.0
-                    ) -> tuple[list[ResponsePoint], bool]:
-    """The points of one frequency from its samples (a bench's taken at ``rate_hz``, 0 if unknown); True when the
-    record ended before every series stopped. ValueError saying why when too many of its periods had gaps."""
+def reanalyse_point(samples: PointSamples, analysis: AnalysisSettings, rate_hz: float = 0.0,
+                    disturbance_lines: Sequence[float] = ()) -> tuple[list[ResponsePoint], bool]:
+    """The points of one frequency from its samples (a bench's taken at ``rate_hz``, 0 if unknown, with the
+    disturbance lines of its configuration, Hz); True when the record ended before every series stopped.
+    ValueError saying why when too many of its periods had gaps."""
     grid = _grid_steps_per_period(samples) if samples.source == "offline" else 0
     sampler = Autointegrator(samples.frequency_hz, samples.amplitude, samples.channels, analysis, t0=samples.t0,
                              reference=samples.reference or None, grid_steps_per_period=grid,
                              reference_phase=samples.reference_phase,
-                             samples_per_period=rate_hz / samples.frequency_hz if not grid else 0.0)
+                             samples_per_period=rate_hz / samples.frequency_hz if not grid else 0.0,
+                             disturbance_lines=disturbance_lines)
     for t, y in samples.batches:
         if sampler.done:
             break
@@ -95,7 +98,7 @@ def reanalyse(directory: str | Path, **overrides: Any) -> Reanalysis:
         if "tolerance_percent" not in overrides and len(recorded) == 1 and math.isfinite(tol := recorded.pop()):
             at_f = replace(analysis, tolerance_percent=tol)
         try:
-            found, short = reanalyse_point(load_samples(samples_path(directory, f)), at_f, rate_hz)
+            found, short = reanalyse_point(load_samples(samples_path(directory, f)), at_f, rate_hz, lines)
         except GapsError as exc:
             failed.append((f, str(exc)))
             continue

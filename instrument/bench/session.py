@@ -259,7 +259,8 @@ class BenchSession:
 
         def start(t0: float) -> tuple[Autointegrator, PointSamples]:
             return (Autointegrator(f, amplitude, outputs, analysis, t0=t0, reference=reference or None,
-                                   reference_phase=reference_phase, samples_per_period=self.bench.rate_hz / f),
+                                   reference_phase=reference_phase, samples_per_period=self.bench.rate_hz / f,
+                                   disturbance_lines=self.disturbance_lines),
                     PointSamples(f, amplitude, outputs, t0, reference, "bench", reference_phase, untied))
 
         sampler, record = start(t0)

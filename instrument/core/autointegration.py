@@ -20,7 +20,7 @@ from typing import Protocol
 
 import numpy as np
 
-from bodebench.core.benchgrid import alias_fit_order, fold_bound
+from bodebench.core.benchgrid import alias_fit_order, fold_bound, line_leak, lines_beyond_fit
 from bodebench.core.fourier import ExactPeriodIntegrator, GridPeriodIntegrator
 from bodebench.core.phase_average import PhaseAverage, grid_stands_still, waveform_fold_bound
 from bodebench.core.quality import MIN_COHERENCE_PERIODS, coherence, coherence_periods, total_harmonic_distortion
@@ -163,6 +163,15 @@ class Autointegrator:
     the bound pushes past its tolerance goes on while more periods can make room for it, and ends ``alias_limited``
     where they cannot.
 
+    disturbance_lines: on a bench, the frequencies of the disturbance lines (Hz; mains and its harmonics). A line
+    nearest a whole harmonic j of f above the solved ones leaks into each measured harmonic k about
+    ``h sin(pi delta) / (pi |d/f - k|)`` a period (h its amplitude, delta = d/f - j), turning delta cycles a period:
+    until it has turned a couple of times over the n periods averaged (n |delta| small) that leak is nearly the same
+    every period and no spread shows it. Its amplitude is read from the record (what each period's solved harmonics
+    leave at d, :class:`~bodebench.core.fourier.ExactPeriodIntegrator`), the leak bounded by
+    :func:`~bodebench.core.benchgrid.line_leak` and added to the interval like the fold bound; a series it pushes
+    past its tolerance goes on while the line turns, and ends ``disturbed`` where the periods run out first.
+
     periods: whole periods integrated; discarded: periods a gap in the samples touched, up to the period at which
     the rules stopped (see the module docstring); failure: why the point is not a measurement ("" while it is).
     """
@@ -170,7 +179,7 @@ class Autointegrator:
     def __init__(self, frequency_hz: float, amplitude: float, channels: Sequence[str],
                  analysis: AnalysisSettings, t0: float = 0.0, reference: str | None = None,
                  check_gaps: bool = True, grid_steps_per_period: int = 0, reference_phase: float = 0.0,
-                 samples_per_period: float = 0.0) -> None:
+                 samples_per_period: float = 0.0, disturbance_lines: Sequence[float] = ()) -> None:
         self.frequency_hz = frequency_hz
         self.amplitude = amplitude
         self.channels = tuple(channels)
@@ -188,12 +197,17 @@ class Autointegrator:
         """Longest interval between two samples a whole period may contain, in periods of f."""
         self.max_discarded_percent = analysis.max_discarded_percent
         columns = len(self.channels) + (reference is not None)
+        fit_order = alias_fit_order(samples_per_period, max(harmonics))
+        self.standing_lines: tuple[float, ...] = () if grid_steps_per_period else \
+            lines_beyond_fit(disturbance_lines, frequency_hz, samples_per_period, max(max(harmonics), fit_order))
+        """The disturbance lines (Hz, as the samples see them) nearest a whole harmonic above the solved ones, whose
+        leak :func:`~bodebench.core.benchgrid.line_leak` bounds."""
         self._integrator = (
             GridPeriodIntegrator(frequency_hz, harmonics, columns, grid_steps_per_period, t0)
             if grid_steps_per_period else
             ExactPeriodIntegrator(frequency_hz, harmonics, columns, t0,
                                   max_gap=self.max_gap_periods if check_gaps else math.inf,
-                                  fit_order=alias_fit_order(samples_per_period, max(harmonics))))
+                                  fit_order=fit_order, lines_hz=self.standing_lines))
         self.samples_per_period = samples_per_period
         self.fold_decay = analysis.fold_decay
         """The power j**-d the output's harmonics are taken to fall at least as fast as in the tail the averaged
@@ -202,6 +216,8 @@ class Autointegrator:
         # each whole period's coefficients of the harmonics above the measured ones, (channel, harmonic), while a
         # rule is open
         self._high: list[np.ndarray] = []
+        # each whole period's residual at each standing line, (channel, line), while a rule is open
+        self._lines: list[np.ndarray] = []
         self._high_count = len(getattr(self._integrator, "high_harmonics", ())) \
             if analysis.fold_policy == "bound" else 0
         # on a grid of a whole number of samples a period, the waveform averaged phase by phase, for a closer bound
@@ -264,6 +280,8 @@ class Autointegrator:
             self._drift_periods += drift.shape[0]
             if self._high_count:
                 self._take_high(self._integrator.high, p, q, whole)
+            if self.standing_lines:
+                self._take_lines(self._integrator.lines, p, q, whole)
         if m <= _FEW_PERIODS and self.reference is None and all(whole.tolist()):
             values = list(map(complex, p.ravel().tolist(), q.ravel().tolist()))
             sizes = list(map(abs, values))
@@ -297,6 +315,43 @@ class Autointegrator:
         keep = whole & np.isfinite(z).all(axis=(1, 2)) & (np.abs(z) <= MAX_COEFFICIENT).all(axis=(1, 2))
         if keep.any():
             self._high.append(z[keep])
+
+    def _take_lines(self, lines: np.ndarray, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> None:
+        """Keep the whole periods' residuals at the standing lines (lines: (m, columns, line)); in two-channel mode
+        scaled by each period's reference fundamental, as the measured coefficients."""
+        z = lines[:, : len(self.channels)]
+        if self.reference is not None:
+            with np.errstate(all="ignore"):
+                z = z * (self.amplitude / np.abs(p[:, -1, self._ref_index] + 1j * q[:, -1, self._ref_index]))[
+                    :, None, None]
+        keep = whole & np.isfinite(z).all(axis=(1, 2))
+        if keep.any():
+            self._lines.append(z[keep])
+
+    def line_leaks(self) -> np.ndarray:
+        """(channels, harmonics) the bound :func:`~bodebench.core.benchgrid.line_leak` puts on what the disturbance
+        lines leak into each series over the periods it keeps (output units; 0 where no line stands)."""
+        out = np.zeros((len(self.channels), len(self.harmonics)))
+        for c, verdicts in enumerate(self._verdicts):
+            for k, verdict in enumerate(verdicts):
+                out[c, k] = self._line_leak(c, k, verdict.period if verdict is not None else self.periods)
+        return out
+
+    def _line_leak(self, c: int, k: int, periods: int) -> float:
+        """The leak bound on series (channel c, harmonic index k) after ``periods`` periods, each line's amplitude
+        read from its residual over the later half of them."""
+        if not self._lines:
+            return 0.0
+        if len(self._lines) > 1:
+            self._lines = [np.concatenate(self._lines)]
+        residuals = self._lines[0]
+        periods = min(periods, residuals.shape[0])
+        half = periods - periods // 2
+        if periods < 2:
+            return 0.0
+        amplitudes = 2.0 * self.frequency_hz * np.abs(residuals[periods - half: periods, c].sum(axis=0)) / half
+        return sum(line_leak(float(h), d / self.frequency_hz, self.harmonics[k], periods)
+                   for h, d in zip(amplitudes.tolist(), self.standing_lines, strict=True))
 
     def fold_bounds(self) -> np.ndarray:
         """(channels, harmonics) the bound :func:`~bodebench.core.benchgrid.fold_bound` puts on what the sample rate
@@ -340,22 +395,26 @@ class Autointegrator:
         return bound, settled
 
     def _reopen_for_folds(self, n: int, scales: list[float]) -> None:
-        """Every series just converged whose fold bound pushes it past its tolerance, where more periods can help:
-        the bound alone is within the tolerance (the interval has to shrink to make room for it), or the content
-        above the measured harmonics is still fading (a transient, not a fold). Reopened, to be judged again with
-        the next period, until it fits, the bound alone exceeds the tolerance with that content settled (it ends
+        """Every series just converged whose fold bound and line leak push it past its tolerance, where more periods
+        can help: the bounds alone are within the tolerance (the interval has to shrink to make room for them), the
+        content above the measured harmonics is still fading (a transient, not a fold), or a line leaks and the fold
+        bound alone leaves room (the leak falls as the line turns). Reopened, to be judged again with the next
+        period, until it fits, the fold bound alone exceeds the tolerance with that content settled (it ends
         ``alias_limited``), or the period budget ends."""
-        if n >= self.max_periods or not self._high_count:
+        if n >= self.max_periods or not (self._high_count or self.standing_lines):
             return
         for c, verdicts in enumerate(self._verdicts):
             for k, v in enumerate(verdicts):
                 if v is None or not v.converged:
                     continue
                 bound, settled = self._fold(c, k, n)
-                if not bound:
+                leak = self._line_leak(c, k, n)
+                if not bound and not leak:
                     continue
                 tolerance = self._rules[c][k].tolerance(complex(v.p, v.q), scales[c])
-                if not self._fits(v, bound, tolerance) and (bound < tolerance or not settled):
+                # a line's leak fades as it turns with more periods, unless the fold alone already leaves no room
+                fading = leak and bound < tolerance
+                if not self._fits(v, bound + leak, tolerance) and (bound + leak < tolerance or not settled or fading):
                     verdicts[k] = None
                     self._pending += 1
 
@@ -457,7 +516,7 @@ class Autointegrator:
                     if verdict is not None:
                         verdicts[k] = verdict
                         self._pending -= 1
-            if self._pending == 0 and self._high:
+            if self._pending == 0 and (self._high or self._lines):
                 self._reopen_for_folds(n, scales[i])
             if self.discarded and (self._pending == 0 or n + self.discarded >= max_periods):
                 self._judge_gaps(n)
@@ -531,6 +590,7 @@ class Autointegrator:
             raise GapsError(self.failure)
         pts = []
         folds = self.fold_bounds()
+        leaks = self.line_leaks()
         drift = self._drift_sum / self._drift_periods * self.frequency_hz if self._drift_periods else \
             np.full(len(self.channels), math.nan)
         noisy_divisor = self.divisor_scatter() > MAX_DIVISOR_SCATTER
@@ -549,16 +609,18 @@ class Autointegrator:
                 assert v is not None
                 start, stop = coherence_periods(self.skip_periods, v.period)
                 converged, status, within_eps = v.converged, v.status, v.within_eps
-                fold = float(folds[c, k])
-                if fold and converged and not self._fits(
-                        v, fold, self._rules[c][k].tolerance(complex(v.p, v.q), self._last_scales[c])):
-                    converged, status, within_eps = False, PointStatus.ALIAS_LIMITED, False
+                fold, leak = float(folds[c, k]), float(leaks[c, k])
+                systematic = fold + leak
+                if systematic and converged and not self._fits(
+                        v, systematic, self._rules[c][k].tolerance(complex(v.p, v.q), self._last_scales[c])):
+                    converged, within_eps = False, False
+                    status = PointStatus.DISTURBED if leak > fold else PointStatus.ALIAS_LIMITED
                 if noisy_divisor:
                     converged, status, within_eps = False, PointStatus.DIVISOR_LIMITED, False
                 pts.append(ResponsePoint(frequency_hz=self.frequency_hz, harmonic=harmonic, channel=name,
                                          amplitude=self.amplitude, p=v.p, q=v.q, periods=v.period,
-                                         converged=converged, status=status, uncertainty=v.uncertainty + fold,
-                                         uncertainty_1d=v.uncertainty_1d + fold, within_eps=within_eps,
+                                         converged=converged, status=status, uncertainty=v.uncertainty + systematic,
+                                         uncertainty_1d=v.uncertainty_1d + systematic, within_eps=within_eps,
                                          periods_needed=v.periods_needed, periods_discarded=self.discarded,
                                          thd=thd if harmonic == 1 else math.nan,
                                          coherence=coherence(self._histories[c][k].values[start:stop]),

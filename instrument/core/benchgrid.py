@@ -37,9 +37,10 @@ import numpy as np
 from bodebench.core.response import ResponsePoint
 from bodebench.status import PointStatus
 
-__all__ = ["DISTURBANCE_HARMONICS", "FIT_ORDER_MAX", "FOLD_IMAGES", "FOLD_ORDER", "FOLD_TURN", "MIN_BEAT_PERIODS",
-           "alias_fit_order", "disturbance_lines", "flag_disturbed", "fold_beat", "fold_bound", "folding_harmonic",
-           "folding_notes", "mark_untied", "move_off_disturbances", "move_off_folds", "nearest_line"]
+__all__ = ["DISTURBANCE_HARMONICS", "FIT_ORDER_MAX", "FOLD_IMAGES", "FOLD_ORDER", "FOLD_TURN", "LINE_TURNS",
+           "MIN_BEAT_PERIODS", "alias_fit_order", "disturbance_lines", "flag_disturbed", "fold_beat", "fold_bound",
+           "folding_harmonic", "folding_notes", "line_leak", "lines_beyond_fit", "mark_untied", "move_off_disturbances",
+           "move_off_folds", "nearest_line"]
 
 DISTURBANCE_HARMONICS = 3
 """Each listed disturbance frequency counts with its harmonics up to this one (mains: 50, 100, 150 Hz)."""
@@ -56,6 +57,35 @@ one."""
 def disturbance_lines(disturbance_hz: Sequence[float]) -> tuple[float, ...]:
     """Every disturbance line (Hz): each listed frequency and its harmonics up to ``DISTURBANCE_HARMONICS``."""
     return tuple(sorted({m * d for d in disturbance_hz for m in range(1, DISTURBANCE_HARMONICS + 1)}))
+
+
+def lines_beyond_fit(lines: Sequence[float], frequency_hz: float, samples_per_period: float, solved: int
+                     ) -> tuple[float, ...]:
+    """The disturbance ``lines`` (Hz) as samples at ``samples_per_period`` times ``frequency_hz`` see them (folded
+    into 0 .. half the rate; as they are where the rate is unknown, 0), those nearest a whole harmonic of f above
+    harmonic ``solved`` (the highest each period is solved for): the lines whose leak :func:`line_leak` bounds."""
+    rate = samples_per_period * frequency_hz
+    seen = {abs(d - rate * round(d / rate)) if rate > 0 else abs(d) for d in lines}
+    return tuple(sorted(d for d in seen if d > 0 and round(d / frequency_hz) > solved))
+
+
+LINE_TURNS = 2.0
+"""A disturbance line that has turned this many times against the harmonics over a point's periods shows its leak
+in the spread between them: :func:`line_leak` bounds it only before."""
+
+
+def line_leak(amplitude: float, line_harmonics: float, harmonic: int, periods: int) -> float:
+    """The most a disturbance line of ``amplitude`` at ``line_harmonics`` times f (x) leaks into the average of
+    ``periods`` periods of ``harmonic`` k while it has turned fewer than :data:`LINE_TURNS` times against the
+    harmonics (0 after). Each period takes ``amplitude sin(pi delta) / pi (1 / |x - k| + 1 / (x + k))`` of it
+    (delta = x - j, j the nearest whole harmonic), turned by delta cycles from the period before, and the average of
+    n such turns is at most ``1 / (n sin(pi delta))`` of one (the envelope of the Dirichlet kernel). A line that
+    stands still (n |delta| small) leaks a constant no spread shows."""
+    delta = line_harmonics - round(line_harmonics)
+    if periods * abs(delta) >= LINE_TURNS:
+        return 0.0
+    return amplitude * min(abs(math.sin(math.pi * delta)), 1.0 / periods) / math.pi * (
+        1.0 / abs(line_harmonics - harmonic) + 1.0 / (line_harmonics + harmonic))
 
 
 def nearest_line(frequency_hz: float, harmonic: int, lines: Sequence[float]) -> float:

@@ -435,8 +435,15 @@ class ExactPeriodIntegrator:
     lies above the measured harmonics, from which what the sampling folds onto them can be bounded
     (:func:`bodebench.core.benchgrid.fold_bound`).
 
+    **Disturbance lines.** With ``lines_hz`` (frequencies as the samples see them, Hz), each period's residual, what
+    the basis leaves of the signal (drift taken off as above), is projected on ``exp(-j 2 pi d (t - t0'))`` for
+    each line d: the same per-sample sums of every column against each line, less the solved coefficients times
+    the basis functions' own sums, so whatever the basis spans leaves nothing there on any grid. ``lines`` holds them
+    (period, channel, line; channel units times seconds): summed over W periods, ``2 f |sum| / W`` is the amplitude
+    of what lies at d and is not a solved harmonic (a mains line, and a harmonic of the output above K' near it).
+
     Cost: the moments of n_channels + 2K' + 2 columns against K' + 1 harmonics per sample, and one (2K' + 1)-square
-    solve per period.
+    solve per period; with lines, as many complex sums more per sample and line.
     """
 
     #: Largest condition number of a period's moment matrix A for which its coefficients are taken.
@@ -446,7 +453,7 @@ class ExactPeriodIntegrator:
     WIDE_MAX_CONDITION = 1e3
 
     def __init__(self, frequency_hz: float, harmonics: Sequence[int], n_channels: int, t0: float = 0.0,
-                 max_gap: float = math.inf, fit_order: int = 0) -> None:
+                 max_gap: float = math.inf, fit_order: int = 0, lines_hz: Sequence[float] = ()) -> None:
         front = PeriodIntegrator(frequency_hz, harmonics, n_channels, t0, max_gap)  # checks the arguments
         self.frequency_hz: float = front.frequency_hz
         self.harmonics: tuple[int, ...] = front.harmonics
@@ -481,6 +488,14 @@ class ExactPeriodIntegrator:
         self._previous: tuple[np.ndarray, float] | None = None  # the last whole period's means and ramp mean
         self._held: tuple[np.ndarray, ...] | None = None  # the first whole period, waiting for its neighbour
         self._emitted = 0
+        self.lines_hz: tuple[float, ...] = tuple(float(d) for d in lines_hz)
+        """The disturbance lines whose residual ``lines`` holds (Hz, as the samples see them)."""
+        self.lines: np.ndarray = np.zeros((0, n_channels, len(self.lines_hz)), dtype=complex)
+        """(m, n_channels, len(lines_hz)) each period's residual projected on each line, of the last call's output
+        (channel units times seconds); NaN for a period solved for the measured harmonics alone."""
+        # each open period's sums of every column against each line: period index -> (column, line)
+        self._line_open: dict[int, np.ndarray] = {}
+        self._line_t_last = math.nan  # the time of the last sample summed
 
     @property
     def periods_done(self) -> int:
@@ -514,10 +529,15 @@ class ExactPeriodIntegrator:
             shape = (0, nc, len(self.harmonics))
             return np.zeros(shape), np.zeros(shape), np.zeros(0, dtype=bool)
         columns = np.concatenate((y_arr, self._ramp_and_basis(t_arr)), axis=1) if t_arr.ndim == 1 else y_arr
+        done_before = self._moments.periods_done
+        if self.lines_hz and t_arr.ndim == 1:
+            self._add_line_sums(t_arr, columns)
         p, q, whole = self._moments.feed_marked(t_arr, columns)
+        n_lines = len(self.lines_hz)
         if p.shape[0] == 0:
             self.drift = np.zeros((0, nc))
-            return self._split(*self._release(np.zeros((0, nc, n_out)), np.zeros((0, nc, n_out)), whole))
+            empty = np.zeros((0, nc, n_out + n_lines))
+            return self._split(*self._release(empty, empty.copy(), whole))
         # moments (period, column, test): the constant's, then sin 1 .. K', then cos 1 .. K'
         moments = np.concatenate((q[..., :1], p[..., 1:], q[..., 1:]), axis=-1)
         wide = bool(self.high_harmonics)
@@ -533,7 +553,50 @@ class ExactPeriodIntegrator:
         whole = whole & resolved
         out_p = np.swapaxes(c[:, self._sin_rows, :], 1, 2)  # (period, channels and the ramp, harmonic)
         out_q = np.swapaxes(c[:, self._cos_rows, :], 1, 2)
+        if n_lines:  # the residuals ride along as further outputs: the drift comes off them as off the harmonics
+            sums = self._take_line_sums(done_before, p.shape[0])  # (period, column, line)
+            basis = sums[:, nc + 1:, :]
+            with np.errstate(invalid="ignore"):
+                residual = sums[:, : nc + 1, :] - np.einsum("mbc,mbl->mcl", np.nan_to_num(c), basis)
+            residual[narrow] = np.nan
+            out_p = np.concatenate((out_p, residual.real), axis=2)
+            out_q = np.concatenate((out_q, residual.imag), axis=2)
         return self._split(*self._release(out_p, out_q, whole, c[:, 0, :]))
+
+    def _add_line_sums(self, t: np.ndarray, columns: np.ndarray) -> None:
+        """Add each sample at or after t0' (weighted by the time since the sample before it) times each line's
+        ``exp(-j 2 pi d (t - t0'))`` to its period's sums (period index floor((t - t0') f))."""
+        previous = np.concatenate(([self._line_t_last], t[:-1]))
+        self._line_t_last = float(t[-1])
+        weight = np.nan_to_num(t - previous)  # the first sample ever weighs nothing
+        u = (t - self.start) * self.frequency_hz
+        keep = u >= 0.0
+        if not keep.any():
+            return
+        t, u, weight, columns = t[keep], u[keep], weight[keep], columns[keep]
+        period = np.floor(u).astype(np.int64)
+        turn = np.exp(-2j * math.pi * np.outer(t - self.start, self.lines_hz)) * weight[:, None]  # (sample, line)
+        starts = np.concatenate(([0], np.flatnonzero(np.diff(period)) + 1))
+        for a, b in zip(starts, (*starts[1:], period.size), strict=True):
+            block = columns[a:b].T @ turn[a:b]  # (column, line)
+            index = int(period[a])
+            if index in self._line_open:
+                self._line_open[index] += block
+            else:
+                self._line_open[index] = block
+
+    def _take_line_sums(self, first: int, count: int) -> np.ndarray:
+        """(count, column, line) the sums of periods ``first`` .. ``first + count - 1`` (0-based), taken out (zeros
+        for a period no sample fell in)."""
+        width = self.n_channels + 1 + self._basis_size
+        out = np.zeros((count, width, len(self.lines_hz)), dtype=complex)
+        for i in range(count):
+            block = self._line_open.pop(first + i, None)
+            if block is not None:
+                out[i] = block
+        for index in [i for i in self._line_open if i < first]:  # periods before period 1
+            del self._line_open[index]
+        return out
 
     def _solve(self, moments: np.ndarray, rows: np.ndarray, max_condition: float) -> tuple[np.ndarray, np.ndarray]:
         """Each period's ``A c = b`` on the basis functions and test functions ``rows`` (indices into 1, sin 1 ..
@@ -549,9 +612,12 @@ class ExactPeriodIntegrator:
         return np.linalg.solve(a, b), resolved
 
     def _split(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The measured harmonics' coefficients returned, those above them kept in ``high``."""
+        """The measured harmonics' coefficients returned, those above them kept in ``high``, the lines' residuals
+        in ``lines``."""
         n = len(self.harmonics)
-        self.high = p[:, :, n:] + 1j * q[:, :, n:]
+        top = n + len(self.high_harmonics)
+        self.high = p[:, :, n:top] + 1j * q[:, :, n:top]
+        self.lines = p[:, :, top:] + 1j * q[:, :, top:]
         return np.ascontiguousarray(p[:, :, :n]), np.ascontiguousarray(q[:, :, :n]), whole
 
     def _release(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray, means: np.ndarray | None = None
@@ -589,7 +655,7 @@ class ExactPeriodIntegrator:
         self._previous = previous
         z = (p[:, :nc] - slope[:, :, None] * p[:, nc:nc + 1] + 1j * (q[:, :nc] - slope[:, :, None] * q[:, nc:nc + 1]))
         if self.start != self.t0:
-            z = z * self._turn
+            z[:, :, : self._turn.size] *= self._turn
         self.drift = slope
         self._emitted += z.shape[0]
         return np.ascontiguousarray(z.real), np.ascontiguousarray(z.imag), whole
