@@ -518,9 +518,9 @@ def run_bench(task: tuple[str, int, float, str]) -> list[BenchRow]:
     sc = scenario(kind, index, folds)
     rng = np.random.default_rng((BENCH_SEED, BENCH_KINDS.index(kind), index, int(round(eps * 1e4))))
     analysis = AnalysisConfig(harmonics=HARMONICS, tolerance_percent=eps, max_periods=BENCH_MAX_PERIODS, folds=folds)
+    lines = disturbance_lines([sc.mains])
     sampler = Autointegrator(sc.frequency_hz, sc.amplitude, ("y",), analysis, t0=sc.t0, grid_steps_per_period=0,
-                             samples_per_period=sc.rate_hz / sc.frequency_hz,
-                             disturbance_lines=disturbance_lines([sc.mains]))
+                             samples_per_period=sc.rate_hz / sc.frequency_hz, disturbance_lines=lines)
     limit = (BENCH_MAX_PERIODS + 10) * sc.rate_hz / sc.frequency_hz
     watch = FlatWatch(("y",), sc.frequency_hz)
     n = 0
@@ -545,7 +545,7 @@ def run_bench(task: tuple[str, int, float, str]) -> list[BenchRow]:
         points = sampler.points()
         if no_fundamental(points):
             raise GapsError("no_response")
-        points = flag_disturbed(points, disturbance_lines([sc.mains]))
+        points = flag_disturbed(points, lines)
     except GapsError as refused:
         status = "no_response" if str(refused) == "no_response" else "gaps"
         return [BenchRow(kind, sc.note, k, eps, status, sampler.periods, math.nan, False, False, False, True,

@@ -218,10 +218,15 @@ class _Settled:
         """The noise disc radius at :data:`STOP_CONFIDENCE` (output units)."""
         return _disc_factor(self.dof, STOP_CONFIDENCE) * self.sigma_mean
 
+    @property
+    def stop_width(self) -> float:
+        """What the stop compares with the tolerance: the noise disc at :data:`STOP_CONFIDENCE` plus the transient
+        bound (output units)."""
+        return self.stop_statistical + self.bias
+
     def fits(self, tolerance: float) -> bool:
-        """Whether the estimate may stop: its noise disc at :data:`STOP_CONFIDENCE` and its transient bound within
-        ``tolerance`` (output units)."""
-        return self.stop_statistical + self.bias <= tolerance
+        """Whether the estimate may stop: its :attr:`stop_width` within ``tolerance`` (output units)."""
+        return self.stop_width <= tolerance
 
     def estimate(self) -> Estimate:
         line = _line_factor(self.dof) * self.sigma_mean
