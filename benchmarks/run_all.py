@@ -16,8 +16,8 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 BENCHMARKS: tuple[str, ...] = ("bench_sampler", "bench_speed", "bench_rules", "bench_rule_cost", "bench_pacing",
                                 "bench_lockstep", "bench_tui", "bench_soak", "bench_fuzz",
-                                "bench_zero_harmonics", "bench_fit", "bench_adaptive")
-"""All of them, about 30 minutes on 2 cores; the soak alone takes 10."""
+                                "bench_zero_harmonics", "bench_fit", "bench_adaptive", "bench_suite")
+"""All of them, about 35 minutes on 2 cores; the soak alone takes 10, the suite beside two busy processes 3."""
 
 
 def run(name: str) -> tuple[int, float]:
