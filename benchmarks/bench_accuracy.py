@@ -40,6 +40,8 @@ t0 off the sample grid. Kinds, each with an exact truth for harmonics 1..3:
   drift                                 + a ramp of 0.01 % .. 1 % of |Z_1| per second
   hum on / off harmonic                 + mains hum (50 or 60 Hz) of 0.1 % .. 5 % of |Z_1|, at f = mains/k
                                         (on harmonic k) or at any f
+  hum near harmonics 4-8                the same hum 0.1 % to 5 % of a whole harmonic j = 4 .. 8 (solved each
+                                        period, not measured) off it: f = mains / (j +- 0.001 .. 0.05)
   saturated / rate-limited / square-ish the periodic linear interpolant of 2^16 points of one period of clip(sin,
                                         0.6), a rate-limited sine, tanh(beta sin) (truth: its DFT x sinc^2)
   dead / frozen drive                   the output 0, a constant, or its last value from a random period on
@@ -292,7 +294,7 @@ BENCH_CHUNK = 4096  # samples a feed() call (a bench hands over ~10 ms of sample
 TABLE = 1 << 16  # points of one period of a nonlinear waveform (its signal: their periodic linear interpolant)
 BENCH_KINDS = ("linear oscillator", "first-order lag", "harmonics+transient", "noise", "oscillator+noise",
                "jitter", "jitter+noise", "drift", "hum on harmonic", "hum off harmonic", "saturated sine",
-               "rate-limited sine", "square-ish wave", "dead drive", "frozen drive")
+               "rate-limited sine", "square-ish wave", "dead drive", "frozen drive", "hum near harmonics 4-8")
 NOISY_KINDS = ("noise", "oscillator+noise", "jitter+noise")
 NONLINEAR_KINDS = ("saturated sine", "rate-limited sine", "square-ish wave")
 BENCH_CASES = {False: (48, 160), True: (12, 40)}  # (cases a kind, cases a noisy kind), by --quick
@@ -448,6 +450,8 @@ def scenario(kind: str, index: int, folds: str = FOLD_POLICIES[0]) -> Scenario:
     mains, k_hum = float(rng.choice([50.0, 60.0])), int(rng.integers(1, 4))
     if kind == "hum on harmonic":
         hum_f = mains / k_hum
+    elif kind == "hum near harmonics 4-8":  # a harmonic each period is solved for, not measured
+        hum_f = mains / (int(rng.integers(4, 9)) + rng.choice([-1.0, 1.0]) * 10 ** rng.uniform(-3, math.log10(0.05)))
     f, rate = _timing(rng, hum_f)
     if folds == "move":
         f = move_off_folds(rate, [f], HARMONICS)[0][0]
@@ -485,10 +489,10 @@ def scenario(kind: str, index: int, folds: str = FOLD_POLICIES[0]) -> Scenario:
             sc.signal = lambda t: base(t) + a * (t - t0)
             sc.bias = tuple(2 * abs(a) / (k * 2 * math.pi * f) for k in HARMONICS)
             sc.note = f"drift {abs(a) / r:.2%}/s {where}"
-        elif kind in ("hum on harmonic", "hum off harmonic"):
+        elif kind in ("hum on harmonic", "hum off harmonic", "hum near harmonics 4-8"):
             h, psi = r * 10 ** rng.uniform(-3, math.log10(0.05)), rng.uniform(0, 2 * math.pi)
             sc.signal = lambda t: base(t) + h * np.sin(2 * math.pi * mains * t + psi)
-            if hum_f is not None:
+            if kind == "hum on harmonic":
                 sc.bias = tuple(h if k == k_hum else 0.0 for k in HARMONICS)
             sc.note = f"hum {mains:g} Hz {h / r:.2%} (mains/f={mains / f:.4g}) {where}"
         elif kind in ("dead drive", "frozen drive"):

@@ -23,7 +23,7 @@ class PointStatus(StrEnum):
     DISTURBED = "disturbed"
     """A periodic disturbance line ([analysis] disturbance_hz) lies within the point's resolution of its harmonic:
     whatever of it reached the output is in the value, and the interval cannot show it; or what a line near a
-    harmonic above the solved ones leaks into it kept the interval over the tolerance until the periods ran out;
+    harmonic above the measured ones leaks into it kept the interval over the tolerance until the periods ran out;
     not converged."""
     ALIAS_LIMITED = "alias_limited"
     """The sample rate folds content of the response above the measured harmonics onto this one, the same in every

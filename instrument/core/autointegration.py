@@ -20,7 +20,14 @@ from typing import Protocol
 
 import numpy as np
 
-from bodebench.core.benchgrid import alias_fit_order, fold_bound, line_leak, lines_beyond_fit
+from bodebench.core.benchgrid import (
+    alias_fit_order,
+    fold_bound,
+    line_leak,
+    lines_beyond_fit,
+    lines_on_fit,
+    turning_amplitude,
+)
 from bodebench.core.fourier import ExactPeriodIntegrator, GridPeriodIntegrator
 from bodebench.core.phase_average import PhaseAverage, grid_stands_still, waveform_fold_bound
 from bodebench.core.quality import MIN_COHERENCE_PERIODS, coherence, coherence_periods, total_harmonic_distortion
@@ -164,13 +171,15 @@ class Autointegrator:
     where they cannot.
 
     disturbance_lines: on a bench, the frequencies of the disturbance lines (Hz; mains and its harmonics). A line
-    nearest a whole harmonic j of f above the solved ones leaks into each measured harmonic k about
+    nearest a whole harmonic j of f above the measured ones leaks into each measured harmonic k about
     ``h sin(pi delta) / (pi |d/f - k|)`` a period (h its amplitude, delta = d/f - j), turning delta cycles a period:
     until it has turned a couple of times over the n periods averaged (n |delta| small) that leak is nearly the same
-    every period and no spread shows it. Its amplitude is read from the record (what each period's solved harmonics
-    leave at d, :class:`~bodebench.core.fourier.ExactPeriodIntegrator`), the leak bounded by
-    :func:`~bodebench.core.benchgrid.line_leak` and added to the interval like the fold bound; a series it pushes
-    past its tolerance goes on while the line turns, and ends ``disturbed`` where the periods run out first.
+    every period and no spread shows it. Its amplitude is read from the record: beyond the solved harmonics, from
+    what each period's solved harmonics leave at d (:class:`~bodebench.core.fourier.ExactPeriodIntegrator`); on a
+    solved harmonic j, from how j's coefficient turns (:func:`~bodebench.core.benchgrid.turning_amplitude`). The leak
+    is bounded by :func:`~bodebench.core.benchgrid.line_leak` and added to the interval like the fold bound; a series
+    whose verdict it pushes past its tolerance is judged again with each period while the line turns, and ends
+    ``disturbed`` where the periods run out first.
 
     periods: whole periods integrated; discarded: periods a gap in the samples touched, up to the period at which
     the rules stopped (see the module docstring); failure: why the point is not a measurement ("" while it is).
@@ -202,6 +211,11 @@ class Autointegrator:
             lines_beyond_fit(disturbance_lines, frequency_hz, samples_per_period, max(max(harmonics), fit_order))
         """The disturbance lines (Hz, as the samples see them) nearest a whole harmonic above the solved ones, whose
         leak :func:`~bodebench.core.benchgrid.line_leak` bounds."""
+        self.turning_lines: tuple[float, ...] = () if grid_steps_per_period else \
+            lines_on_fit(disturbance_lines, frequency_hz, samples_per_period, max(harmonics), fit_order)
+        """The disturbance lines (Hz, as the samples see them) nearest a whole harmonic each period is solved for but
+        not measured, whose leak :func:`~bodebench.core.benchgrid.line_leak` bounds with the amplitude
+        :func:`~bodebench.core.benchgrid.turning_amplitude` reads from that harmonic's coefficients."""
         self._integrator = (
             GridPeriodIntegrator(frequency_hz, harmonics, columns, grid_steps_per_period, t0)
             if grid_steps_per_period else
@@ -220,6 +234,7 @@ class Autointegrator:
         self._lines: list[np.ndarray] = []
         self._high_count = len(getattr(self._integrator, "high_harmonics", ())) \
             if analysis.fold_policy == "bound" else 0
+        self._keep_high = bool(self._high_count or self.turning_lines)
         # on a grid of a whole number of samples a period, the waveform averaged phase by phase, for a closer bound
         self._phase = PhaseAverage(frequency_hz, t0, samples_per_period, columns, self.max_periods) \
             if self._high_count and grid_stands_still(samples_per_period, max(harmonics)) else None
@@ -240,6 +255,7 @@ class Autointegrator:
         # so a small harmonic cannot stop on the calm before the transient of its channel has died out
         self._primary = self.harmonics.index(1) if 1 in self.harmonics else 0
         self._order = [self._primary] + [k for k in range(len(self.harmonics)) if k != self._primary]
+        self._led = [False] * len(self.channels)  # each channel's leading series has had a verdict (it settled)
         self._last_scales: list[float] = [math.nan] * len(self.channels)
         # the drift the bench's integrator took off, summed (channel units per period) over the whole periods it
         # returned while a rule was still open, and their count
@@ -278,7 +294,7 @@ class Autointegrator:
             drift = self._integrator.drift[whole, : len(self.channels)]
             self._drift_sum += drift.sum(axis=0)
             self._drift_periods += drift.shape[0]
-            if self._high_count:
+            if self._keep_high:
                 self._take_high(self._integrator.high, p, q, whole)
             if self.standing_lines:
                 self._take_lines(self._integrator.lines, p, q, whole)
@@ -339,19 +355,31 @@ class Autointegrator:
 
     def _line_leak(self, c: int, k: int, periods: int) -> float:
         """The leak bound on series (channel c, harmonic index k) after ``periods`` periods, each line's amplitude
-        read from its residual over the later half of them."""
-        if not self._lines:
-            return 0.0
-        if len(self._lines) > 1:
-            self._lines = [np.concatenate(self._lines)]
-        residuals = self._lines[0]
-        periods = min(periods, residuals.shape[0])
-        half = periods - periods // 2
-        if periods < 2:
-            return 0.0
-        amplitudes = 2.0 * self.frequency_hz * np.abs(residuals[periods - half: periods, c].sum(axis=0)) / half
-        return sum(line_leak(float(h), d / self.frequency_hz, self.harmonics[k], periods)
-                   for h, d in zip(amplitudes.tolist(), self.standing_lines, strict=True))
+        read over the later half of them: a standing line's from its residual, a turning line's from how the
+        solved harmonic nearest it turns."""
+        leak = 0.0
+        if self._lines:
+            if len(self._lines) > 1:
+                self._lines = [np.concatenate(self._lines)]
+            residuals = self._lines[0]
+            kept = min(periods, residuals.shape[0])
+            half = kept - kept // 2
+            if kept >= 2:
+                amplitudes = 2.0 * self.frequency_hz * np.abs(residuals[kept - half: kept, c].sum(axis=0)) / half
+                leak += sum(line_leak(float(h), d / self.frequency_hz, self.harmonics[k], kept)
+                            for h, d in zip(amplitudes.tolist(), self.standing_lines, strict=True))
+        if self.turning_lines and self._high:
+            if len(self._high) > 1:
+                self._high = [np.concatenate(self._high)]
+            high = self._high[0]
+            kept = min(periods, high.shape[0])
+            window = high[kept - (kept - kept // 2): kept, c]
+            orders = self._integrator.high_harmonics  # type: ignore[union-attr]
+            for d in self.turning_lines:
+                x = d / self.frequency_hz
+                amplitude = turning_amplitude(window[:, orders.index(round(x))], x)
+                leak += line_leak(amplitude, x, self.harmonics[k], kept)
+        return leak
 
     def fold_bounds(self) -> np.ndarray:
         """(channels, harmonics) the bound :func:`~bodebench.core.benchgrid.fold_bound` puts on what the sample rate
@@ -369,7 +397,7 @@ class Autointegrator:
         mean differs from the previous quarter's by less than half its size. On a whole grid, the smaller of that
         bound and :func:`~bodebench.core.phase_average.waveform_fold_bound` of the waveform averaged phase by
         phase."""
-        if not self._high:
+        if not self._high_count or not self._high:
             return 0.0, True
         if len(self._high) > 1:
             self._high = [np.concatenate(self._high)]  # (period, channel, harmonic above)
@@ -395,17 +423,17 @@ class Autointegrator:
         return bound, settled
 
     def _reopen_for_folds(self, n: int, scales: list[float]) -> None:
-        """Every series just converged whose fold bound and line leak push it past its tolerance, where more periods
-        can help: the bounds alone are within the tolerance (the interval has to shrink to make room for them), the
-        content above the measured harmonics is still fading (a transient, not a fold), or a line leaks and the fold
-        bound alone leaves room (the leak falls as the line turns). Reopened, to be judged again with the next
-        period, until it fits, the fold bound alone exceeds the tolerance with that content settled (it ends
+        """Every series converged at period n whose fold bound and line leak push it past its tolerance, where more
+        periods can help: the bounds alone are within the tolerance (the interval has to shrink to make room for
+        them), the content above the measured harmonics is still fading (a transient, not a fold), or a line leaks
+        and the fold bound alone leaves room (the leak falls as the line turns). Reopened, to be judged again with
+        the next period, until it fits, the fold bound alone exceeds the tolerance with that content settled (it ends
         ``alias_limited``), or the period budget ends."""
-        if n >= self.max_periods or not (self._high_count or self.standing_lines):
+        if n >= self.max_periods or not (self._high_count or self.standing_lines or self.turning_lines):
             return
         for c, verdicts in enumerate(self._verdicts):
             for k, v in enumerate(verdicts):
-                if v is None or not v.converged:
+                if v is None or not v.converged or v.period != n:
                     continue
                 bound, settled = self._fold(c, k, n)
                 leak = self._line_leak(c, k, n)
@@ -502,13 +530,15 @@ class Autointegrator:
         channel, its largest coefficient (output units)."""
         self._last_scales = scales[-1]
         primary, order, max_periods = self._primary, self._order, self.max_periods
+        led = self._led
         for i in range(m):
             n = self.periods + i + 1
+            converged = False
             for c, verdicts in enumerate(self._verdicts):
                 channel_scale = scales[i][c]
                 rules, histories = self._rules[c], self._histories[c]
                 for k in order:
-                    if verdicts[k] is not None or (k != primary and verdicts[primary] is None):
+                    if verdicts[k] is not None or (k != primary and not led[c]):
                         continue
                     verdict = rules[k].check(histories[k], n, channel_scale)
                     if verdict is None and n >= max_periods:
@@ -516,7 +546,9 @@ class Autointegrator:
                     if verdict is not None:
                         verdicts[k] = verdict
                         self._pending -= 1
-            if self._pending == 0 and (self._high or self._lines):
+                        led[c] = True
+                        converged = converged or verdict.converged
+            if converged and (self._high or self._lines):
                 self._reopen_for_folds(n, scales[i])
             if self.discarded and (self._pending == 0 or n + self.discarded >= max_periods):
                 self._judge_gaps(n)

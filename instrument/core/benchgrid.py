@@ -39,8 +39,8 @@ from bodebench.status import PointStatus
 
 __all__ = ["DISTURBANCE_HARMONICS", "FIT_ORDER_MAX", "FOLD_IMAGES", "FOLD_ORDER", "FOLD_TURN", "LINE_TURNS",
            "MIN_BEAT_PERIODS", "alias_fit_order", "disturbance_lines", "flag_disturbed", "fold_beat", "fold_bound",
-           "folding_harmonic", "folding_notes", "line_leak", "lines_beyond_fit", "mark_untied", "move_off_disturbances",
-           "move_off_folds", "nearest_line"]
+           "folding_harmonic", "folding_notes", "line_leak", "lines_beyond_fit", "lines_near", "lines_on_fit",
+           "mark_untied", "move_off_disturbances", "move_off_folds", "nearest_line", "turning_amplitude"]
 
 DISTURBANCE_HARMONICS = 3
 """Each listed disturbance frequency counts with its harmonics up to this one (mains: 50, 100, 150 Hz)."""
@@ -63,10 +63,53 @@ def lines_beyond_fit(lines: Sequence[float], frequency_hz: float, samples_per_pe
                      ) -> tuple[float, ...]:
     """The disturbance ``lines`` (Hz) as samples at ``samples_per_period`` times ``frequency_hz`` see them (folded
     into 0 .. half the rate; as they are where the rate is unknown, 0), those nearest a whole harmonic of f above
-    harmonic ``solved`` (the highest each period is solved for): the lines whose leak :func:`line_leak` bounds."""
+    harmonic ``solved`` (the highest each period is solved for): the lines whose leak :func:`line_leak` bounds, each
+    amplitude read from what the solved harmonics leave of the record at the line."""
+    return lines_near(lines, frequency_hz, samples_per_period, solved, math.inf)
+
+
+def lines_on_fit(lines: Sequence[float], frequency_hz: float, samples_per_period: float, measured: int, solved: int
+                 ) -> tuple[float, ...]:
+    """The disturbance ``lines`` (Hz, as the samples see them) nearest a whole harmonic j of f that each period is
+    solved for but not measured (``measured < j <= solved``): the solve takes such a line into harmonic j's
+    coefficient, which turns with it, and :func:`line_leak` bounds what it leaks into the measured ones, its
+    amplitude read by :func:`turning_amplitude`."""
+    return lines_near(lines, frequency_hz, samples_per_period, measured, solved)
+
+
+def lines_near(lines: Sequence[float], frequency_hz: float, samples_per_period: float, above: float, up_to: float
+               ) -> tuple[float, ...]:
+    """The disturbance ``lines`` (Hz) as samples at ``samples_per_period`` times ``frequency_hz`` see them (folded
+    into 0 .. half the rate; as they are where the rate is unknown, 0) whose nearest whole harmonic j of f has
+    ``above < j <= up_to``."""
     rate = samples_per_period * frequency_hz
     seen = {abs(d - rate * round(d / rate)) if rate > 0 else abs(d) for d in lines}
-    return tuple(sorted(d for d in seen if d > 0 and round(d / frequency_hz) > solved))
+    return tuple(sorted(d for d in seen if d > 0 and above < round(d / frequency_hz) <= up_to))
+
+
+def turning_amplitude(coefficients: np.ndarray, line_harmonics: float, spread: float = 2.0) -> float:
+    """The amplitude of a disturbance line at ``line_harmonics`` times f (x, delta = x - j its distance from the
+    nearest whole harmonic j) that a solved harmonic j's per-period ``coefficients`` (complex, output units, in
+    period order) take in, read from how they turn: a line adds ``b exp(i 2 pi delta m)`` to period m's coefficient
+    (``|b| = h |sin(pi delta)| / (pi |delta|)``, h its amplitude), fitted with a constant as
+    ``a + beta (exp(i 2 pi delta m) - 1) / (i 2 pi delta)``, well posed however little the line turns over the
+    periods (``beta = i 2 pi delta b``), so ``h = |beta| / (2 |sin(pi delta)|)``. ``|beta|`` is taken ``spread``
+    standard errors above its estimate (the scatter about the fit, as the periods' noise), so that noise reads as a
+    line rather than hide one. 0 for fewer than 3 periods or a line on the harmonic itself (it leaks nothing)."""
+    m = coefficients.shape[0]
+    delta = line_harmonics - round(line_harmonics)
+    turn = abs(math.sin(math.pi * delta))
+    if m < 3 or turn == 0.0:
+        return 0.0
+    index = np.arange(m) - 0.5 * (m - 1)
+    # (exp(i 2 pi delta m) - 1) / (i 2 pi delta), exact where delta m is small
+    basis = index * np.sinc(delta * index) * np.exp(1j * math.pi * delta * index)
+    basis = basis - basis.mean()
+    centred = coefficients - coefficients.mean()
+    norm = float(np.vdot(basis, basis).real)
+    beta = complex(np.vdot(basis, centred)) / norm
+    scatter = float(np.sum(np.abs(centred - beta * basis) ** 2)) / (m - 2)
+    return (abs(beta) + spread * math.sqrt(scatter / norm)) / (2.0 * turn)
 
 
 LINE_TURNS = 2.0

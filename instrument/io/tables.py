@@ -461,7 +461,7 @@ class AnalysisConfig:
         "min": 0, "min_exclusive": True, "unique": True,
         "doc": "periodic disturbances on the bench, Hz, each with its 2nd and 3rd harmonic (mains hum): a point "
                "whose measured harmonic lies within its resolution of one is flagged disturbed, and what a line "
-               "near a harmonic above the solved ones leaks into the measured ones is bounded in the interval; "
+               "near a harmonic above the measured ones leaks into them is bounded in the interval; "
                "[] for none "
                "(default: [50] on a real drive; on the simulated drive its hum_hz where it has a hum, else none)"})
     disturbances: str | None = field(default=None, metadata={
