@@ -32,6 +32,7 @@ from bodebench.core.benchgrid import (
     turning_amplitude,
 )
 from bodebench.core.phase_average import PhaseAverage, waveform_fold_bound
+from bodebench.core.response import ResponsePoint
 from bodebench.core.rules import RESOLUTION
 from bodebench.io.config import AnalysisConfig, parse_config
 from bodebench.status import PointStatus
@@ -576,37 +577,51 @@ def test_the_leak_bound_covers_the_leak_of_a_standing_line_into_every_measured_h
         assert line_leak(1.0, x, k, 1) <= 3 * worst[k]
 
 
+HUM_TRUTH = {1: 0.8 - 0.3j, 2: 0.02 + 0.01j, 3: 0.006 + 0.003j}
+"""Harmonics 1..3 of the response the hum tests measure (P + iQ swapped: Q sin + P cos, output units)."""
+
+
+def _hum_at(line_harmonics: float, samples: float, hum: float, eps: float, max_periods: int,
+            turning: tuple[float, ...] = ()) -> dict[bool, dict[int, ResponsePoint]]:
+    """Each harmonic's point, without and with the mains lines (keys False, True), of HUM_TRUTH plus a transient that
+    dies in a few periods and mains hum of amplitude ``hum`` at ``line_harmonics`` times f, sampled at ``samples`` a
+    period from just before t = 0; ``turning``: the lines the sampler is to read from a solved harmonic."""
+    f = 50.0 / line_harmonics
+    rate = samples * f
+    t = np.arange(0, int((max_periods + 10) * samples)) / rate - 0.5 / rate
+    y = sum(z.imag * np.sin(2 * np.pi * k * f * t) + z.real * np.cos(2 * np.pi * k * f * t)
+            for k, z in HUM_TRUTH.items())
+    y = y + hum * np.sin(2 * np.pi * 50.0 * t + 2.0) + np.exp(-np.maximum(t, 0.0) * f / 3) * np.cos(
+        2 * np.pi * 2.3 * f * t)
+    analysis = AnalysisConfig(harmonics=(1, 2, 3), tolerance_percent=eps, max_periods=max_periods)
+    found = {}
+    for lines in ((), disturbance_lines([50.0])):
+        sampler = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=samples,
+                                 disturbance_lines=lines)
+        assert sampler.turning_lines == (turning if lines else ())
+        for start in range(0, t.size, 4096):
+            if sampler.done:
+                break
+            sampler.feed(t[start:start + 4096], y[start:start + 4096, None])
+        found[bool(lines)] = {p.harmonic: p for p in sampler.points()}
+    return found
+
+
 def test_hum_standing_still_against_an_unmeasured_harmonic_is_bounded_not_converged_off_its_tolerance() -> None:
     """Mains at 63.99 times f (0.31 % of the fundamental) on a whole grid of 423 samples a period, a response with
     harmonic 3 at 0.6 % of its fundamental and a transient that dies in a few periods, eps 0.01 %: without the lines
     the point says harmonic 3 converged, more than its tolerance off the truth and outside its interval (the leak
     stands still over the periods it took); with them every point's interval covers the truth, and those
     converged are within their tolerance."""
-    f = 50.0 / 63.99
-    rate = 423 * f
-    truth = {1: 0.8 - 0.3j, 2: 0.02 + 0.01j, 3: 0.006 + 0.003j}
-    t = np.arange(0, int(410 * rate / f)) / rate - 0.5 / rate
-    y = sum(z.imag * np.sin(2 * np.pi * k * f * t) + z.real * np.cos(2 * np.pi * k * f * t) for k, z in truth.items())
-    y = y + 0.0031 * np.sin(2 * np.pi * 50.0 * t + 2.0) + np.exp(-np.maximum(t, 0.0) * f / 3) * np.cos(
-        2 * np.pi * 2.3 * f * t)
-    analysis = AnalysisConfig(harmonics=(1, 2, 3), tolerance_percent=0.01, max_periods=400)
-    found = {}
-    for lines in ((), disturbance_lines([50.0])):
-        sampler = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=rate / f,
-                                 disturbance_lines=lines)
-        for start in range(0, t.size, 4096):
-            if sampler.done:
-                break
-            sampler.feed(t[start:start + 4096], y[start:start + 4096, None])
-        found[bool(lines)] = {p.harmonic: p for p in sampler.points()}
+    found = _hum_at(63.99, 423, 0.0031, 0.01, 400)
     third = found[False][3]
-    error = abs(complex(third.q, third.p) - truth[3])
-    assert third.converged and error > 1e-4 * abs(truth[3]) and error > third.uncertainty
+    error = abs(complex(third.q, third.p) - HUM_TRUTH[3])
+    assert third.converged and error > 1e-4 * abs(HUM_TRUTH[3]) and error > third.uncertainty
     for k, point in found[True].items():
-        error = abs(complex(point.q, point.p) - truth[k])
+        error = abs(complex(point.q, point.p) - HUM_TRUTH[k])
         assert error <= point.uncertainty, (k, error, point.uncertainty, point.status)
         if point.converged:
-            assert error <= 1e-4 * max(abs(truth[k]), RESOLUTION * abs(truth[1]))
+            assert error <= 1e-4 * max(abs(HUM_TRUTH[k]), RESOLUTION * abs(HUM_TRUTH[1]))
 
 
 def test_the_lines_read_from_a_solved_harmonic_are_those_nearest_one_above_the_measured() -> None:
@@ -663,30 +678,13 @@ def test_hum_near_an_unmeasured_solved_harmonic_is_bounded_and_an_early_verdict_
     harmonic 2 says converged after 17 periods, more than twice its tolerance off and outside its interval; with them
     every interval covers the truth, a series that converges is within its tolerance, and harmonic 2, judged again
     each period after that first verdict, converges once the line has turned enough."""
-    f = 50.0 / (4 - 0.005)
-    rate = 61.3 * f
-    truth = {1: 0.8 - 0.3j, 2: 0.02 + 0.01j, 3: 0.006 + 0.003j}
-    t = np.arange(0, int(2010 * rate / f)) / rate - 0.5 / rate
-    y = sum(z.imag * np.sin(2 * np.pi * k * f * t) + z.real * np.cos(2 * np.pi * k * f * t) for k, z in truth.items())
-    y = y + 0.016 * np.sin(2 * np.pi * 50.0 * t + 2.0) + np.exp(-np.maximum(t, 0.0) * f / 3) * np.cos(
-        2 * np.pi * 2.3 * f * t)
-    analysis = AnalysisConfig(harmonics=(1, 2, 3), tolerance_percent=0.1, max_periods=2000)
-    found = {}
-    for lines in ((), disturbance_lines([50.0])):
-        sampler = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=rate / f,
-                                 disturbance_lines=lines)
-        assert sampler.turning_lines == ((50.0, 100.0) if lines else ())  # 100 Hz near harmonic 8
-        for start in range(0, t.size, 4096):
-            if sampler.done:
-                break
-            sampler.feed(t[start:start + 4096], y[start:start + 4096, None])
-        found[bool(lines)] = {p.harmonic: p for p in sampler.points()}
+    found = _hum_at(4 - 0.005, 61.3, 0.016, 0.1, 2000, turning=(50.0, 100.0))  # 100 Hz near harmonic 8
     alone, bounded = found[False][2], found[True][2]
-    error = abs(complex(alone.q, alone.p) - truth[2])
-    assert alone.converged and error > 2e-3 * abs(truth[2]) and error > alone.uncertainty, error
+    error = abs(complex(alone.q, alone.p) - HUM_TRUTH[2])
+    assert alone.converged and error > 2e-3 * abs(HUM_TRUTH[2]) and error > alone.uncertainty, error
     assert bounded.converged and bounded.periods > 10 * alone.periods
     for k, point in found[True].items():
-        error = abs(complex(point.q, point.p) - truth[k])
+        error = abs(complex(point.q, point.p) - HUM_TRUTH[k])
         assert error <= point.uncertainty, (k, error, point.uncertainty, point.status)
         if point.converged:
-            assert error <= 1e-3 * abs(truth[k]), (k, error)
+            assert error <= 1e-3 * abs(HUM_TRUTH[k]), (k, error)

@@ -138,6 +138,21 @@ class SeriesState:
     stop_width: float = math.nan
 
 
+
+def _joined(record: list[np.ndarray]) -> np.ndarray:
+    """The arrays of ``record`` (period first) joined into one, which then stands for them in ``record``."""
+    if len(record) > 1:
+        record[:] = [np.concatenate(record)]
+    return record[0]
+
+
+def _later_half(record: list[np.ndarray], periods: int) -> tuple[np.ndarray, int]:
+    """The later half of the first ``periods`` periods :func:`_joined` ``record`` holds (fewer where it holds fewer),
+    and how many of those it holds."""
+    rows = _joined(record)
+    kept = min(periods, rows.shape[0])
+    return rows[kept // 2: kept], kept
+
 class Autointegrator:
     """Integrates period after period until every series' rule stops or ``max_periods`` is reached.
 
@@ -359,21 +374,14 @@ class Autointegrator:
         solved harmonic nearest it turns."""
         leak = 0.0
         if self._lines:
-            if len(self._lines) > 1:
-                self._lines = [np.concatenate(self._lines)]
-            residuals = self._lines[0]
-            kept = min(periods, residuals.shape[0])
-            half = kept - kept // 2
+            residuals, kept = _later_half(self._lines, periods)
             if kept >= 2:
-                amplitudes = 2.0 * self.frequency_hz * np.abs(residuals[kept - half: kept, c].sum(axis=0)) / half
+                amplitudes = 2.0 * self.frequency_hz * np.abs(residuals[:, c].sum(axis=0)) / residuals.shape[0]
                 leak += sum(line_leak(float(h), d / self.frequency_hz, self.harmonics[k], kept)
                             for h, d in zip(amplitudes.tolist(), self.standing_lines, strict=True))
         if self.turning_lines and self._high:
-            if len(self._high) > 1:
-                self._high = [np.concatenate(self._high)]
-            high = self._high[0]
-            kept = min(periods, high.shape[0])
-            window = high[kept - (kept - kept // 2): kept, c]
+            high, kept = _later_half(self._high, periods)
+            window = high[:, c]
             orders = self._integrator.high_harmonics  # type: ignore[union-attr]
             for d in self.turning_lines:
                 x = d / self.frequency_hz
@@ -399,9 +407,7 @@ class Autointegrator:
         phase."""
         if not self._high_count or not self._high:
             return 0.0, True
-        if len(self._high) > 1:
-            self._high = [np.concatenate(self._high)]  # (period, channel, harmonic above)
-        high = self._high[0]
+        high = _joined(self._high)  # (period, channel, harmonic above)
         periods = min(periods, high.shape[0])
         quarter = periods // 4
         if quarter < 2:
