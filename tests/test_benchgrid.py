@@ -624,21 +624,25 @@ def test_hum_standing_still_against_an_unmeasured_harmonic_is_bounded_not_conver
             assert error <= 1e-4 * max(abs(HUM_TRUTH[k]), RESOLUTION * abs(HUM_TRUTH[1]))
 
 
-def test_the_lines_read_from_a_solved_harmonic_are_those_nearest_one_above_the_measured() -> None:
+def test_the_lines_read_from_a_solved_harmonic_are_those_nearest_one_not_measured() -> None:
     """At 10 Hz with harmonics 1..3 measured and 1..8 solved, 50 Hz lies on harmonic 5 and 100 Hz on 10 (beyond);
     at 20 Hz 150 Hz folds (at 200 Hz) to 50 Hz, harmonic 2.5: nearest 2 (measured, rounded half to even) and is not
-    read there; 60 Hz at 9.99 Hz is harmonic 6.006."""
-    assert lines_on_fit((50.0, 100.0, 150.0), 10.0, 1000.0, 3, 8) == (50.0,)
-    assert lines_on_fit((150.0,), 20.0, 10.0, 3, 8) == ()
-    assert lines_on_fit((60.0, 120.0, 180.0), 9.99, 300.0, 3, 8) == (60.0,)
-    assert lines_on_fit((50.0,), 10.0, 1000.0, 5, 5) == ()  # nothing solved above the measured
+    read there; 60 Hz at 9.99 Hz is harmonic 6.006; with harmonics 1 and 3 measured, 50 Hz at 24.95 Hz lies near
+    harmonic 2, solved between them."""
+    assert lines_on_fit((50.0, 100.0, 150.0), 10.0, 1000.0, (1, 2, 3), 8) == (50.0,)
+    assert lines_on_fit((150.0,), 20.0, 10.0, (1, 2, 3), 8) == ()
+    assert lines_on_fit((60.0, 120.0, 180.0), 9.99, 300.0, (1, 2, 3), 8) == (60.0,)
+    assert lines_on_fit((50.0,), 10.0, 1000.0, (1, 2, 3, 4, 5), 5) == ()  # nothing solved but the measured
+    assert lines_on_fit((50.0, 100.0, 150.0), 24.95, 1000.0, (1, 3), 8) == (50.0, 100.0, 150.0)  # near 2, 4, 6
 
 
-@pytest.mark.parametrize("j, delta", [(5, 0.004), (4, -0.0019), (8, 0.03), (6, -0.012)])
+@pytest.mark.parametrize("j, delta, measured", [(5, 0.004, (1, 2, 3)), (4, -0.0019, (1, 2, 3)), (8, 0.03, (1, 2, 3)),
+                                                (6, -0.012, (1, 2, 3)), (2, 0.006, (1, 3))])
 def test_a_line_near_a_solved_harmonic_is_read_from_how_that_harmonic_turns_and_its_leak_bounded(
-        j: int, delta: float) -> None:
+        j: int, delta: float, measured: tuple[int, ...]) -> None:
     """A line of amplitude 0.02 at (j + delta) f beside harmonics 1..3, an offset and a drift, on a grid of 97.3
-    samples a period, through the bench's integrator (harmonics solved up to 8): the amplitude read from harmonic j's
+    samples a period, through the bench's integrator (harmonics solved up to 8, ``measured`` measured: j above them
+    or between them): the amplitude read from harmonic j's
     coefficients is the line's to 2 % (with 1 % white noise on the samples, within 25 % and never below), and the
     average of every number of periods n of each measured harmonic is off the truth by at most
     :func:`line_leak` of that amplitude read over the later half of the n periods."""
@@ -653,10 +657,10 @@ def test_a_line_near_a_solved_harmonic_is_read_from_how_that_harmonic_turns_and_
                 for k, z in truth.items()) + 0.1 + 0.002 * t + h * np.sin(2 * np.pi * x * f * t + 0.7)
     for noise in (0.0, 0.01):
         y = clean + noise * np.random.default_rng(j).standard_normal(t.size)
-        integrator = ExactPeriodIntegrator(f, (1, 2, 3), 1, 0.0, fit_order=8)
+        integrator = ExactPeriodIntegrator(f, measured, 1, 0.0, fit_order=8)
         p, q = integrator.feed(t, y[:, None])
         z = p[:, 0] + 1j * q[:, 0]
-        high = integrator.high[:, 0, integrator.high_harmonics.index(j)]
+        high = integrator.unmeasured[:, 0, integrator.unmeasured_harmonics.index(j)]
         read = turning_amplitude(high[-(high.size // 2):], x, spread=0.0)
         if noise:
             assert h <= turning_amplitude(high[-(high.size // 2):], x) <= 1.25 * h
@@ -665,7 +669,7 @@ def test_a_line_near_a_solved_harmonic_is_read_from_how_that_harmonic_turns_and_
         means = np.cumsum(z, axis=0) / np.arange(1, z.shape[0] + 1)[:, None]
         for n in range(6, z.shape[0] + 1):  # the later half of 6 periods or more: 3 or more, as any verdict takes
             amplitude = turning_amplitude(high[n - (n - n // 2):n], x)
-            for i, k in enumerate((1, 2, 3)):
+            for i, k in enumerate(measured):
                 error = abs(means[n - 1, i] - truth[k])
                 if n * abs(delta) < LINE_TURNS:
                     assert error <= line_leak(amplitude, x, k, n) * (1 + 1e-6) + 1e-12, (n, k, error)

@@ -227,7 +227,7 @@ class Autointegrator:
         """The disturbance lines (Hz, as the samples see them) nearest a whole harmonic above the solved ones, whose
         leak :func:`~bodebench.core.benchgrid.line_leak` bounds."""
         self.turning_lines: tuple[float, ...] = () if grid_steps_per_period else \
-            lines_on_fit(disturbance_lines, frequency_hz, samples_per_period, max(harmonics), fit_order)
+            lines_on_fit(disturbance_lines, frequency_hz, samples_per_period, harmonics, fit_order)
         """The disturbance lines (Hz, as the samples see them) nearest a whole harmonic each period is solved for but
         not measured, whose leak :func:`~bodebench.core.benchgrid.line_leak` bounds with the amplitude
         :func:`~bodebench.core.benchgrid.turning_amplitude` reads from that harmonic's coefficients."""
@@ -242,14 +242,14 @@ class Autointegrator:
         """The power j**-d the output's harmonics are taken to fall at least as fast as in the tail the averaged
         waveform shows (harmonics N/4 to N/2 on a whole grid); the bound from the solved harmonics, up to 8, which
         need not be in the tail yet, extends them as j**-2."""
-        # each whole period's coefficients of the harmonics above the measured ones, (channel, harmonic), while a
-        # rule is open
-        self._high: list[np.ndarray] = []
+        # each whole period's coefficients of the harmonics solved but not measured (the integrator's
+        # unmeasured_harmonics), (channel, harmonic), while a rule is open
+        self._unmeasured: list[np.ndarray] = []
         # each whole period's residual at each standing line, (channel, line), while a rule is open
         self._lines: list[np.ndarray] = []
         self._high_count = len(getattr(self._integrator, "high_harmonics", ())) \
             if analysis.fold_policy == "bound" else 0
-        self._keep_high = bool(self._high_count or self.turning_lines)
+        self._keep_unmeasured = bool(self._high_count or self.turning_lines)
         # on a grid of a whole number of samples a period, the waveform averaged phase by phase, for a closer bound
         self._phase = PhaseAverage(frequency_hz, t0, samples_per_period, columns, self.max_periods) \
             if self._high_count and grid_stands_still(samples_per_period, max(harmonics)) else None
@@ -309,8 +309,8 @@ class Autointegrator:
             drift = self._integrator.drift[whole, : len(self.channels)]
             self._drift_sum += drift.sum(axis=0)
             self._drift_periods += drift.shape[0]
-            if self._keep_high:
-                self._take_high(self._integrator.high, p, q, whole)
+            if self._keep_unmeasured:
+                self._take_unmeasured(self._integrator.unmeasured, p, q, whole)
             if self.standing_lines:
                 self._take_lines(self._integrator.lines, p, q, whole)
         if m <= _FEW_PERIODS and self.reference is None and all(whole.tolist()):
@@ -335,17 +335,17 @@ class Autointegrator:
         self._integrate(p, q)
         return m
 
-    def _take_high(self, high: np.ndarray, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> None:
-        """Keep the whole periods' coefficients of the harmonics above the measured ones (high: (m, columns, n)); in
-        two-channel mode relative to each period's reference fundamental, as the measured ones."""
-        z = high[:, : len(self.channels)]
+    def _take_unmeasured(self, unmeasured: np.ndarray, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> None:
+        """Keep the whole periods' coefficients of the harmonics solved but not measured (unmeasured: (m, columns,
+        n)); in two-channel mode relative to each period's reference fundamental, as the measured ones."""
+        z = unmeasured[:, : len(self.channels)]
         if self.reference is not None:
             with np.errstate(all="ignore"):
                 z = self._relative_to_reference(z, p[:, -1, self._ref_index] + 1j * q[:, -1, self._ref_index],
-                                                self._integrator.high_harmonics)  # type: ignore[union-attr]
+                                                self._integrator.unmeasured_harmonics)  # type: ignore[union-attr]
         keep = whole & np.isfinite(z).all(axis=(1, 2)) & (np.abs(z) <= MAX_COEFFICIENT).all(axis=(1, 2))
         if keep.any():
-            self._high.append(z[keep])
+            self._unmeasured.append(z[keep])
 
     def _take_lines(self, lines: np.ndarray, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> None:
         """Keep the whole periods' residuals at the standing lines (lines: (m, columns, line)); in two-channel mode
@@ -379,10 +379,10 @@ class Autointegrator:
                 amplitudes = 2.0 * self.frequency_hz * np.abs(residuals[:, c].sum(axis=0)) / residuals.shape[0]
                 leak += sum(line_leak(float(h), d / self.frequency_hz, self.harmonics[k], kept)
                             for h, d in zip(amplitudes.tolist(), self.standing_lines, strict=True))
-        if self.turning_lines and self._high:
-            high, kept = _later_half(self._high, periods)
-            window = high[:, c]
-            orders = self._integrator.high_harmonics  # type: ignore[union-attr]
+        if self.turning_lines and self._unmeasured:
+            unmeasured, kept = _later_half(self._unmeasured, periods)
+            window = unmeasured[:, c]
+            orders = self._integrator.unmeasured_harmonics  # type: ignore[union-attr]
             for d in self.turning_lines:
                 x = d / self.frequency_hz
                 amplitude = turning_amplitude(window[:, orders.index(round(x))], x)
@@ -405,9 +405,10 @@ class Autointegrator:
         mean differs from the previous quarter's by less than half its size. On a whole grid, the smaller of that
         bound and :func:`~bodebench.core.phase_average.waveform_fold_bound` of the waveform averaged phase by
         phase."""
-        if not self._high_count or not self._high:
+        if not self._high_count or not self._unmeasured:
             return 0.0, True
-        high = _joined(self._high)  # (period, channel, harmonic above)
+        unmeasured = _joined(self._unmeasured)
+        high = unmeasured[:, :, unmeasured.shape[2] - self._high_count:]  # (period, channel, harmonic above)
         periods = min(periods, high.shape[0])
         quarter = periods // 4
         if quarter < 2:
@@ -554,7 +555,7 @@ class Autointegrator:
                         self._pending -= 1
                         led[c] = True
                         converged = converged or verdict.converged
-            if converged and (self._high or self._lines):
+            if converged and (self._unmeasured or self._lines):
                 self._reopen_for_folds(n, scales[i])
             if self.discarded and (self._pending == 0 or n + self.discarded >= max_periods):
                 self._judge_gaps(n)

@@ -68,13 +68,14 @@ def lines_beyond_fit(lines: Sequence[float], frequency_hz: float, samples_per_pe
     return lines_near(lines, frequency_hz, samples_per_period, solved, math.inf)
 
 
-def lines_on_fit(lines: Sequence[float], frequency_hz: float, samples_per_period: float, measured: int, solved: int
-                 ) -> tuple[float, ...]:
+def lines_on_fit(lines: Sequence[float], frequency_hz: float, samples_per_period: float, measured: Sequence[int],
+                 solved: int) -> tuple[float, ...]:
     """The disturbance ``lines`` (Hz, as the samples see them) nearest a whole harmonic j of f that each period is
-    solved for but not measured (``measured < j <= solved``): the solve takes such a line into harmonic j's
-    coefficient, which turns with it, and :func:`line_leak` bounds what it leaks into the measured ones, its
-    amplitude read by :func:`turning_amplitude`."""
-    return lines_near(lines, frequency_hz, samples_per_period, measured, solved)
+    solved for (1 .. ``solved``) but not ``measured``: the solve takes such a line into harmonic j's coefficient,
+    which turns with it, and :func:`line_leak` bounds what it leaks into the measured ones, its amplitude read by
+    :func:`turning_amplitude`."""
+    return tuple(d for d in lines_near(lines, frequency_hz, samples_per_period, 0, solved)
+                 if round(d / frequency_hz) not in measured)
 
 
 def lines_near(lines: Sequence[float], frequency_hz: float, samples_per_period: float, above: float, up_to: float

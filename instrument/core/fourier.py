@@ -466,11 +466,18 @@ class ExactPeriodIntegrator:
         self.high_harmonics: tuple[int, ...] = tuple(range(max(self.harmonics) + 1, self.fit_order + 1))
         """The harmonics above the measured ones that the basis holds (K + 1 .. K'), whose coefficients go to
         ``high``."""
-        self.high: np.ndarray = np.zeros((0, n_channels, len(self.high_harmonics)), dtype=complex)
-        """(m, n_channels, len(high_harmonics)) each period's coefficients of the harmonics above the measured ones,
-        of the last call's output (channel units)."""
+        self.unmeasured_harmonics: tuple[int, ...] = tuple(j for j in range(1, self.fit_order + 1)
+                                                           if j not in self.harmonics)
+        """Every harmonic the basis holds that is not measured (those between the measured ones, then
+        ``high_harmonics``), whose coefficients go to ``unmeasured``."""
+        self.unmeasured: np.ndarray = np.zeros((0, n_channels, len(self.unmeasured_harmonics)), dtype=complex)
+        """(m, n_channels, len(unmeasured_harmonics)) each period's coefficients of the harmonics solved but not
+        measured, of the last call's output (channel units; NaN above the measured ones where a period is solved for
+        those up to the highest measured alone)."""
+        self.high: np.ndarray = self.unmeasured[:, :, len(self.unmeasured_harmonics) - len(self.high_harmonics):]
+        """(m, n_channels, len(high_harmonics)) the columns of ``unmeasured`` above the measured harmonics."""
         k = self.fit_order
-        out = (*self.harmonics, *self.high_harmonics)
+        out = (*self.harmonics, *self.unmeasured_harmonics)
         self._basis_size = 2 * k + 1
         # columns: the channels, the ramp (t - t0') f, then the basis; made once t0' (the first sample at or after
         # t0) is known, the samples before it held meanwhile
@@ -522,10 +529,10 @@ class ExactPeriodIntegrator:
             t_arr, y_arr = self._until_start(t_arr, y_arr)
         assert self._moments is not None or t_arr.shape[0] == 0
         nc = self.n_channels
-        n_out = len(self.harmonics) + len(self.high_harmonics)
+        n_out = len(self.harmonics) + len(self.unmeasured_harmonics)
         if self._moments is None:
             self.drift = np.zeros((0, nc))
-            self.high = np.zeros((0, nc, len(self.high_harmonics)), dtype=complex)
+            self._keep_unmeasured(np.zeros((0, nc, len(self.unmeasured_harmonics)), dtype=complex))
             shape = (0, nc, len(self.harmonics))
             return np.zeros(shape), np.zeros(shape), np.zeros(0, dtype=bool)
         columns = np.concatenate((y_arr, self._ramp_and_basis(t_arr)), axis=1) if t_arr.ndim == 1 else y_arr
@@ -612,13 +619,18 @@ class ExactPeriodIntegrator:
         return np.linalg.solve(a, b), resolved
 
     def _split(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The measured harmonics' coefficients returned, those above them kept in ``high``, the lines' residuals
-        in ``lines``."""
+        """The measured harmonics' coefficients returned, the others solved kept in ``unmeasured`` (those above the
+        measured ones in ``high``), the lines' residuals in ``lines``."""
         n = len(self.harmonics)
-        top = n + len(self.high_harmonics)
-        self.high = p[:, :, n:top] + 1j * q[:, :, n:top]
+        top = n + len(self.unmeasured_harmonics)
+        self._keep_unmeasured(p[:, :, n:top] + 1j * q[:, :, n:top])
         self.lines = p[:, :, top:] + 1j * q[:, :, top:]
         return np.ascontiguousarray(p[:, :, :n]), np.ascontiguousarray(q[:, :, :n]), whole
+
+    def _keep_unmeasured(self, unmeasured: np.ndarray) -> None:
+        """``unmeasured`` (period, channel, unmeasured harmonic) kept, ``high`` its columns above the measured ones."""
+        self.unmeasured = unmeasured
+        self.high = unmeasured[:, :, len(self.unmeasured_harmonics) - len(self.high_harmonics):]
 
     def _release(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray, means: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
