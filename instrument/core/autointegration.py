@@ -371,22 +371,25 @@ class Autointegrator:
     def _line_leak(self, c: int, k: int, periods: int) -> float:
         """The leak bound on series (channel c, harmonic index k) after ``periods`` periods, each line's amplitude
         read over the later half of them: a standing line's from its residual, a turning line's from how the
-        solved harmonic nearest it turns."""
+        solved harmonic nearest it turns. The bound is the one on a mean of the fewest periods a rule's value
+        averages: the later half of those after the skipped ones (the default rule's settled mean takes the last
+        half or three quarters)."""
         leak = 0.0
+        averaged = max(1, (periods - self.skip_periods) // 2)
         if self._lines:
             residuals, kept = _later_half(self._lines, periods)
             if kept >= 2:
                 amplitudes = 2.0 * self.frequency_hz * np.abs(residuals[:, c].sum(axis=0)) / residuals.shape[0]
-                leak += sum(line_leak(float(h), d / self.frequency_hz, self.harmonics[k], kept)
+                leak += sum(line_leak(float(h), d / self.frequency_hz, self.harmonics[k], averaged)
                             for h, d in zip(amplitudes.tolist(), self.standing_lines, strict=True))
         if self.turning_lines and self._unmeasured:
-            unmeasured, kept = _later_half(self._unmeasured, periods)
+            unmeasured, _ = _later_half(self._unmeasured, periods)
             window = unmeasured[:, c]
             orders = self._integrator.unmeasured_harmonics  # type: ignore[union-attr]
             for d in self.turning_lines:
                 x = d / self.frequency_hz
                 amplitude = turning_amplitude(window[:, orders.index(round(x))], x)
-                leak += line_leak(amplitude, x, self.harmonics[k], kept)
+                leak += line_leak(amplitude, x, self.harmonics[k], averaged)
         return leak
 
     def fold_bounds(self) -> np.ndarray:
