@@ -27,6 +27,7 @@ from bodebench.core.benchgrid import (
     line_leak,
     lines_beyond_fit,
     lines_on_fit,
+    lines_on_harmonics,
     move_off_disturbances,
     move_off_folds,
     turning_amplitude,
@@ -634,6 +635,7 @@ def test_the_lines_read_from_a_solved_harmonic_are_those_nearest_one_not_measure
     assert lines_on_fit((60.0, 120.0, 180.0), 9.99, 300.0, (1, 2, 3), 8) == (60.0,)
     assert lines_on_fit((50.0,), 10.0, 1000.0, (1, 2, 3, 4, 5), 5) == ()  # nothing solved but the measured
     assert lines_on_fit((50.0, 100.0, 150.0), 24.95, 1000.0, (1, 3), 8) == (50.0, 100.0, 150.0)  # near 2, 4, 6
+    assert lines_on_harmonics((50.0, 100.0, 150.0), 24.95, 1000.0, (1, 2, 3)) == (50.0,)  # on measured harmonic 2
 
 
 @pytest.mark.parametrize("j, delta, measured", [(5, 0.004, (1, 2, 3)), (4, -0.0019, (1, 2, 3)), (8, 0.03, (1, 2, 3)),
@@ -696,3 +698,18 @@ def test_hum_near_an_unmeasured_solved_harmonic_is_bounded_and_an_early_verdict_
         assert error <= point.uncertainty, (k, error, point.uncertainty, point.status)
         if point.converged:
             assert error <= 1e-3 * abs(HUM_TRUTH[k]), (k, error)
+
+
+def test_hum_just_off_a_measured_harmonic_is_read_there_and_its_leak_into_the_others_bounded() -> None:
+    """Mains at 2.003 times f (3 % of the fundamental) on a grid of 61.3 samples a period, eps 0.01 %: the line lies
+    on measured harmonic 2 (whose own point it disturbs) and leaks into harmonic 1 a near-constant over the 17
+    periods a first verdict takes. Without the lines harmonic 1 says converged more than its tolerance off and
+    outside its interval; with them the line is read from how harmonic 2 turns, and harmonic 1 converges within its
+    tolerance, its interval covering the truth, once the line has turned enough."""
+    found = _hum_at(2.003, 61.3, 0.03, 0.01, 2000, turning=(100.0, 150.0))  # 100 and 150 Hz near 4 and 6
+    alone, bounded = found[False][1], found[True][1]
+    tolerance = 1e-4 * abs(HUM_TRUTH[1])
+    error = abs(complex(alone.q, alone.p) - HUM_TRUTH[1])
+    assert alone.converged and error > tolerance and error > alone.uncertainty, error
+    error = abs(complex(bounded.q, bounded.p) - HUM_TRUTH[1])
+    assert bounded.converged and error <= min(tolerance, bounded.uncertainty) and bounded.periods > 10 * alone.periods

@@ -26,6 +26,7 @@ from bodebench.core.benchgrid import (
     line_leak,
     lines_beyond_fit,
     lines_on_fit,
+    lines_on_harmonics,
     turning_amplitude,
 )
 from bodebench.core.fourier import ExactPeriodIntegrator, GridPeriodIntegrator
@@ -231,6 +232,11 @@ class Autointegrator:
         """The disturbance lines (Hz, as the samples see them) nearest a whole harmonic each period is solved for but
         not measured, whose leak :func:`~bodebench.core.benchgrid.line_leak` bounds with the amplitude
         :func:`~bodebench.core.benchgrid.turning_amplitude` reads from that harmonic's coefficients."""
+        self.measured_lines: tuple[float, ...] = () if grid_steps_per_period else \
+            lines_on_harmonics(disturbance_lines, frequency_hz, samples_per_period, harmonics)
+        """The disturbance lines (Hz, as the samples see them) nearest a measured harmonic, whose leak into the other
+        measured harmonics :func:`~bodebench.core.benchgrid.line_leak` bounds with the amplitude
+        :func:`~bodebench.core.benchgrid.turning_amplitude` reads from that harmonic's own coefficients."""
         self._integrator = (
             GridPeriodIntegrator(frequency_hz, harmonics, columns, grid_steps_per_period, t0)
             if grid_steps_per_period else
@@ -390,6 +396,13 @@ class Autointegrator:
                 x = d / self.frequency_hz
                 amplitude = turning_amplitude(window[:, orders.index(round(x))], x)
                 leak += line_leak(amplitude, x, self.harmonics[k], averaged)
+        for d in self.measured_lines:
+            x = d / self.frequency_hz
+            on = self.harmonics.index(round(x))
+            if on != k:  # on its own harmonic the line is flag_disturbed's
+                values = self._histories[c][on].values[:periods]
+                amplitude = turning_amplitude(values[values.shape[0] // 2:], x)
+                leak += line_leak(amplitude, x, self.harmonics[k], averaged)
         return leak
 
     def fold_bounds(self) -> np.ndarray:
@@ -439,7 +452,8 @@ class Autointegrator:
         and the fold bound alone leaves room (the leak falls as the line turns). Reopened, to be judged again with
         the next period, until it fits, the fold bound alone exceeds the tolerance with that content settled (it ends
         ``alias_limited``), or the period budget ends."""
-        if n >= self.max_periods or not (self._high_count or self.standing_lines or self.turning_lines):
+        if n >= self.max_periods or not (self._high_count or self.standing_lines or self.turning_lines
+                                         or self.measured_lines):
             return
         for c, verdicts in enumerate(self._verdicts):
             for k, v in enumerate(verdicts):
@@ -558,7 +572,7 @@ class Autointegrator:
                         self._pending -= 1
                         led[c] = True
                         converged = converged or verdict.converged
-            if converged and (self._unmeasured or self._lines):
+            if converged and (self._unmeasured or self._lines or self.measured_lines):
                 self._reopen_for_folds(n, scales[i])
             if self.discarded and (self._pending == 0 or n + self.discarded >= max_periods):
                 self._judge_gaps(n)

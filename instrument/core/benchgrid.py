@@ -40,6 +40,7 @@ from bodebench.status import PointStatus
 __all__ = ["DISTURBANCE_HARMONICS", "FIT_ORDER_MAX", "FOLD_IMAGES", "FOLD_ORDER", "FOLD_TURN", "LINE_TURNS",
            "MIN_BEAT_PERIODS", "alias_fit_order", "disturbance_lines", "flag_disturbed", "fold_beat", "fold_bound",
            "folding_harmonic", "folding_notes", "line_leak", "lines_beyond_fit", "lines_near", "lines_on_fit",
+           "lines_on_harmonics",
            "mark_untied", "move_off_disturbances", "move_off_folds", "nearest_line", "turning_amplitude"]
 
 DISTURBANCE_HARMONICS = 3
@@ -74,8 +75,18 @@ def lines_on_fit(lines: Sequence[float], frequency_hz: float, samples_per_period
     solved for (1 .. ``solved``) but not ``measured``: the solve takes such a line into harmonic j's coefficient,
     which turns with it, and :func:`line_leak` bounds what it leaks into the measured ones, its amplitude read by
     :func:`turning_amplitude`."""
-    return tuple(d for d in lines_near(lines, frequency_hz, samples_per_period, 0, solved)
-                 if round(d / frequency_hz) not in measured)
+    return lines_on_harmonics(lines, frequency_hz, samples_per_period,
+                              [j for j in range(1, solved + 1) if j not in measured])
+
+
+def lines_on_harmonics(lines: Sequence[float], frequency_hz: float, samples_per_period: float,
+                       harmonics: Sequence[int]) -> tuple[float, ...]:
+    """The disturbance ``lines`` (Hz, as the samples see them) whose nearest whole harmonic of f is one of
+    ``harmonics``: on a measured one, the line turns that harmonic's own per-period coefficients, which
+    :func:`turning_amplitude` reads it from, and :func:`line_leak` bounds what it leaks into the other measured
+    ones (the harmonic it lies on is :func:`flag_disturbed`'s)."""
+    return tuple(d for d in lines_near(lines, frequency_hz, samples_per_period, 0, max(harmonics, default=0))
+                 if round(d / frequency_hz) in harmonics)
 
 
 def lines_near(lines: Sequence[float], frequency_hz: float, samples_per_period: float, above: float, up_to: float
