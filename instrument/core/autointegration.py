@@ -191,8 +191,9 @@ class Autointegrator:
     ``h sin(pi delta) / (pi |d/f - k|)`` a period (h its amplitude, delta = d/f - j), turning delta cycles a period:
     until it has turned a couple of times over the n periods averaged (n |delta| small) that leak is nearly the same
     every period and no spread shows it. Its amplitude is read from the record: beyond the solved harmonics, from
-    what each period's solved harmonics leave at d (:class:`~bodebench.core.fourier.ExactPeriodIntegrator`); on a
-    solved harmonic j, from how j's coefficient turns (:func:`~bodebench.core.benchgrid.turning_amplitude`). The leak
+    what each period's solved harmonics leave at d (:class:`~bodebench.core.fourier.ExactPeriodIntegrator`); nearest
+    a solved harmonic j, measured or not, from how j's coefficient turns
+    (:func:`~bodebench.core.benchgrid.turning_amplitude`; a measured j's own point is ``flag_disturbed``'s). The leak
     is bounded by :func:`~bodebench.core.benchgrid.line_leak` and added to the interval like the fold bound; a series
     whose verdict it pushes past its tolerance is judged again with each period while the line turns, and ends
     ``disturbed`` where the periods run out first.
