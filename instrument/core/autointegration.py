@@ -14,7 +14,7 @@ stopped and at every period once the periods spanned reach ``max_periods``.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -139,7 +139,6 @@ class SeriesState:
     stop_width: float = math.nan
 
 
-
 def _joined(record: list[np.ndarray]) -> np.ndarray:
     """The arrays of ``record`` (period first) joined into one, which then stands for them in ``record``."""
     if len(record) > 1:
@@ -147,12 +146,11 @@ def _joined(record: list[np.ndarray]) -> np.ndarray:
     return record[0]
 
 
-def _later_half(record: list[np.ndarray], periods: int) -> tuple[np.ndarray, int]:
-    """The later half of the first ``periods`` periods :func:`_joined` ``record`` holds (fewer where it holds fewer),
-    and how many of those it holds."""
-    rows = _joined(record)
+def _later_half(rows: np.ndarray, periods: int) -> np.ndarray:
+    """The later half of the first ``periods`` of ``rows`` (period first; of all of them where it holds fewer)."""
     kept = min(periods, rows.shape[0])
-    return rows[kept // 2: kept], kept
+    return rows[kept // 2: kept]
+
 
 class Autointegrator:
     """Integrates period after period until every series' rule stops or ``max_periods`` is reached.
@@ -257,6 +255,8 @@ class Autointegrator:
         self._high_count = len(getattr(self._integrator, "high_harmonics", ())) \
             if analysis.fold_policy == "bound" else 0
         self._keep_unmeasured = bool(self._high_count or self.turning_lines)
+        # whether a converged series can carry a systematic bound (a fold, a line's leak) to be checked against
+        self._systematic = bool(self._high_count or self.standing_lines or self.turning_lines or self.measured_lines)
         # on a grid of a whole number of samples a period, the waveform averaged phase by phase, for a closer bound
         self._phase = PhaseAverage(frequency_hz, t0, samples_per_period, columns, self.max_periods) \
             if self._high_count and grid_stands_still(samples_per_period, max(harmonics)) else None
@@ -384,27 +384,32 @@ class Autointegrator:
         leak = 0.0
         averaged = max(1, (periods - self.skip_periods) // 2)
         if self._lines:
-            residuals, kept = _later_half(self._lines, periods)
-            if kept >= 2:
+            rows = _joined(self._lines)
+            if min(periods, rows.shape[0]) >= 2:
+                residuals = _later_half(rows, periods)
                 amplitudes = 2.0 * self.frequency_hz * np.abs(residuals[:, c].sum(axis=0)) / residuals.shape[0]
                 leak += sum(line_leak(float(h), d / self.frequency_hz, self.harmonics[k], averaged)
                             for h, d in zip(amplitudes.tolist(), self.standing_lines, strict=True))
+        for x, coefficients in self._turning(c, k, periods):
+            leak += line_leak(turning_amplitude(coefficients, x), x, self.harmonics[k], averaged)
+        return leak
+
+    def _turning(self, c: int, k: int, periods: int) -> Iterator[tuple[float, np.ndarray]]:
+        """Each line a solved harmonic of channel c takes in (x: its frequency in harmonics of f), with that
+        harmonic's coefficients over the later half of ``periods`` periods: the unmeasured one's nearest each turning
+        line, the measured one's nearest each measured line other than series k's own (there the line is
+        ``flag_disturbed``'s)."""
         if self.turning_lines and self._unmeasured:
-            unmeasured, _ = _later_half(self._unmeasured, periods)
-            window = unmeasured[:, c]
+            window = _later_half(_joined(self._unmeasured), periods)[:, c]
             orders = self._integrator.unmeasured_harmonics  # type: ignore[union-attr]
             for d in self.turning_lines:
                 x = d / self.frequency_hz
-                amplitude = turning_amplitude(window[:, orders.index(round(x))], x)
-                leak += line_leak(amplitude, x, self.harmonics[k], averaged)
+                yield x, window[:, orders.index(round(x))]
         for d in self.measured_lines:
             x = d / self.frequency_hz
             on = self.harmonics.index(round(x))
-            if on != k:  # on its own harmonic the line is flag_disturbed's
-                values = self._histories[c][on].values[:periods]
-                amplitude = turning_amplitude(values[values.shape[0] // 2:], x)
-                leak += line_leak(amplitude, x, self.harmonics[k], averaged)
-        return leak
+            if on != k:
+                yield x, _later_half(self._histories[c][on].values, periods)
 
     def fold_bounds(self) -> np.ndarray:
         """(channels, harmonics) the bound :func:`~bodebench.core.benchgrid.fold_bound` puts on what the sample rate
@@ -453,8 +458,7 @@ class Autointegrator:
         and the fold bound alone leaves room (the leak falls as the line turns). Reopened, to be judged again with
         the next period, until it fits, the fold bound alone exceeds the tolerance with that content settled (it ends
         ``alias_limited``), or the period budget ends."""
-        if n >= self.max_periods or not (self._high_count or self.standing_lines or self.turning_lines
-                                         or self.measured_lines):
+        if n >= self.max_periods:
             return
         for c, verdicts in enumerate(self._verdicts):
             for k, v in enumerate(verdicts):
@@ -573,7 +577,7 @@ class Autointegrator:
                         self._pending -= 1
                         led[c] = True
                         converged = converged or verdict.converged
-            if converged and (self._unmeasured or self._lines or self.measured_lines):
+            if converged and self._systematic:
                 self._reopen_for_folds(n, scales[i])
             if self.discarded and (self._pending == 0 or n + self.discarded >= max_periods):
                 self._judge_gaps(n)

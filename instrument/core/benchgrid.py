@@ -40,8 +40,8 @@ from bodebench.status import PointStatus
 __all__ = ["DISTURBANCE_HARMONICS", "FIT_ORDER_MAX", "FOLD_IMAGES", "FOLD_ORDER", "FOLD_TURN", "LINE_TURNS",
            "MIN_BEAT_PERIODS", "alias_fit_order", "disturbance_lines", "flag_disturbed", "fold_beat", "fold_bound",
            "folding_harmonic", "folding_notes", "line_leak", "lines_beyond_fit", "lines_near", "lines_on_fit",
-           "lines_on_harmonics",
-           "mark_untied", "move_off_disturbances", "move_off_folds", "nearest_line", "turning_amplitude"]
+           "lines_on_harmonics", "mark_untied", "move_off_disturbances", "move_off_folds", "nearest_line",
+           "turning_amplitude"]
 
 DISTURBANCE_HARMONICS = 3
 """Each listed disturbance frequency counts with its harmonics up to this one (mains: 50, 100, 150 Hz)."""

@@ -474,8 +474,6 @@ class ExactPeriodIntegrator:
         """(m, n_channels, len(unmeasured_harmonics)) each period's coefficients of the harmonics solved but not
         measured, of the last call's output (channel units; NaN above the measured ones where a period is solved for
         those up to the highest measured alone)."""
-        self.high: np.ndarray = self.unmeasured[:, :, len(self.unmeasured_harmonics) - len(self.high_harmonics):]
-        """(m, n_channels, len(high_harmonics)) the columns of ``unmeasured`` above the measured harmonics."""
         k = self.fit_order
         out = (*self.harmonics, *self.unmeasured_harmonics)
         self._basis_size = 2 * k + 1
@@ -505,6 +503,11 @@ class ExactPeriodIntegrator:
         self._line_t_last = math.nan  # the time of the last sample summed
 
     @property
+    def high(self) -> np.ndarray:
+        """(m, n_channels, len(high_harmonics)) the columns of ``unmeasured`` above the measured harmonics."""
+        return self.unmeasured[:, :, len(self.unmeasured_harmonics) - len(self.high_harmonics):]
+
+    @property
     def periods_done(self) -> int:
         """Number of complete periods emitted so far."""
         return self._emitted
@@ -532,7 +535,7 @@ class ExactPeriodIntegrator:
         n_out = len(self.harmonics) + len(self.unmeasured_harmonics)
         if self._moments is None:
             self.drift = np.zeros((0, nc))
-            self._keep_unmeasured(np.zeros((0, nc, len(self.unmeasured_harmonics)), dtype=complex))
+            self.unmeasured = np.zeros((0, nc, len(self.unmeasured_harmonics)), dtype=complex)
             shape = (0, nc, len(self.harmonics))
             return np.zeros(shape), np.zeros(shape), np.zeros(0, dtype=bool)
         columns = np.concatenate((y_arr, self._ramp_and_basis(t_arr)), axis=1) if t_arr.ndim == 1 else y_arr
@@ -623,14 +626,9 @@ class ExactPeriodIntegrator:
         measured ones in ``high``), the lines' residuals in ``lines``."""
         n = len(self.harmonics)
         top = n + len(self.unmeasured_harmonics)
-        self._keep_unmeasured(p[:, :, n:top] + 1j * q[:, :, n:top])
+        self.unmeasured = p[:, :, n:top] + 1j * q[:, :, n:top]
         self.lines = p[:, :, top:] + 1j * q[:, :, top:]
         return np.ascontiguousarray(p[:, :, :n]), np.ascontiguousarray(q[:, :, :n]), whole
-
-    def _keep_unmeasured(self, unmeasured: np.ndarray) -> None:
-        """``unmeasured`` (period, channel, unmeasured harmonic) kept, ``high`` its columns above the measured ones."""
-        self.unmeasured = unmeasured
-        self.high = unmeasured[:, :, len(self.unmeasured_harmonics) - len(self.high_harmonics):]
 
     def _release(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray, means: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
