@@ -42,6 +42,10 @@ t0 off the sample grid. Kinds, each with an exact truth for harmonics 1..3:
                                         (on harmonic k) or at any f
   hum near harmonics 4-8                the same hum 0.1 % to 5 % of a whole harmonic j = 4 .. 8 (solved each
                                         period, not measured) off it: f = mains / (j +- 0.001 .. 0.05)
+  hum on the reference                  two-channel mode: a reference column carrying the unit input sine, and
+                                        on it alone hum 0.1 % to 5 % of it near a whole harmonic j = 1 .. 8:
+                                        f = mains / (j +- 0.001 .. 0.05) (truth: the output's harmonics over
+                                        the input's)
   saturated / rate-limited / square-ish the periodic linear interpolant of 2^16 points of one period of clip(sin,
                                         0.6), a rate-limited sine, tanh(beta sin) (truth: its DFT x sinc^2)
   dead / frozen drive                   the output 0, a constant, or its last value from a random period on
@@ -294,7 +298,8 @@ BENCH_CHUNK = 4096  # samples a feed() call (a bench hands over ~10 ms of sample
 TABLE = 1 << 16  # points of one period of a nonlinear waveform (its signal: their periodic linear interpolant)
 BENCH_KINDS = ("linear oscillator", "first-order lag", "harmonics+transient", "noise", "oscillator+noise",
                "jitter", "jitter+noise", "drift", "hum on harmonic", "hum off harmonic", "saturated sine",
-               "rate-limited sine", "square-ish wave", "dead drive", "frozen drive", "hum near harmonics 4-8")
+               "rate-limited sine", "square-ish wave", "dead drive", "frozen drive", "hum near harmonics 4-8",
+               "hum on the reference")
 NOISY_KINDS = ("noise", "oscillator+noise", "jitter+noise")
 NONLINEAR_KINDS = ("saturated sine", "rate-limited sine", "square-ish wave")
 BENCH_CASES = {False: (48, 160), True: (12, 40)}  # (cases a kind, cases a noisy kind), by --quick
@@ -319,6 +324,7 @@ class Scenario:
     bias: tuple[float, ...] = (0.0, 0.0, 0.0)  # |bias| a disturbance predicts per harmonic (output units)
     event: float = math.inf  # the period from which the drive is dead or frozen
     mains: float = 50.0  # the mains frequency of the bench (Hz), its disturbance_hz
+    reference: Signal | None = None  # two-channel mode: the input as the drive saw it, a reference column
 
 
 @dataclass(frozen=True)
@@ -452,6 +458,8 @@ def scenario(kind: str, index: int, folds: str = FOLD_POLICIES[0]) -> Scenario:
         hum_f = mains / k_hum
     elif kind == "hum near harmonics 4-8":  # a harmonic each period is solved for, not measured
         hum_f = mains / (int(rng.integers(4, 9)) + rng.choice([-1.0, 1.0]) * 10 ** rng.uniform(-3, math.log10(0.05)))
+    elif kind == "hum on the reference":  # the divisor of every ratio disturbed
+        hum_f = mains / (int(rng.integers(1, 9)) + rng.choice([-1.0, 1.0]) * 10 ** rng.uniform(-3, math.log10(0.05)))
     f, rate = _timing(rng, hum_f)
     if folds == "move":
         f = move_off_folds(rate, [f], HARMONICS)[0][0]
@@ -495,6 +503,10 @@ def scenario(kind: str, index: int, folds: str = FOLD_POLICIES[0]) -> Scenario:
             if kind == "hum on harmonic":
                 sc.bias = tuple(h if k == k_hum else 0.0 for k in HARMONICS)
             sc.note = f"hum {mains:g} Hz {h / r:.2%} (mains/f={mains / f:.4g}) {where}"
+        elif kind == "hum on the reference":
+            h, psi = 10 ** rng.uniform(-3, math.log10(0.05)), rng.uniform(0, 2 * math.pi)
+            sc.reference = lambda t: np.sin(2 * math.pi * f * (t - t0)) + h * np.sin(2 * math.pi * mains * t + psi)
+            sc.note = f"reference hum {mains:g} Hz {h:.2%} (mains/f={mains / f:.4g}) {where}"
         elif kind in ("dead drive", "frozen drive"):
             t_dead = t0 + rng.uniform(1, 30) / f
             hold = float(base(np.array([t_dead]))[0]) if kind == "frozen drive" else \
@@ -524,7 +536,8 @@ def run_bench(task: tuple[str, int, float, str]) -> list[BenchRow]:
     analysis = AnalysisConfig(harmonics=HARMONICS, tolerance_percent=eps, max_periods=BENCH_MAX_PERIODS, folds=folds)
     lines = disturbance_lines([sc.mains])
     sampler = Autointegrator(sc.frequency_hz, sc.amplitude, ("y",), analysis, t0=sc.t0, grid_steps_per_period=0,
-                             samples_per_period=sc.rate_hz / sc.frequency_hz, disturbance_lines=lines)
+                             samples_per_period=sc.rate_hz / sc.frequency_hz, disturbance_lines=lines,
+                             reference=None if sc.reference is None else "reference")
     limit = (BENCH_MAX_PERIODS + 10) * sc.rate_hz / sc.frequency_hz
     watch = FlatWatch(("y",), sc.frequency_hz)
     n = 0
@@ -542,7 +555,7 @@ def run_bench(task: tuple[str, int, float, str]) -> list[BenchRow]:
         watch.add(t, y[:, None])
         if watch.stuck():
             break
-        sampler.feed(t, y[:, None])
+        sampler.feed(t, y[:, None] if sc.reference is None else np.stack((y, sc.reference(t)), axis=1))
     try:
         if watch.stuck():
             raise GapsError("no_response")

@@ -583,27 +583,35 @@ HUM_TRUTH = {1: 0.8 - 0.3j, 2: 0.02 + 0.01j, 3: 0.006 + 0.003j}
 
 
 def _hum_at(line_harmonics: float, samples: float, hum: float, eps: float, max_periods: int,
-            turning: tuple[float, ...] = ()) -> dict[bool, dict[int, ResponsePoint]]:
-    """Each harmonic's point, without and with the mains lines (keys False, True), of HUM_TRUTH plus a transient that
-    dies in a few periods and mains hum of amplitude ``hum`` at ``line_harmonics`` times f, sampled at ``samples`` a
-    period from just before t = 0; ``turning``: the lines the sampler is to read from a solved harmonic."""
+            turning: tuple[float, ...] = (), harmonics: tuple[int, ...] = (1, 2, 3), reference: str = ""
+            ) -> dict[bool, dict[int, ResponsePoint]]:
+    """Each of ``harmonics``' points, without and with the mains lines (keys False, True), of HUM_TRUTH plus a
+    transient that dies in a few periods and mains hum of amplitude ``hum`` at ``line_harmonics`` times f, sampled at
+    ``samples`` a period from just before t = 0; ``turning``: the lines the sampler is to read from a solved harmonic.
+    ``reference``: two-channel mode over a reference column carrying the input, a unit sine, and the hum on "output"
+    or on the "reference" column."""
     f = 50.0 / line_harmonics
     rate = samples * f
     t = np.arange(0, int((max_periods + 10) * samples)) / rate - 0.5 / rate
     y = sum(z.imag * np.sin(2 * np.pi * k * f * t) + z.real * np.cos(2 * np.pi * k * f * t)
             for k, z in HUM_TRUTH.items())
-    y = y + hum * np.sin(2 * np.pi * 50.0 * t + 2.0) + np.exp(-np.maximum(t, 0.0) * f / 3) * np.cos(
-        2 * np.pi * 2.3 * f * t)
-    analysis = AnalysisConfig(harmonics=(1, 2, 3), tolerance_percent=eps, max_periods=max_periods)
+    mains = hum * np.sin(2 * np.pi * 50.0 * t + 2.0)
+    y = y + np.exp(-np.maximum(t, 0.0) * f / 3) * np.cos(2 * np.pi * 2.3 * f * t)
+    if reference:
+        columns = np.stack((y + mains * (reference == "output"),
+                            np.sin(2 * np.pi * f * t) + mains * (reference == "reference")), axis=1)
+    else:
+        columns = (y + mains)[:, None]
+    analysis = AnalysisConfig(harmonics=harmonics, tolerance_percent=eps, max_periods=max_periods)
     found = {}
     for lines in ((), disturbance_lines([50.0])):
         sampler = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=samples,
-                                 disturbance_lines=lines)
+                                 disturbance_lines=lines, reference="r" if reference else None)
         assert sampler.turning_lines == (turning if lines else ())
         for start in range(0, t.size, 4096):
             if sampler.done:
                 break
-            sampler.feed(t[start:start + 4096], y[start:start + 4096, None])
+            sampler.feed(t[start:start + 4096], columns[start:start + 4096])
         found[bool(lines)] = {p.harmonic: p for p in sampler.points()}
     return found
 
@@ -713,3 +721,43 @@ def test_hum_just_off_a_measured_harmonic_is_read_there_and_its_leak_into_the_ot
     assert alone.converged and error > tolerance and error > alone.uncertainty, error
     error = abs(complex(bounded.q, bounded.p) - HUM_TRUTH[1])
     assert bounded.converged and error <= min(tolerance, bounded.uncertainty) and bounded.periods > 10 * alone.periods
+
+
+def test_hum_on_the_reference_column_moves_every_ratio_and_is_bounded() -> None:
+    """Two-channel mode, mains at 6.02 times f (1 % of the input) on the reference column only, 97.3 samples a
+    period, eps 0.01 %: the solve takes the line into the reference's harmonic 6, whence it leaks into the
+    reference's fundamental, the divisor of every ratio, a near-constant over the periods a first verdict takes.
+    Without the lines a harmonic says converged more than its tolerance off and outside its interval; with them the
+    line is read from how the reference's harmonic 6 turns, its leak moves every ratio's bound by its share of the
+    divisor, every interval covers the truth and every converged harmonic is within its tolerance."""
+    found = _hum_at(6.02, 97.3, 0.01, 0.01, 1500, turning=(50.0,), reference="reference")
+
+    def off(point: ResponsePoint) -> tuple[float, float]:
+        """The point's error and its tolerance (output units)."""
+        k = point.harmonic
+        return abs(complex(point.q, point.p) - HUM_TRUTH[k]), 1e-4 * max(abs(HUM_TRUTH[k]),
+                                                                          RESOLUTION * abs(HUM_TRUTH[1]))
+
+    assert any(p.converged and off(p)[0] > max(off(p)[1], p.uncertainty) for p in found[False].values())
+    for point in found[True].values():
+        error, tolerance = off(point)
+        assert error <= point.uncertainty, (point.harmonic, error, point.uncertainty, point.status)
+        if point.converged:
+            assert error <= tolerance, (point.harmonic, error)
+    assert sum(p.converged for p in found[True].values()) >= 2
+
+
+def test_a_line_near_a_fundamental_solved_only_for_the_divisor_is_read_there() -> None:
+    """Two-channel mode measuring harmonic 3 alone, mains at 1.003 times f (1 % of the fundamental) on the output:
+    the fundamental is solved for the divisor, not measured, and the line turns it, leaking into harmonic 3. Without
+    the lines harmonic 3 says converged more than its tolerance off and outside its interval; with them the line is
+    read from the fundamental like from any solved harmonic, and harmonic 3 ends within its interval (converged
+    within its tolerance, or not converged)."""
+    found = _hum_at(1.003, 97.3, 0.01, 0.1, 600, turning=(50.0, 100.0), harmonics=(3,), reference="output")
+    tolerance = 1e-3 * abs(HUM_TRUTH[3])
+    alone, bounded = found[False][3], found[True][3]
+    error = abs(complex(alone.q, alone.p) - HUM_TRUTH[3])
+    assert alone.converged and error > max(tolerance, alone.uncertainty), error
+    error = abs(complex(bounded.q, bounded.p) - HUM_TRUTH[3])
+    assert error <= bounded.uncertainty, (error, bounded.uncertainty, bounded.status)
+    assert error <= tolerance or not bounded.converged, error

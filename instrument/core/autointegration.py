@@ -194,7 +194,8 @@ class Autointegrator:
     (:func:`~bodebench.core.benchgrid.turning_amplitude`; a measured j's own point is ``flag_disturbed``'s). The leak
     is bounded by :func:`~bodebench.core.benchgrid.line_leak` and added to the interval like the fold bound; a series
     whose verdict it pushes past its tolerance is judged again with each period while the line turns, and ends
-    ``disturbed`` where the periods run out first.
+    ``disturbed`` where the periods run out first. In two-channel mode the lines on the reference column are read the
+    same way, and what they leak into its fundamental, the divisor, moves every ratio by its share of it.
 
     periods: whole periods integrated; discarded: periods a gap in the samples touched, up to the period at which
     the rules stopped (see the module docstring); failure: why the point is not a measurement ("" while it is).
@@ -227,12 +228,13 @@ class Autointegrator:
         """The disturbance lines (Hz, as the samples see them) nearest a whole harmonic above the solved ones, whose
         leak :func:`~bodebench.core.benchgrid.line_leak` bounds."""
         self.turning_lines: tuple[float, ...] = () if grid_steps_per_period else \
-            lines_on_fit(disturbance_lines, frequency_hz, samples_per_period, harmonics, fit_order)
+            lines_on_fit(disturbance_lines, frequency_hz, samples_per_period, self.harmonics, fit_order)
         """The disturbance lines (Hz, as the samples see them) nearest a whole harmonic each period is solved for but
-        not measured, whose leak :func:`~bodebench.core.benchgrid.line_leak` bounds with the amplitude
+        not measured (in two-channel mode the fundamental, solved for the divisor, where it is not measured), whose
+        leak :func:`~bodebench.core.benchgrid.line_leak` bounds with the amplitude
         :func:`~bodebench.core.benchgrid.turning_amplitude` reads from that harmonic's coefficients."""
         self.measured_lines: tuple[float, ...] = () if grid_steps_per_period else \
-            lines_on_harmonics(disturbance_lines, frequency_hz, samples_per_period, harmonics)
+            lines_on_harmonics(disturbance_lines, frequency_hz, samples_per_period, self.harmonics)
         """The disturbance lines (Hz, as the samples see them) nearest a measured harmonic, whose leak into the other
         measured harmonics :func:`~bodebench.core.benchgrid.line_leak` bounds with the amplitude
         :func:`~bodebench.core.benchgrid.turning_amplitude` reads from that harmonic's own coefficients."""
@@ -247,9 +249,22 @@ class Autointegrator:
         """The power j**-d the output's harmonics are taken to fall at least as fast as in the tail the averaged
         waveform shows (harmonics N/4 to N/2 on a whole grid); the bound from the solved harmonics, up to 8, which
         need not be in the tail yet, extends them as j**-2."""
-        # each whole period's coefficients of the harmonics solved but not measured (the integrator's
+        # each whole period's coefficients of the harmonics solved but not measured (_unmeasured_orders: in
+        # two-channel mode the fundamental where it is solved only for the divisor, then the integrator's
         # unmeasured_harmonics), (channel, harmonic), while a rule is open
         self._unmeasured: list[np.ndarray] = []
+        self._divisor_only = reference is not None and 1 not in self.harmonics
+        self._unmeasured_orders: tuple[int, ...] = (1,) * self._divisor_only + tuple(
+            getattr(self._integrator, "unmeasured_harmonics", ()))
+        # two-channel mode: each whole period's reference coefficients at the harmonic nearest each turning and
+        # measured line, then its residual at each standing line, then its fundamental (input units), while a rule
+        # is open: a line on the reference moves the divisor of every ratio
+        self._reference_rows: list[np.ndarray] = []
+        self._reference_lines = reference is not None and not grid_steps_per_period and bool(
+            self.turning_lines or self.measured_lines or self.standing_lines)
+        solved = (*harmonics, *getattr(self._integrator, "unmeasured_harmonics", ()))
+        self._reference_columns = [solved.index(round(d / frequency_hz))
+                                   for d in (*self.turning_lines, *self.measured_lines)]
         # each whole period's residual at each standing line, (channel, line), while a rule is open
         self._lines: list[np.ndarray] = []
         self._high_count = len(getattr(self._integrator, "high_harmonics", ())) \
@@ -320,6 +335,8 @@ class Autointegrator:
                 self._take_unmeasured(self._integrator.unmeasured, p, q, whole)
             if self.standing_lines:
                 self._take_lines(self._integrator.lines, p, q, whole)
+            if self._reference_lines:
+                self._take_reference(self._integrator, p, q, whole)
         if m <= _FEW_PERIODS and self.reference is None and all(whole.tolist()):
             values = list(map(complex, p.ravel().tolist(), q.ravel().tolist()))
             sizes = list(map(abs, values))
@@ -344,12 +361,16 @@ class Autointegrator:
 
     def _take_unmeasured(self, unmeasured: np.ndarray, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> None:
         """Keep the whole periods' coefficients of the harmonics solved but not measured (unmeasured: (m, columns,
-        n)); in two-channel mode relative to each period's reference fundamental, as the measured ones."""
+        n)); in two-channel mode relative to each period's reference fundamental, as the measured ones, after the
+        outputs' fundamental where it is solved only for the divisor (``_unmeasured_orders``)."""
         z = unmeasured[:, : len(self.channels)]
         if self.reference is not None:
+            if self._divisor_only:
+                z = np.concatenate((p[:, : len(self.channels), self._ref_index, None]
+                                    + 1j * q[:, : len(self.channels), self._ref_index, None], z), axis=2)
             with np.errstate(all="ignore"):
                 z = self._relative_to_reference(z, p[:, -1, self._ref_index] + 1j * q[:, -1, self._ref_index],
-                                                self._integrator.unmeasured_harmonics)  # type: ignore[union-attr]
+                                                self._unmeasured_orders)
         keep = whole & np.isfinite(z).all(axis=(1, 2)) & (np.abs(z) <= MAX_COEFFICIENT).all(axis=(1, 2))
         if keep.any():
             self._unmeasured.append(z[keep])
@@ -365,6 +386,37 @@ class Autointegrator:
         keep = whole & np.isfinite(z).all(axis=(1, 2))
         if keep.any():
             self._lines.append(z[keep])
+
+    def _take_reference(self, integrator: ExactPeriodIntegrator, p: np.ndarray, q: np.ndarray, whole: np.ndarray
+                        ) -> None:
+        """Keep the whole periods' reference coefficients (input units) at the harmonic nearest each turning and
+        measured line, its residuals at the standing lines and its fundamental (``_reference_rows``)."""
+        solved = np.concatenate((p[:, -1] + 1j * q[:, -1], integrator.unmeasured[:, -1]), axis=1)
+        rows = np.concatenate((solved[:, self._reference_columns], integrator.lines[:, -1],
+                               solved[:, self._ref_index, None]), axis=1)
+        keep = whole & np.isfinite(rows).all(axis=1)
+        if keep.any():
+            self._reference_rows.append(rows[keep])
+
+    def _reference_leak(self, periods: int) -> float:
+        """Two-channel mode: the bound :func:`~bodebench.core.benchgrid.line_leak` puts on what the lines on the
+        reference column leak into its fundamental over the fewest periods a rule averages, relative to that
+        fundamental (0 without a line or a reference). Each line's amplitude is read as on an output: from how the
+        reference's solved harmonic nearest it turns, or from its residual at a standing line."""
+        if not self._reference_lines or not self._reference_rows:
+            return 0.0
+        rows = _later_half(_joined(self._reference_rows), periods)
+        if rows.shape[0] < 2:
+            return 0.0
+        averaged = max(1, (periods - self.skip_periods) // 2)
+        f = self.frequency_hz
+        turning = (*self.turning_lines, *self.measured_lines)
+        leak = sum(line_leak(turning_amplitude(rows[:, i], d / f), d / f, 1, averaged)
+                   for i, d in enumerate(turning))
+        residuals = rows[:, len(turning): len(turning) + len(self.standing_lines)]
+        leak += sum(line_leak(float(h), d / f, 1, averaged) for h, d in zip(
+            (2.0 * f * np.abs(residuals.sum(axis=0)) / rows.shape[0]).tolist(), self.standing_lines, strict=True))
+        return leak / abs(complex(rows[:, -1].mean()))
 
     def line_leaks(self) -> np.ndarray:
         """(channels, harmonics) the bound :func:`~bodebench.core.benchgrid.line_leak` puts on what the disturbance
@@ -392,6 +444,10 @@ class Autointegrator:
                             for h, d in zip(amplitudes.tolist(), self.standing_lines, strict=True))
         for x, coefficients in self._turning(c, k, periods):
             leak += line_leak(turning_amplitude(coefficients, x), x, self.harmonics[k], averaged)
+        relative = self._reference_leak(periods)
+        if relative:  # the divisor Z_r off by a fraction r moves |Z_k| by r and its phase by k r (rad): sqrt(1 + k^2) r
+            ratio = abs(complex(_later_half(self._histories[c][k].values, periods).mean()))
+            leak += ratio * math.hypot(1.0, self.harmonics[k]) * relative
         return leak
 
     def _turning(self, c: int, k: int, periods: int) -> Iterator[tuple[float, np.ndarray]]:
@@ -401,7 +457,7 @@ class Autointegrator:
         ``flag_disturbed``'s)."""
         if self.turning_lines and self._unmeasured:
             window = _later_half(_joined(self._unmeasured), periods)[:, c]
-            orders = self._integrator.unmeasured_harmonics  # type: ignore[union-attr]
+            orders = self._unmeasured_orders
             for d in self.turning_lines:
                 x = d / self.frequency_hz
                 yield x, window[:, orders.index(round(x))]

@@ -135,9 +135,10 @@ def line_leak(amplitude: float, line_harmonics: float, harmonic: int, periods: i
     harmonics (0 after). Each period takes ``amplitude sin(pi delta) / pi (1 / |x - k| + 1 / (x + k))`` of it
     (delta = x - j, j the nearest whole harmonic), turned by delta cycles from the period before, and the average of
     n such turns is at most ``1 / (n sin(pi delta))`` of one (the envelope of the Dirichlet kernel). A line that
-    stands still (n |delta| small) leaks a constant no spread shows."""
+    stands still (n |delta| small) leaks a constant no spread shows; a line exactly on a whole harmonic leaks into no
+    other (on its own it is :func:`flag_disturbed`'s)."""
     delta = line_harmonics - round(line_harmonics)
-    if periods * abs(delta) >= LINE_TURNS:
+    if delta == 0.0 or periods * abs(delta) >= LINE_TURNS:
         return 0.0
     return amplitude * min(abs(math.sin(math.pi * delta)), 1.0 / periods) / math.pi * (
         1.0 / abs(line_harmonics - harmonic) + 1.0 / (line_harmonics + harmonic))
