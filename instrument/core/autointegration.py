@@ -260,6 +260,7 @@ class Autointegrator:
         # measured line, then its residual at each standing line, then its fundamental (input units), while a rule
         # is open: a line on the reference moves the divisor of every ratio
         self._reference_rows: list[np.ndarray] = []
+        self._reference_leak_at = (-1, 0.0)  # (periods, _reference_leak of them) last computed
         self._reference_lines = reference is not None and not grid_steps_per_period and bool(
             self.turning_lines or self.measured_lines or self.standing_lines)
         solved = (*harmonics, *getattr(self._integrator, "unmeasured_harmonics", ()))
@@ -405,6 +406,8 @@ class Autointegrator:
         reference's solved harmonic nearest it turns, or from its residual at a standing line."""
         if not self._reference_lines or not self._reference_rows:
             return 0.0
+        if self._reference_leak_at[0] == periods:  # the same for every series judged at this period
+            return self._reference_leak_at[1]
         rows = _later_half(_joined(self._reference_rows), periods)
         if rows.shape[0] < 2:
             return 0.0
@@ -416,7 +419,8 @@ class Autointegrator:
         residuals = rows[:, len(turning): len(turning) + len(self.standing_lines)]
         leak += sum(line_leak(float(h), d / f, 1, averaged) for h, d in zip(
             (2.0 * f * np.abs(residuals.sum(axis=0)) / rows.shape[0]).tolist(), self.standing_lines, strict=True))
-        return leak / abs(complex(rows[:, -1].mean()))
+        self._reference_leak_at = (periods, leak / abs(complex(rows[:, -1].mean())))
+        return self._reference_leak_at[1]
 
     def line_leaks(self) -> np.ndarray:
         """(channels, harmonics) the bound :func:`~bodebench.core.benchgrid.line_leak` puts on what the disturbance
