@@ -4,8 +4,8 @@ Run: python benchmarks/bench_speed.py [--repeat 3]
 
 1. The 2013 experiment (configs/paper2013.toml, 3 cases x 42 frequencies x harmonics 1 and 2) end to end, as a
    user runs it: ``bodebench simulate configs/paper2013.toml --out DIR --quiet`` in a subprocess (interpreter
-   start, imports, the pool, the sweep, results and PNG plots written), wall time and CPU time of the process and
-   its workers. Warm: numba's on-disk cache already holds the compiled kernels (least of ``--repeat`` runs).
+   start, imports, the pool, the sweep, results and PNG plots written; Python caching compiled modules, as it
+   does by default), wall time and CPU time of the process and its workers. Warm: numba's on-disk cache already holds the compiled kernels (least of ``--repeat`` runs).
    Cold: ``NUMBA_CACHE_DIR`` pointed at an empty directory, so the kernels are compiled (once: the pool's first
    worker compiles them while the others wait for the cache; the number of cache index files written is printed
    as the evidence).
@@ -57,17 +57,27 @@ def children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
+def user_environment(**extra: str) -> dict[str, str]:
+    """This process's environment as a user's shell has it: Python caches the modules it compiles (a
+    PYTHONDONTWRITEBYTECODE set here, as some sandboxes and CI images do, would have every run compile the package
+    from source), plus ``extra``."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env.update(extra)
+    return env
+
+
 def run_command(args: list[str], env: dict[str, str] | None = None) -> tuple[float, float]:
-    """Run ``python -m bodebench ARGS``; (wall s, CPU s of it and its workers)."""
+    """Run ``python -m bodebench ARGS`` (in ``env``, else :func:`user_environment`); (wall s, CPU s of it and its
+    workers)."""
     before = children_cpu()
     start = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "bodebench", *args], cwd=ROOT, env=env, check=True,
+    subprocess.run([sys.executable, "-m", "bodebench", *args], cwd=ROOT, env=env or user_environment(), check=True,
                    stdout=subprocess.DEVNULL)
     return time.perf_counter() - start, children_cpu() - before
 
 
 def end_to_end(out: Path, cache: Path | None = None) -> tuple[float, float]:
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache)) if cache is not None else None
+    env = user_environment(NUMBA_CACHE_DIR=str(cache)) if cache is not None else None
     return run_command(["simulate", str(CONFIG), "--out", str(out), "--quiet"], env)
 
 
