@@ -2,13 +2,13 @@
 
 Run: python benchmarks/bench_speed.py [--repeat 3]
 
-1. The 2013 experiment (configs/paper2013.toml, 3 cases x 42 frequencies x harmonics 1 and 2) end to end, as a
-   user runs it: ``bodebench simulate configs/paper2013.toml --out DIR --quiet`` in a subprocess (interpreter
-   start, imports, the pool, the sweep, results and PNG plots written; Python caching compiled modules, as it
-   does by default), wall time and CPU time of the process and its workers. Warm: numba's on-disk cache already holds the compiled kernels (least of ``--repeat`` runs).
-   Cold: ``NUMBA_CACHE_DIR`` pointed at an empty directory, so the kernels are compiled (once: the pool's first
-   worker compiles them while the others wait for the cache; the number of cache index files written is printed
-   as the evidence).
+1. The 2013 experiment (configs/paper2013.toml, 3 cases x 42 frequencies x harmonics 1 and 2) end to end, as a user
+   runs it: ``bodebench simulate configs/paper2013.toml --out DIR --quiet`` in a subprocess (interpreter start,
+   imports, the pool, the sweep, results and PNG plots written; Python caching compiled modules, as it does by
+   default), wall time and CPU time of the process and its workers. Warm: numba's on-disk cache already holds the
+   compiled kernels (least of ``--repeat`` runs). Cold: ``NUMBA_CACHE_DIR`` pointed at an empty directory, so the
+   kernels are compiled (once: the pool's first worker compiles them while the others wait for the cache; the number
+   of cache index files written is printed as the evidence).
 2. The kernel alone on the same periods, in this process: for every frequency, the plant's ``run_sine`` over
    exactly the batches ``measure_frequency`` integrated for it (from the periods the run's CSV reports), CPU
    time summed over all frequencies (one core). The ratio end-to-end wall / kernel CPU is the figure of merit

@@ -761,3 +761,36 @@ def test_a_line_near_a_fundamental_solved_only_for_the_divisor_is_read_there() -
     error = abs(complex(bounded.q, bounded.p) - HUM_TRUTH[3])
     assert error <= bounded.uncertainty, (error, bounded.uncertainty, bounded.status)
     assert error <= tolerance or not bounded.converged, error
+
+
+def test_the_drives_echo_of_its_setpoint_is_read_for_no_line() -> None:
+    """The drive's echo of the setpoint is a number, with no hum on it: a sampler told so (``reference_lines =
+    carries_lines(SETPOINT_ECHO)``, as the bench session's) reads no line on it. At 1.0005 times under mains, where
+    the reference's fundamental cannot tell a line from itself, a sampler that reads its noise as one takes several
+    times the periods; both end within their tolerance of the truth."""
+    from bodebench.drivers.codec import SETPOINT_ECHO, carries_lines
+
+    assert not carries_lines(SETPOINT_ECHO) and carries_lines("position")
+    f, samples, eps = 50.0 / 1.0005, 40.3, 0.01
+    rate = samples * f
+    t = np.arange(0, int(3010 * samples)) / rate - 0.5 / rate
+    y = sum(z.imag * np.sin(2 * np.pi * k * f * t) + z.real * np.cos(2 * np.pi * k * f * t)
+            for k, z in HUM_TRUTH.items())
+    echo = np.round(np.sin(2 * np.pi * f * t) * 32767) / 32767  # a 16-bit setpoint
+    columns = np.stack((y, echo), axis=1)
+    analysis = AnalysisConfig(harmonics=(1, 2, 3), tolerance_percent=eps, max_periods=3000)
+    periods = {}
+    for reads in (carries_lines(SETPOINT_ECHO), True):
+        sampler = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=samples,
+                                 disturbance_lines=disturbance_lines([50.0]), reference="echo",
+                                 reference_lines=reads)
+        for start in range(0, t.size, 4096):
+            if sampler.done:
+                break
+            sampler.feed(t[start:start + 4096], columns[start:start + 4096])
+        points = sampler.points()
+        for point in points:
+            error = abs(complex(point.q, point.p) - HUM_TRUTH[point.harmonic])
+            assert point.converged and error <= 1e-4 * abs(HUM_TRUTH[point.harmonic]), (reads, point.harmonic)
+        periods[reads] = max(p.periods for p in points)
+    assert periods[True] > 2 * periods[False], periods

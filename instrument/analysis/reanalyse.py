@@ -20,6 +20,7 @@ import numpy as np
 from bodebench.core.autointegration import AnalysisSettings, Autointegrator, GapsError
 from bodebench.core.benchgrid import flag_disturbed, mark_untied
 from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.drivers.codec import carries_lines
 from bodebench.io.config import AnalysisConfig, ConfigError, build_table, disturbance_lines_of, measured_of
 from bodebench.io.results import SIDECAR_NAME, load_response
 from bodebench.io.samples import PointSamples, load_samples, samples_path
@@ -56,7 +57,8 @@ def reanalyse_point(samples: PointSamples, analysis: AnalysisSettings, rate_hz: 
                              reference=samples.reference or None, grid_steps_per_period=grid,
                              reference_phase=samples.reference_phase,
                              samples_per_period=rate_hz / samples.frequency_hz if not grid else 0.0,
-                             disturbance_lines=disturbance_lines)
+                             disturbance_lines=disturbance_lines,
+                             reference_lines=carries_lines(samples.reference))
     for t, y in samples.batches:
         if sampler.done:
             break

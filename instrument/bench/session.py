@@ -44,6 +44,7 @@ from bodebench.core.autointegration import Autointegrator, period_budget
 from bodebench.core.benchgrid import flag_disturbed, mark_untied
 from bodebench.core.liveness import FlatWatch, no_fundamental
 from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.drivers.codec import carries_lines
 from bodebench.drivers.layout import SETPOINT_ECHO
 from bodebench.io.config import AnalysisConfig, BenchConfig, CaseConfig
 from bodebench.io.results import CSV_NAME, ResultsWriter, RowsOnDiskError, check_output
@@ -260,7 +261,8 @@ class BenchSession:
         def start(t0: float) -> tuple[Autointegrator, PointSamples]:
             return (Autointegrator(f, amplitude, outputs, analysis, t0=t0, reference=reference or None,
                                    reference_phase=reference_phase, samples_per_period=self.bench.rate_hz / f,
-                                   disturbance_lines=self.disturbance_lines),
+                                   disturbance_lines=self.disturbance_lines,
+                                   reference_lines=carries_lines(reference)),
                     PointSamples(f, amplitude, outputs, t0, reference, "bench", reference_phase, untied))
 
         sampler, record = start(t0)

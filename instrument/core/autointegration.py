@@ -195,7 +195,9 @@ class Autointegrator:
     is bounded by :func:`~bodebench.core.benchgrid.line_leak` and added to the interval like the fold bound; a series
     whose verdict it pushes past its tolerance is judged again with each period while the line turns, and ends
     ``disturbed`` where the periods run out first. In two-channel mode the lines on the reference column are read the
-    same way, and what they leak into its fundamental, the divisor, moves every ratio by its share of it.
+    same way, and what they leak into its fundamental, the divisor, moves every ratio by its share of it; unless
+    ``reference_lines`` is False: a reference that carries no line (the drive's echo of its setpoint, a number) would
+    only have its noise read as one, near the fundamental at a cost of many periods.
 
     periods: whole periods integrated; discarded: periods a gap in the samples touched, up to the period at which
     the rules stopped (see the module docstring); failure: why the point is not a measurement ("" while it is).
@@ -204,7 +206,8 @@ class Autointegrator:
     def __init__(self, frequency_hz: float, amplitude: float, channels: Sequence[str],
                  analysis: AnalysisSettings, t0: float = 0.0, reference: str | None = None,
                  check_gaps: bool = True, grid_steps_per_period: int = 0, reference_phase: float = 0.0,
-                 samples_per_period: float = 0.0, disturbance_lines: Sequence[float] = ()) -> None:
+                 samples_per_period: float = 0.0, disturbance_lines: Sequence[float] = (),
+                 reference_lines: bool = True) -> None:
         self.frequency_hz = frequency_hz
         self.amplitude = amplitude
         self.channels = tuple(channels)
@@ -261,7 +264,7 @@ class Autointegrator:
         # is open: a line on the reference moves the divisor of every ratio
         self._reference_rows: list[np.ndarray] = []
         self._reference_leak_at = (-1, 0.0)  # (periods, _reference_leak of them) last computed
-        self._reference_lines = reference is not None and not grid_steps_per_period and bool(
+        self._reference_lines = reference is not None and reference_lines and not grid_steps_per_period and bool(
             self.turning_lines or self.measured_lines or self.standing_lines)
         solved = (*harmonics, *getattr(self._integrator, "unmeasured_harmonics", ()))
         self._reference_columns = [solved.index(round(d / frequency_hz))
