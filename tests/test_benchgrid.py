@@ -794,3 +794,40 @@ def test_the_drives_echo_of_its_setpoint_is_read_for_no_line() -> None:
             assert point.converged and error <= 1e-4 * abs(HUM_TRUTH[point.harmonic]), (reads, point.harmonic)
         periods[reads] = max(p.periods for p in points)
     assert periods[True] > 2 * periods[False], periods
+
+
+@pytest.mark.parametrize("dead_periods", [12, 40])
+def test_periods_of_a_silent_reference_are_read_for_no_line(dead_periods: int) -> None:
+    """Two-channel mode with mains lines, the reference silent (zero) for its first periods, then a sine: the
+    periods it was silent in are discarded (they divide by nothing) and kept out of what the lines are read from, so
+    the point is measured from the later periods, or refused for its discarded share, as without the lines."""
+    from bodebench.core.autointegration import GapsError
+
+    f, samples = 50.0 / 2.01, 40.3
+    rate = samples * f
+    t = np.arange(0, int(400 * samples)) / rate - 0.5 / rate
+    y = sum(z.imag * np.sin(2 * np.pi * k * f * t) + z.real * np.cos(2 * np.pi * k * f * t)
+            for k, z in HUM_TRUTH.items())
+    reference = np.where(t * f < dead_periods, 0.0, np.sin(2 * np.pi * f * t))
+    y = np.where(t * f < dead_periods, 0.0, y)
+    columns = np.stack((y, reference), axis=1)
+    analysis = AnalysisConfig(harmonics=(1, 2, 3), tolerance_percent=0.1, max_periods=300)
+    outcomes = []
+    for lines in ((), disturbance_lines([50.0])):
+        sampler = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=samples,
+                                 disturbance_lines=lines, reference="r")
+        try:
+            for start in range(0, t.size, 4096):
+                if sampler.done:
+                    break
+                sampler.feed(t[start:start + 4096], columns[start:start + 4096])
+            points = sampler.points()
+        except GapsError as refused:
+            outcomes.append(f"refused: {refused}")
+            continue
+        for point in points:
+            error = abs(complex(point.q, point.p) - HUM_TRUTH[point.harmonic])
+            assert point.converged and error <= 1e-3 * abs(HUM_TRUTH[point.harmonic]), (lines, point.harmonic)
+        outcomes.append("measured")
+    assert outcomes[0] == outcomes[1]
+    assert (outcomes[0] == "measured") == (dead_periods == 12), outcomes

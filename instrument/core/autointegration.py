@@ -335,12 +335,14 @@ class Autointegrator:
             drift = self._integrator.drift[whole, : len(self.channels)]
             self._drift_sum += drift.sum(axis=0)
             self._drift_periods += drift.shape[0]
-            if self._keep_unmeasured:
-                self._take_unmeasured(self._integrator.unmeasured, p, q, whole)
-            if self.standing_lines:
-                self._take_lines(self._integrator.lines, p, q, whole)
-            if self._reference_lines:
-                self._take_reference(self._integrator, p, q, whole)
+            if self._keep_unmeasured or self.standing_lines or self._reference_lines:
+                kept = whole & self._usable(p, q)  # the periods the histories take, so that the records align
+                if self._keep_unmeasured:
+                    self._take_unmeasured(self._integrator.unmeasured, p, q, kept)
+                if self.standing_lines:
+                    self._take_lines(self._integrator.lines, p, q, kept)
+                if self._reference_lines:
+                    self._take_reference(self._integrator, p, q, kept)
         if m <= _FEW_PERIODS and self.reference is None and all(whole.tolist()):
             values = list(map(complex, p.ravel().tolist(), q.ravel().tolist()))
             sizes = list(map(abs, values))
@@ -422,7 +424,8 @@ class Autointegrator:
         residuals = rows[:, len(turning): len(turning) + len(self.standing_lines)]
         leak += sum(line_leak(float(h), d / f, 1, averaged) for h, d in zip(
             (2.0 * f * np.abs(residuals.sum(axis=0)) / rows.shape[0]).tolist(), self.standing_lines, strict=True))
-        self._reference_leak_at = (periods, leak / abs(complex(rows[:, -1].mean())))
+        divisor = abs(complex(rows[:, -1].mean()))
+        self._reference_leak_at = (periods, leak / divisor if divisor else math.inf)
         return self._reference_leak_at[1]
 
     def line_leaks(self) -> np.ndarray:
