@@ -21,6 +21,7 @@ from typing import Protocol
 import numpy as np
 
 from bodebench.core.benchgrid import (
+    LINE_TURNS,
     alias_fit_order,
     fold_bound,
     line_leak,
@@ -29,7 +30,7 @@ from bodebench.core.benchgrid import (
     lines_on_harmonics,
     turning_amplitude,
 )
-from bodebench.core.fourier import ExactPeriodIntegrator, GridPeriodIntegrator
+from bodebench.core.fourier import ExactPeriodIntegrator, GridPeriodIntegrator, line_gains
 from bodebench.core.phase_average import PhaseAverage, grid_stands_still, waveform_fold_bound
 from bodebench.core.quality import MIN_COHERENCE_PERIODS, coherence, coherence_periods, total_harmonic_distortion
 from bodebench.core.response import ResponsePoint
@@ -248,6 +249,10 @@ class Autointegrator:
                                   max_gap=self.max_gap_periods if check_gaps else math.inf,
                                   fit_order=fit_order, lines_hz=self.standing_lines))
         self.samples_per_period = samples_per_period
+        # what each period's solve on the bench's grid lets through of a unit standing line into each solved harmonic
+        # (harmonic -> (line,)): more than the continuous-time leak on a coarse grid
+        gains = line_gains(frequency_hz, harmonics, fit_order, samples_per_period, self.standing_lines)
+        self._line_gains = {k: gains[i] for i, k in enumerate(harmonics)}
         self.fold_decay = analysis.fold_decay
         """The power j**-d the output's harmonics are taken to fall at least as fast as in the tail the averaged
         waveform shows (harmonics N/4 to N/2 on a whole grid); the bound from the solved harmonics, up to 8, which
@@ -422,11 +427,23 @@ class Autointegrator:
         leak = sum(line_leak(turning_amplitude(rows[:, i], d / f), d / f, 1, averaged)
                    for i, d in enumerate(turning))
         residuals = rows[:, len(turning): len(turning) + len(self.standing_lines)]
-        leak += sum(line_leak(float(h), d / f, 1, averaged) for h, d in zip(
-            (2.0 * f * np.abs(residuals.sum(axis=0)) / rows.shape[0]).tolist(), self.standing_lines, strict=True))
+        leak += self._standing_leak((2.0 * f * np.abs(residuals.sum(axis=0)) / rows.shape[0]).tolist(), 1, averaged)
         divisor = abs(complex(rows[:, -1].mean()))
         self._reference_leak_at = (periods, leak / divisor if divisor else math.inf)
         return self._reference_leak_at[1]
+
+    def _standing_leak(self, amplitudes: Sequence[float], harmonic: int, averaged: int) -> float:
+        """What the standing lines of ``amplitudes`` leak into the mean of ``averaged`` periods of ``harmonic``: the
+        larger of :func:`~bodebench.core.benchgrid.line_leak` and, until the line has turned
+        :data:`~bodebench.core.benchgrid.LINE_TURNS` times, its amplitude times the most one period's solve on
+        the bench's grid lets through (``line_gains``; standing still, such a leak is the same every period)."""
+        leak = 0.0
+        gains = self._line_gains[harmonic]
+        for h, d, gain in zip(amplitudes, self.standing_lines, gains.tolist(), strict=True):
+            x = d / self.frequency_hz
+            grid = h * gain if averaged * abs(x - round(x)) < LINE_TURNS else 0.0
+            leak += max(line_leak(h, x, harmonic, averaged), grid)
+        return leak
 
     def line_leaks(self) -> np.ndarray:
         """(channels, harmonics) the bound :func:`~bodebench.core.benchgrid.line_leak` puts on what the disturbance
@@ -450,8 +467,7 @@ class Autointegrator:
             if min(periods, rows.shape[0]) >= 2:
                 residuals = _later_half(rows, periods)
                 amplitudes = 2.0 * self.frequency_hz * np.abs(residuals[:, c].sum(axis=0)) / residuals.shape[0]
-                leak += sum(line_leak(float(h), d / self.frequency_hz, self.harmonics[k], averaged)
-                            for h, d in zip(amplitudes.tolist(), self.standing_lines, strict=True))
+                leak += self._standing_leak(amplitudes.tolist(), self.harmonics[k], averaged)
         for x, coefficients in self._turning(c, k, periods):
             leak += line_leak(turning_amplitude(coefficients, x), x, self.harmonics[k], averaged)
         relative = self._reference_leak(periods)
