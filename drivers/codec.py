@@ -40,14 +40,15 @@ TIMESTAMP = "timestamp_us"
 """Name of the optional controller time signal of the feedback messages (microseconds, rolling)."""
 SETPOINT_ECHO = "setpoint_echo"
 """Name of the feedback channel carrying the setpoint the drive applied (the two-channel reference of choice)."""
+CRC = "crc"
+"""Name of the optional CRC-8 byte of a feedback message (drivers.e2e; drivers/PROTOCOL.md section 6)."""
 
 
 def carries_lines(channel: str) -> bool:
     """Whether feedback ``channel`` can carry a disturbance line (mains hum): every measured signal can; the
     drive's echo of the setpoint it applied is a number, and carries none."""
     return channel != SETPOINT_ECHO
-CRC = "crc"
-"""Name of the optional CRC-8 byte of a feedback message (drivers.e2e; drivers/PROTOCOL.md section 6)."""
+
 
 # type name -> (struct code, size in bytes, is integer, is signed)
 _TYPES: dict[str, tuple[str, int, bool, bool]] = {

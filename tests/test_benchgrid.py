@@ -582,6 +582,21 @@ HUM_TRUTH = {1: 0.8 - 0.3j, 2: 0.02 + 0.01j, 3: 0.006 + 0.003j}
 """Harmonics 1..3 of the response the hum tests measure (P + iQ swapped: Q sin + P cos, output units)."""
 
 
+def _hum_truth(f: float, t: np.ndarray) -> np.ndarray:
+    """The response HUM_TRUTH at f (Hz) at times t (s)."""
+    return sum(z.imag * np.sin(2 * np.pi * k * f * t) + z.real * np.cos(2 * np.pi * k * f * t)
+               for k, z in HUM_TRUTH.items())
+
+
+def _fed(sampler: Autointegrator, t: np.ndarray, columns: np.ndarray) -> list[ResponsePoint]:
+    """The points of ``sampler`` fed ``columns`` (sample, column) at times t (s), 4096 samples a call, until done."""
+    for start in range(0, t.size, 4096):
+        if sampler.done:
+            break
+        sampler.feed(t[start:start + 4096], columns[start:start + 4096])
+    return sampler.points()
+
+
 def _hum_at(line_harmonics: float, samples: float, hum: float, eps: float, max_periods: int,
             turning: tuple[float, ...] = (), harmonics: tuple[int, ...] = (1, 2, 3), reference: str = ""
             ) -> dict[bool, dict[int, ResponsePoint]]:
@@ -593,8 +608,7 @@ def _hum_at(line_harmonics: float, samples: float, hum: float, eps: float, max_p
     f = 50.0 / line_harmonics
     rate = samples * f
     t = np.arange(0, int((max_periods + 10) * samples)) / rate - 0.5 / rate
-    y = sum(z.imag * np.sin(2 * np.pi * k * f * t) + z.real * np.cos(2 * np.pi * k * f * t)
-            for k, z in HUM_TRUTH.items())
+    y = _hum_truth(f, t)
     mains = hum * np.sin(2 * np.pi * 50.0 * t + 2.0)
     y = y + np.exp(-np.maximum(t, 0.0) * f / 3) * np.cos(2 * np.pi * 2.3 * f * t)
     if reference:
@@ -608,11 +622,7 @@ def _hum_at(line_harmonics: float, samples: float, hum: float, eps: float, max_p
         sampler = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=samples,
                                  disturbance_lines=lines, reference="r" if reference else None)
         assert sampler.turning_lines == (turning if lines else ())
-        for start in range(0, t.size, 4096):
-            if sampler.done:
-                break
-            sampler.feed(t[start:start + 4096], columns[start:start + 4096])
-        found[bool(lines)] = {p.harmonic: p for p in sampler.points()}
+        found[bool(lines)] = {p.harmonic: p for p in _fed(sampler, t, columns)}
     return found
 
 
@@ -774,8 +784,7 @@ def test_the_drives_echo_of_its_setpoint_is_read_for_no_line() -> None:
     f, samples, eps = 50.0 / 1.0005, 40.3, 0.01
     rate = samples * f
     t = np.arange(0, int(3010 * samples)) / rate - 0.5 / rate
-    y = sum(z.imag * np.sin(2 * np.pi * k * f * t) + z.real * np.cos(2 * np.pi * k * f * t)
-            for k, z in HUM_TRUTH.items())
+    y = _hum_truth(f, t)
     echo = np.round(np.sin(2 * np.pi * f * t) * 32767) / 32767  # a 16-bit setpoint
     columns = np.stack((y, echo), axis=1)
     analysis = AnalysisConfig(harmonics=(1, 2, 3), tolerance_percent=eps, max_periods=3000)
@@ -784,11 +793,7 @@ def test_the_drives_echo_of_its_setpoint_is_read_for_no_line() -> None:
         sampler = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=samples,
                                  disturbance_lines=disturbance_lines([50.0]), reference="echo",
                                  reference_lines=reads)
-        for start in range(0, t.size, 4096):
-            if sampler.done:
-                break
-            sampler.feed(t[start:start + 4096], columns[start:start + 4096])
-        points = sampler.points()
+        points = _fed(sampler, t, columns)
         for point in points:
             error = abs(complex(point.q, point.p) - HUM_TRUTH[point.harmonic])
             assert point.converged and error <= 1e-4 * abs(HUM_TRUTH[point.harmonic]), (reads, point.harmonic)
@@ -806,8 +811,7 @@ def test_periods_of_a_silent_reference_are_read_for_no_line(dead_periods: int) -
     f, samples = 50.0 / 2.01, 40.3
     rate = samples * f
     t = np.arange(0, int(400 * samples)) / rate - 0.5 / rate
-    y = sum(z.imag * np.sin(2 * np.pi * k * f * t) + z.real * np.cos(2 * np.pi * k * f * t)
-            for k, z in HUM_TRUTH.items())
+    y = _hum_truth(f, t)
     reference = np.where(t * f < dead_periods, 0.0, np.sin(2 * np.pi * f * t))
     y = np.where(t * f < dead_periods, 0.0, y)
     columns = np.stack((y, reference), axis=1)
@@ -817,11 +821,7 @@ def test_periods_of_a_silent_reference_are_read_for_no_line(dead_periods: int) -
         sampler = Autointegrator(f, 1.0, ("y",), analysis, t0=0.0, samples_per_period=samples,
                                  disturbance_lines=lines, reference="r")
         try:
-            for start in range(0, t.size, 4096):
-                if sampler.done:
-                    break
-                sampler.feed(t[start:start + 4096], columns[start:start + 4096])
-            points = sampler.points()
+            points = _fed(sampler, t, columns)
         except GapsError as refused:
             outcomes.append(f"refused: {refused}")
             continue

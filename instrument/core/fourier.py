@@ -720,11 +720,11 @@ def line_gains(frequency_hz: float, harmonics: Sequence[int], fit_order: int, sa
     coefficient of each of ``harmonics`` (output units per unit of line) in :class:`ExactPeriodIntegrator` solving
     harmonics 1 .. ``fit_order`` on a uniform grid of ``samples_per_period`` samples a period: what the per-period
     solve on sampled data lets through of a frequency outside its basis, which no continuous-time formula gives (it
-    stays about 1 / N^2 of the line however close the line lies to a whole harmonic). Found by construction: the line
-    fed as a cosine and as a sine (two columns) for up to :data:`LINE_GAIN_PERIODS` periods off the grid's phase; each
-    period's two answers are the columns of a 2 x 2 real matrix whose largest singular value is the worst over the
-    line's phase; the largest over the periods (the grid's sample phase against the period moves from one to the
-    next where it is not whole)."""
+    stays about N^-3 of the line, N the samples a period, however close the line lies to a whole harmonic). Found by
+    construction: the line fed as a cosine and as a sine (two columns) for up to :data:`LINE_GAIN_PERIODS` periods
+    off the grid's phase; each period's two answers are the columns of a 2 x 2 real matrix whose largest singular
+    value is the worst over the line's phase; the largest over the periods (the grid's sample phase against the
+    period moves from one to the next where it is not whole)."""
     count = len(lines_hz)
     if not count or not 0 < samples_per_period <= LINE_GAIN_MAX_SAMPLES_PER_PERIOD:
         return np.zeros((len(harmonics), count))
