@@ -253,6 +253,11 @@ class Autointegrator:
         # (harmonic -> (line,)): more than the continuous-time leak on a coarse grid
         gains = line_gains(frequency_hz, harmonics, fit_order, samples_per_period, self.standing_lines)
         self._line_gains = {k: gains[i] for i, k in enumerate(harmonics)}
+        # the standing lines the sample rate folds (Hz, as the samples see them): above half the rate, a line's
+        # turning against the period and the grid's own slip combine, and the folded view's turns say nothing of
+        # whether the spread shows its leak
+        rate = samples_per_period * frequency_hz
+        self._folded_lines = {abs(d - rate * round(d / rate)) for d in disturbance_lines if 0 < rate < 2.0 * d}
         self.fold_decay = analysis.fold_decay
         """The power j**-d the output's harmonics are taken to fall at least as fast as in the tail the averaged
         waveform shows (harmonics N/4 to N/2 on a whole grid); the bound from the solved harmonics, up to 8, which
@@ -435,13 +440,14 @@ class Autointegrator:
     def _standing_leak(self, amplitudes: Sequence[float], harmonic: int, averaged: int) -> float:
         """What the standing lines of ``amplitudes`` leak into the mean of ``averaged`` periods of ``harmonic``: the
         larger of :func:`~bodebench.core.benchgrid.line_leak` and, until the line has turned
-        :data:`~bodebench.core.benchgrid.LINE_TURNS` times, its amplitude times the most one period's solve on
-        the bench's grid lets through (``line_gains``; standing still, such a leak is the same every period)."""
+        :data:`~bodebench.core.benchgrid.LINE_TURNS` times (for a line the rate folds, always), its amplitude times
+        the most one period's solve on the bench's grid lets through (``line_gains``; standing still, such a leak is
+        the same every period)."""
         leak = 0.0
         gains = self._line_gains[harmonic]
         for h, d, gain in zip(amplitudes, self.standing_lines, gains.tolist(), strict=True):
             x = d / self.frequency_hz
-            grid = h * gain if averaged * abs(x - round(x)) < LINE_TURNS else 0.0
+            grid = h * gain if averaged * abs(x - round(x)) < LINE_TURNS or d in self._folded_lines else 0.0
             leak += max(line_leak(h, x, harmonic, averaged), grid)
         return leak
 
