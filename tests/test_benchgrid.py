@@ -601,10 +601,10 @@ def _hum_at(line_harmonics: float, samples: float, hum: float, eps: float, max_p
             turning: tuple[float, ...] | None = (), harmonics: tuple[int, ...] = (1, 2, 3), reference: str = ""
             ) -> dict[bool, dict[int, ResponsePoint]]:
     """Each of ``harmonics``' points, without and with the mains lines (keys False, True), of HUM_TRUTH plus a
-    transient that dies in a few periods and mains hum of amplitude ``hum`` at ``line_harmonics`` times f, sampled at
-    ``samples`` a period from just before t = 0; ``turning``: the lines the sampler is to read from a solved harmonic
-    (None: not checked). ``reference``: two-channel mode over a reference column carrying the input, a unit sine, and the hum on "output"
-    or on the "reference" column."""
+    transient that dies in a few periods and mains hum of amplitude ``hum`` at ``line_harmonics`` times f, sampled
+    at ``samples`` a period from just before t = 0; ``turning``: the lines the sampler is to read from a solved
+    harmonic (None: not checked). ``reference``: two-channel mode over a reference column carrying the input, a unit
+    sine, and the hum on "output" or on the "reference" column."""
     f = 50.0 / line_harmonics
     rate = samples * f
     t = np.arange(0, int((max_periods + 10) * samples)) / rate - 0.5 / rate
