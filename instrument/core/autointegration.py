@@ -28,6 +28,7 @@ from bodebench.core.benchgrid import (
     lines_beyond_fit,
     lines_on_fit,
     lines_on_harmonics,
+    seen_at,
     turning_amplitude,
 )
 from bodebench.core.fourier import ExactPeriodIntegrator, GridPeriodIntegrator, line_gains
@@ -257,7 +258,7 @@ class Autointegrator:
         # turning against the period and the grid's own slip combine, and the folded view's turns say nothing of
         # whether the spread shows its leak
         rate = samples_per_period * frequency_hz
-        self._folded_lines = {abs(d - rate * round(d / rate)) for d in disturbance_lines if 0 < rate < 2.0 * d}
+        self._folded_lines = {seen_at(d, rate) for d in disturbance_lines if 0 < rate < 2.0 * d}
         self.fold_decay = analysis.fold_decay
         """The power j**-d the output's harmonics are taken to fall at least as fast as in the tail the averaged
         waveform shows (harmonics N/4 to N/2 on a whole grid); the bound from the solved harmonics, up to 8, which

@@ -41,7 +41,7 @@ __all__ = ["DISTURBANCE_HARMONICS", "FIT_ORDER_MAX", "FOLD_IMAGES", "FOLD_ORDER"
            "MIN_BEAT_PERIODS", "alias_fit_order", "disturbance_lines", "flag_disturbed", "fold_beat", "fold_bound",
            "folding_harmonic", "folding_notes", "line_leak", "lines_beyond_fit", "lines_near", "lines_on_fit",
            "lines_on_harmonics", "mark_untied", "move_off_disturbances", "move_off_folds", "nearest_line",
-           "turning_amplitude"]
+           "seen_at", "turning_amplitude"]
 
 DISTURBANCE_HARMONICS = 3
 """Each listed disturbance frequency counts with its harmonics up to this one (mains: 50, 100, 150 Hz)."""
@@ -89,13 +89,19 @@ def lines_on_harmonics(lines: Sequence[float], frequency_hz: float, samples_per_
                  if round(d / frequency_hz) in harmonics)
 
 
+def seen_at(line_hz: float, rate_hz: float) -> float:
+    """A line (Hz) as samples at ``rate_hz`` see it: folded into 0 .. half the rate (as it is where the rate is
+    unknown, 0)."""
+    return abs(line_hz - rate_hz * round(line_hz / rate_hz)) if rate_hz > 0 else abs(line_hz)
+
+
 def lines_near(lines: Sequence[float], frequency_hz: float, samples_per_period: float, above: float, up_to: float
                ) -> tuple[float, ...]:
     """The disturbance ``lines`` (Hz) as samples at ``samples_per_period`` times ``frequency_hz`` see them (folded
     into 0 .. half the rate; as they are where the rate is unknown, 0) whose nearest whole harmonic j of f has
     ``above < j <= up_to``."""
     rate = samples_per_period * frequency_hz
-    seen = {abs(d - rate * round(d / rate)) if rate > 0 else abs(d) for d in lines}
+    seen = {seen_at(d, rate) for d in lines}
     return tuple(sorted(d for d in seen if d > 0 and above < round(d / frequency_hz) <= up_to))
 
 
