@@ -267,9 +267,9 @@ class Autointegrator:
         # two-channel mode the fundamental where it is solved only for the divisor, then the integrator's
         # unmeasured_harmonics), (channel, harmonic), while a rule is open
         self._unmeasured: list[np.ndarray] = []
+        unmeasured: tuple[int, ...] = getattr(self._integrator, "unmeasured_harmonics", ())
         self._divisor_only = reference is not None and 1 not in self.harmonics
-        self._unmeasured_orders: tuple[int, ...] = (1,) * self._divisor_only + tuple(
-            getattr(self._integrator, "unmeasured_harmonics", ()))
+        self._unmeasured_orders: tuple[int, ...] = (1,) * self._divisor_only + unmeasured
         # two-channel mode: each whole period's reference coefficients at the harmonic nearest each turning and
         # measured line, then its residual at each standing line, then its fundamental (input units), while a rule
         # is open: a line on the reference moves the divisor of every ratio
@@ -277,7 +277,7 @@ class Autointegrator:
         self._reference_leak_at = (-1, 0.0)  # (periods, _reference_leak of them) last computed
         self._reference_lines = reference is not None and reference_lines and not grid_steps_per_period and bool(
             self.turning_lines or self.measured_lines or self.standing_lines)
-        solved = (*harmonics, *getattr(self._integrator, "unmeasured_harmonics", ()))
+        solved = (*harmonics, *unmeasured)
         self._reference_columns = [solved.index(round(d / frequency_hz))
                                    for d in (*self.turning_lines, *self.measured_lines)]
         # each whole period's residual at each standing line, (channel, line), while a rule is open
@@ -342,12 +342,14 @@ class Autointegrator:
         m = p.shape[0]
         if m == 0:
             return 0
+        usable = None  # the periods the histories take, where already known
         if isinstance(self._integrator, ExactPeriodIntegrator) and not self.done:
             drift = self._integrator.drift[whole, : len(self.channels)]
             self._drift_sum += drift.sum(axis=0)
             self._drift_periods += drift.shape[0]
             if self._keep_unmeasured or self.standing_lines or self._reference_lines:
-                kept = whole & self._usable(p, q)  # the periods the histories take, so that the records align
+                usable = self._usable(p, q)
+                kept = whole & usable  # the periods the histories take, so that the records align
                 if self._keep_unmeasured:
                     self._take_unmeasured(self._integrator.unmeasured, p, q, kept)
                 if self.standing_lines:
@@ -363,7 +365,7 @@ class Autointegrator:
                 else:
                     self._take(values, sizes)
                 return m
-        whole &= self._usable(p, q)
+        whole &= self._usable(p, q) if usable is None else usable
         if not whole.all():
             if self.done:
                 p, q = p[whole], q[whole]
@@ -433,10 +435,15 @@ class Autointegrator:
         leak = sum(line_leak(turning_amplitude(rows[:, i], d / f), d / f, 1, averaged)
                    for i, d in enumerate(turning))
         residuals = rows[:, len(turning): len(turning) + len(self.standing_lines)]
-        leak += self._standing_leak((2.0 * f * np.abs(residuals.sum(axis=0)) / rows.shape[0]).tolist(), 1, averaged)
+        leak += self._standing_leak(self._line_amplitudes(residuals), 1, averaged)
         divisor = abs(complex(rows[:, -1].mean()))
         self._reference_leak_at = (periods, leak / divisor if divisor else math.inf)
         return self._reference_leak_at[1]
+
+    def _line_amplitudes(self, residuals: np.ndarray) -> list[float]:
+        """Each standing line's amplitude from W periods' residuals at it ((period, line), units times seconds):
+        ``2 f |sum| / W``."""
+        return (2.0 * self.frequency_hz * np.abs(residuals.sum(axis=0)) / residuals.shape[0]).tolist()
 
     def _standing_leak(self, amplitudes: Sequence[float], harmonic: int, averaged: int) -> float:
         """What the standing lines of ``amplitudes`` leak into the mean of ``averaged`` periods of ``harmonic``: the
@@ -472,9 +479,8 @@ class Autointegrator:
         if self._lines:
             rows = _joined(self._lines)
             if min(periods, rows.shape[0]) >= 2:
-                residuals = _later_half(rows, periods)
-                amplitudes = 2.0 * self.frequency_hz * np.abs(residuals[:, c].sum(axis=0)) / residuals.shape[0]
-                leak += self._standing_leak(amplitudes.tolist(), self.harmonics[k], averaged)
+                amplitudes = self._line_amplitudes(_later_half(rows, periods)[:, c])
+                leak += self._standing_leak(amplitudes, self.harmonics[k], averaged)
         for x, coefficients in self._turning(c, k, periods):
             leak += line_leak(turning_amplitude(coefficients, x), x, self.harmonics[k], averaged)
         relative = self._reference_leak(periods)
