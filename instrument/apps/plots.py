@@ -60,7 +60,7 @@ DEFAULT_FORMATS = ("png",)
 DRAWING_MODULES = ("matplotlib.backends.backend_agg", "matplotlib.figure", "matplotlib.lines", "matplotlib.patches",
                    "matplotlib.ticker")
 """What drawing a figure imports (the drawing process of ``bodebench simulate`` loads them as it starts, see
-bodebench.bench.offline.drawing_executor)."""
+bodebench.bench.drawing.drawing_executor)."""
 
 
 def check_formats(formats: Sequence[str]) -> tuple[str, ...]:

@@ -129,35 +129,6 @@ def _load_kernels(lock: Any, models: tuple[str, ...]) -> None:
         load_kernels(models)
 
 
-def _start_drawing(imports: tuple[str, ...]) -> None:
-    """The drawing process leaves stop signals to the command, which ends it once the plots queued are drawn."""
-    import importlib
-
-    _set_stop_signals(signal.SIG_IGN)
-    for name in imports:
-        importlib.import_module(name)
-
-
-DRAWING_PROCESSES = 2
-"""Processes drawing an offline sweep's figures: the cases of a file end together, so their figures (two a case)
-are drawn side by side once the pool's workers are idle (the 2013 experiment end to end: 2.53 s against 2.65 s
-with one, median of five each, 2 cores)."""
-
-
-@contextmanager
-def drawing_executor(imports: Collection[str]) -> Iterator[ProcessPoolExecutor]:
-    """The processes that draw an offline sweep's plots (``DRAWING_PROCESSES``), started now: they import
-    ``imports`` (the plotting modules) while this process loads the compiled kernels and the pool starts, rather
-    than before, and the pool's workers never load them. Shut down (their queued plots drawn) when the block ends."""
-    pool = ProcessPoolExecutor(max_workers=DRAWING_PROCESSES, initializer=_start_drawing, initargs=(tuple(imports),))
-    for _ in range(DRAWING_PROCESSES):
-        pool.submit(int)  # start the processes now
-    try:
-        yield pool
-    finally:
-        pool.shutdown(wait=True)
-
-
 class ExecutorError(Exception):
     """An executor asked for cannot be had (Dask not installed, no scheduler at the address)."""
 

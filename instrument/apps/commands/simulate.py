@@ -65,7 +65,7 @@ def _simulate(args: argparse.Namespace) -> int:
             drawer = None
             if args.plots:  # a process of its own, started first: it imports matplotlib while the pool starts
                 from bodebench.apps.plots import DRAWING_MODULES
-                from bodebench.bench.offline import drawing_executor
+                from bodebench.bench.drawing import drawing_executor
 
                 drawer = stack.enter_context(drawing_executor(DRAWING_MODULES))
             executor = stack.enter_context(offline_executor(args.jobs, args.executor, models))
