@@ -136,6 +136,26 @@ def test_simulate_plot_formats_and_bad_arguments(tmp_path: Path, capsys: pytest.
     assert "plot format jpg unknown; choose from png, svg, pdf" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_plots_the_disk_will_not_take_are_one_line_and_the_points_are_kept(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], jobs: str) -> None:
+    """A case's Bode plot cannot be written (its path is a directory), drawn here or by the drawing process: one
+    line naming the file and the points kept, exit status 1, every point on disk with its record."""
+    cfg = tmp_path / "cases.toml"
+    cfg.write_text(CASES)
+    out = tmp_path / "out"
+    (out / "heavy" / "bode.png").mkdir(parents=True)
+    assert main(["simulate", str(cfg), "--out", str(out), "--jobs", jobs, "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    heavy = out / "heavy"
+    assert err == [f"bodebench: stopped: output: {heavy}: cannot write the plots: {heavy / 'bode.png'}: "
+                   f"Is a directory; {3 * 4 * 2} points kept in {out}"], err
+    assert "Traceback" not in "\n".join(err)
+    for case in ("light", "heavy", "lag"):
+        assert len(load_response(out / case).points) == 4 * 2
+        assert json.loads((out / case / "response.json").read_text())["runs"]
+
+
 @pytest.mark.slow
 def test_simulate_on_a_local_dask_cluster_gives_the_pool_results(tmp_path: Path) -> None:
     cfg = tmp_path / "cases.toml"

@@ -337,7 +337,7 @@ class SweepProcedure:
                     self._summarize(outcome, completed=False)
                     if outcome.response.points:
                         self._draw(outcome)
-                except (OSError, ResultsError):
+                except (SessionError, ResultsError):
                     pass  # the record or the plots only: the points are on disk already
             raise
         outcome.response = latest_points(result.response)
@@ -468,7 +468,7 @@ class SweepProcedure:
             advance()
         for outcome, futures in drawing:
             if futures:
-                outcome.files = tuple(path for future in futures for path in future.result())
+                outcome.files = _drawn(outcome.directory, futures)
             self.listener(CaseSaved(outcome.index, outcome.response, outcome.directory, outcome.files))
 
     def _overview_progress(self, case: str, periods: int) -> None:
@@ -520,9 +520,13 @@ class SweepProcedure:
                                 figures=(figure,)) for figure in PLOT_FIGURES]
 
     def _draw(self, outcome: CaseOutcome) -> None:
+        """``outcome``'s plots drawn here; SessionError (output) where they cannot be written."""
         if self.plots is not None:
-            outcome.files = tuple(self.plots(outcome.response, outcome.directory, self._title(outcome),
-                                             summary=outcome.summary))
+            try:
+                outcome.files = tuple(self.plots(outcome.response, outcome.directory, self._title(outcome),
+                                                 summary=outcome.summary))
+            except OSError as exc:
+                raise _plots_not_written(outcome.directory, exc) from None
 
     def _title(self, outcome: CaseOutcome) -> str:
         """The plots' title: the configuration's, with the case's name for a file with [cases]."""
@@ -530,7 +534,15 @@ class SweepProcedure:
 
     def _summarize(self, outcome: CaseOutcome, completed: bool = True) -> None:
         """The figures read off the case's response, into the outcome and the sidecar, with the record of this
-        run after those of the runs it continues."""
+        run after those of the runs it continues; SessionError (output) when the disk will not take them (the
+        points are on disk already)."""
+        try:
+            self._write_record(outcome, completed)
+        except OSError as exc:
+            raise SessionError(FaultKind.OUTPUT, f"{outcome.directory}: cannot write the run's record or summary: "
+                                                 f"{exc.strerror or exc}") from None
+
+    def _write_record(self, outcome: CaseOutcome, completed: bool) -> None:
         outcome.summary = tuple(summarize_response(outcome.response, outcome.case.analysis.response_kind))
         result = outcome.result
         if result is None and outcome.session is not None and outcome.session.last_health is not None:
@@ -553,13 +565,29 @@ class SweepProcedure:
     def _finish(self, outcome: CaseOutcome) -> None:
         """The record, the summary and the plots of a case that ran to its end; SessionError (output) when the
         disk will not take them (the points are on disk already)."""
-        try:
-            self._summarize(outcome)
-            self._draw(outcome)
-        except OSError as exc:
-            raise SessionError(FaultKind.OUTPUT, f"{outcome.directory}: cannot write the run's record, summary or "
-                                                 f"plots: {exc.strerror or exc}") from None
+        self._summarize(outcome)
+        self._draw(outcome)
         self.listener(CaseSaved(outcome.index, outcome.response, outcome.directory, outcome.files))
+
+
+def _plots_not_written(directory: Path, exc: BaseException) -> SessionError:
+    """The one line that says why a case's plots are not in ``directory`` (its points are)."""
+    if isinstance(exc, OSError):
+        why = f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else exc.strerror or str(exc)
+    else:
+        why = f"{type(exc).__name__}: {exc}"
+    return SessionError(FaultKind.OUTPUT, f"{directory}: cannot write the plots: {why}")
+
+
+def _drawn(directory: Path, futures: Sequence[Future[list[Path]]]) -> tuple[Path, ...]:
+    """The files a case's plots, drawn elsewhere, were written to; SessionError (output) where one failed."""
+    files: list[Path] = []
+    for future in futures:
+        try:
+            files += future.result()
+        except Exception as exc:  # the disk, or the process that drew it
+            raise _plots_not_written(directory, exc) from None
+    return tuple(files)
 
 
 def _growing(plan: GrowingPlan | None) -> bool:

@@ -28,7 +28,7 @@ log = logging.getLogger("bodebench")
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from bodebench.bench.events import CaseBegins, OverviewProgress, PlanGrew, PointFinished
+    from bodebench.bench.events import CaseBegins, OverviewProgress, PlanGrew, PointFinished, SessionError
     from bodebench.bench.offline import ExecutorError, offline_executor
     from bodebench.bench.procedure import SweepProcedure
 
@@ -76,6 +76,10 @@ def _simulate(args: argparse.Namespace) -> int:
     except ExecutorError as exc:
         print(f"bodebench: {exc}", file=sys.stderr)
         return 2
+    except SessionError as exc:  # the disk would not take a record or the plots: every point is on disk
+        kept = sum(len(outcome.response.points) for outcome in procedure.outcomes)
+        print(f"bodebench: stopped: {exc}; {kept} points kept in {out}", file=sys.stderr)
+        return 1
     for outcome in outcomes:
         unconverged = [p for p in outcome.response.points if not p.converged]
         print(f"{outcome.case.name}: {len(outcome.response.points)} points, "
