@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -154,6 +155,57 @@ def test_plots_the_disk_will_not_take_are_one_line_and_the_points_are_kept(
     for case in ("light", "heavy", "lag"):
         assert len(load_response(out / case).points) == 4 * 2
         assert json.loads((out / case / "response.json").read_text())["runs"]
+
+
+MANY = """
+title = "many"
+[plant]
+model = "lag"
+time_constant = 0.05
+gain = 2.0
+[excitation]
+amplitude = 0.5
+frequencies_hz = [0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0, 11.0, 16.0, 22.0, 32.0, 45.0, 64.0, 90.0]
+[analysis]
+harmonics = [1, 2, 3]
+tolerance_percent = 0.1
+"""
+
+
+def _simulate_limited(cfg: Path, out: Path, file_bytes: int) -> subprocess.CompletedProcess[str]:
+    """``bodebench simulate`` whose files may not grow past ``file_bytes`` (a full disk, as the process sees it)."""
+    import resource
+
+    def limited() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (file_bytes, file_bytes))
+
+    return subprocess.run([sys.executable, "-m", "bodebench", "simulate", str(cfg), "--out", str(out), "--quiet",
+                           "--plots", "none"], capture_output=True, text=True, timeout=300, preexec_fn=limited)
+
+
+@pytest.mark.skipif(os.name != "posix", reason="a file size limit")
+def test_a_disk_that_fills_during_a_simulate_is_one_line_and_every_point_written_is_kept(tmp_path: Path) -> None:
+    """Files limited to half of what the sweep writes: the sweep stops at the first point the disk will not take,
+    in one line naming the frequency and the points kept, all of them on disk; limited below what a results
+    directory needs to start, one line and exit status 2 before any point."""
+    cfg = tmp_path / "many.toml"
+    cfg.write_text(MANY)
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "full"), "--quiet", "--plots", "none"]) == 0
+    largest = max(path.stat().st_size for path in (tmp_path / "full").iterdir())
+    out = tmp_path / "half"
+    proc = _simulate_limited(cfg, out, largest // 2)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 1 and len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    kept = load_response(out, drop_torn_row=True).points
+    assert 0 < len(kept) < 16 * 3
+    assert re.fullmatch(rf"bodebench: stopped: output: {re.escape(str(out))}: cannot write the point at [0-9.]+ Hz: "
+                        rf"File too large.*; {len(kept)} points kept in {re.escape(str(out))}", lines[0]), lines[0]
+    proc = _simulate_limited(cfg, tmp_path / "none", 1024)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines() == [f"bodebench: {tmp_path / 'none'}: cannot write results there: "
+                                                "File too large"], proc.stderr
+    (tmp_path / "a-file").write_text("")
+    assert main(["simulate", str(cfg), "--out", str(tmp_path / "a-file"), "--quiet"]) == 2
 
 
 @pytest.mark.slow

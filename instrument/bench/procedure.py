@@ -45,6 +45,7 @@ from bodebench.io.results import (
     SIDECAR_NAME,
     ResultsError,
     ResultsWriter,
+    check_output,
     load_response,
     save_response,
     sidecar_runs,
@@ -226,6 +227,8 @@ class SweepProcedure:
         self.log_bus = log_bus
         self.keep_samples = keep_samples
         self.outcomes: list[CaseOutcome] = []
+        self.measuring: list[CaseOutcome] = []
+        """Offline: every case measured at once, begun or not (each point on disk as it comes)."""
         self.current: CaseOutcome | None = None
         self.controls = SweepControls()
         """The user's requests, shared with every bench session of the sweep."""
@@ -394,8 +397,17 @@ class SweepProcedure:
                 earlier_runs=sidecar_runs(self._directory(i)) if before else [], resumed=before is not None))
             skips.append(completed_frequencies(before, tuple({q.channel for q in before.points}),
                                                case.analysis.harmonics) if before else set())
-        writers = [ResultsWriter(o.directory, o.case.name, o.case.raw, resume=previous[o.index] is not None)
-                   for o in outcomes]
+        self.measuring = outcomes
+        for outcome in outcomes:  # every directory checked before the first frequency (one output a plant)
+            case = outcome.case
+            check_output(outcome.directory, len(outcome.response.points) + len(case.excitation.frequencies_hz)
+                         * len(case.analysis.harmonics))
+        try:
+            writers = [ResultsWriter(o.directory, o.case.name, o.case.raw, resume=previous[o.index] is not None)
+                       for o in outcomes]
+        except OSError as exc:
+            raise ResultsError(f"{exc.filename or self.out}: cannot write results there: {exc.strerror or exc}") \
+                from None
         plans = [GrowingPlan.of(case) for case in cases]
         waiting: list[list[list[ResponsePoint] | PlanGrew]] = [[] for _ in cases]
         for k, (outcome, plan) in enumerate(zip(outcomes, plans, strict=True)):
@@ -442,7 +454,12 @@ class SweepProcedure:
                                    [samples_dirs[k] for k in active], in_flight_limit(self.executor))
             for j, points in rounds:
                 k = active[j]
-                writers[k].append(points)
+                try:
+                    writers[k].append(points)
+                except OSError as exc:
+                    raise SessionError(FaultKind.OUTPUT, f"{outcomes[k].directory}: cannot write the point at "
+                                                         f"{points[0].frequency_hz:g} Hz: {exc.strerror or exc}") \
+                        from None
                 skips[k].add(points[0].frequency_hz)
                 for point in points:
                     outcomes[k].response.add(point)

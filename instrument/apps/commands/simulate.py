@@ -77,7 +77,7 @@ def _simulate(args: argparse.Namespace) -> int:
         print(f"bodebench: {exc}", file=sys.stderr)
         return 2
     except SessionError as exc:  # the disk would not take a record or the plots: every point is on disk
-        kept = sum(len(outcome.response.points) for outcome in procedure.outcomes)
+        kept = sum(len(outcome.response.points) for outcome in procedure.measuring)
         print(f"bodebench: stopped: {exc}; {kept} points kept in {out}", file=sys.stderr)
         return 1
     for outcome in outcomes:
