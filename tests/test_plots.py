@@ -207,7 +207,11 @@ def test_plot_command_compares_results_directories(tmp_path: Path, capsys: pytes
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "3 responses -> " in capsys.readouterr().out
     assert main(["plot", str(tmp_path / "a"), "--out", str(tmp_path / "cmp")]) == 2
-    assert "no file suffix" in capsys.readouterr().err
+    assert capsys.readouterr().err == (f"bodebench: {tmp_path / 'cmp'}: no file suffix to take the image format from "
+                                       "(e.g. .png or .svg)\n")
+    assert main(["plot", str(tmp_path / "a"), "--out", str(tmp_path / "cmp.jpg")]) == 2
+    assert capsys.readouterr().err == (f"bodebench: {tmp_path / 'cmp.jpg'}: plot format jpg unknown; choose from png, "
+                                       "svg, pdf\n")
     assert main(["plot", str(tmp_path / "nothing"), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.endswith("nothing: not a directory") and "\n" not in err

@@ -28,8 +28,8 @@ def _plot(args: argparse.Namespace) -> int:
             responses[label] = load_response(sub)
     try:
         path = plot_comparison(responses, Path(args.out), args.title)
-    except ValueError as exc:
-        print(f"bodebench: {args.out}: {exc}", file=sys.stderr)
+    except ValueError as exc:  # names the file where it is the file's fault
+        print(f"bodebench: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
         print(f"bodebench: {args.out}: cannot write the plot: {exc.strerror or exc}", file=sys.stderr)
