@@ -656,6 +656,14 @@ class CanopenDriver(Driver):
                 done.append(f"{what} {where} NOT restored to {shown}: {exc}")
         return done
 
+    def _leave_protection_armed(self) -> list[str]:
+        """The drive was not seen in a safe state: its 0x1016 and 0x6007 stay as ``enable()`` wrote them, so that
+        it stops itself once the host's heartbeat ends (when the session closes); what is left, in words."""
+        restore, self._restore = self._restore, []
+        return [f"{what} 0x{index:04X}" + (f":{subindex:02X}" if index == HEARTBEAT_CONSUMER else "")
+                + " left armed (the drive was not seen disabled: it stops itself once the host's heartbeat ends)"
+                for index, subindex, _, what in reversed(restore)]
+
     def _map_pdos(self) -> None:
         """Write the RPDO and TPDO mapping of ``setup`` (synchronous transmission) with SDO."""
         from canopen.sdo import SdoAbortedError, SdoCommunicationError
@@ -794,7 +802,8 @@ class CanopenDriver(Driver):
                 except DriverOperationError as exc:
                     seen = None
                     steps.append(f"{step.name} (controlword 0x{step.controlword:04X}) not confirmed: {exc}")
-            restored = self._restore_protection()  # before the NMT command, the last word to the drive
+            # before the NMT command, the last word to the drive; a drive not seen safe keeps watching the host
+            restored = self._restore_protection() if seen in p.safe else self._leave_protection_armed()
             try:
                 self._nmt(0x80)
                 steps.append("NMT pre-operational sent")
@@ -808,12 +817,17 @@ class CanopenDriver(Driver):
         return seen in p.safe
 
     def close(self) -> None:
-        """Write back the drive's 0x1016 and 0x6007 if no ``disable()`` did, stop the host's heartbeat, close the
+        """Write back the drive's 0x1016 and 0x6007 if no ``disable()`` did and the drive reads safe (else they stay
+        armed, so that it stops itself once the host's heartbeat ends), stop the host's heartbeat, close the
         port."""
         try:
             if self._restore and not self.port.closed:
                 with self._pumped():
-                    steps = self._restore_protection()
+                    try:
+                        safe = self.profile.decode(self._read_status()) in self.profile.safe
+                    except DriverOperationError:
+                        safe = False
+                    steps = self._restore_protection() if safe else self._leave_protection_armed()
                 restored = "lost-host settings: " + ", ".join(steps)
                 self.shutdown_account = "; ".join(part for part in (self.shutdown_account, restored) if part)
         finally:

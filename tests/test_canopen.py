@@ -263,12 +263,19 @@ def test_a_drive_that_refuses_to_enable_stops_the_session_with_the_reason(tmp_pa
     assert not list(tmp_path.iterdir())
 
 
-def test_an_emcy_mid_sweep_stops_it_keeps_the_converged_points_and_leaves_the_drive_disabled(tmp_path: Path) -> None:
+SLEW_LIMITS = [pytest.param({}, id="no-rate-limit"), pytest.param({"max_rate": 5.0}, id="rate-limited")]
+"""Without and with a rate limit: with one, the way out slews the setpoint to zero, and on the lockstep clock each
+step of the slew waits for the drive's answer, which a faulted drive does not give."""
+
+
+@pytest.mark.parametrize("limits", SLEW_LIMITS)
+def test_an_emcy_mid_sweep_stops_it_keeps_the_converged_points_and_leaves_the_drive_disabled(
+        tmp_path: Path, limits: dict[str, float]) -> None:
     name = channel()
     recorder = FrameRecorder(name)
     # the 5 Hz point takes about 4 s of controller time (ramps and 17 periods); the EMCY comes during the 12 Hz one
-    session, error = run_session(bench(name, simulator={"canopen": {"emcy_at_s": 4.8, "emcy_code": 0x2310}}),
-                                 tmp_path)
+    session, error = run_session(bench(name, simulator={"canopen": {"emcy_at_s": 4.8, "emcy_code": 0x2310}},
+                                       safety=limits), tmp_path)
     frames = recorder.frames_seen()
     assert error is not None and error.kind is FaultKind.DRIVE
     assert "EMCY 0x2310" in str(error) and "Current" in str(error)
@@ -280,10 +287,11 @@ def test_an_emcy_mid_sweep_stops_it_keeps_the_converged_points_and_leaves_the_dr
     assert session.ended is not None and session.ended.disabled
 
 
-def test_a_missed_heartbeat_is_a_drive_fault(tmp_path: Path) -> None:
+@pytest.mark.parametrize("limits", SLEW_LIMITS)
+def test_a_missed_heartbeat_is_a_drive_fault(tmp_path: Path, limits: dict[str, float]) -> None:
     name = channel()
     recorder = FrameRecorder(name)
-    session, error = run_session(bench(name, canopen={"heartbeat_timeout_s": 0.4},
+    session, error = run_session(bench(name, canopen={"heartbeat_timeout_s": 0.4}, safety=limits,
                                        simulator={"canopen": {"heartbeat_stops_at_s": 0.5}}), tmp_path)
     frames = recorder.frames_seen()
     assert error is not None and error.kind is FaultKind.DRIVE and "no heartbeat" in str(error)

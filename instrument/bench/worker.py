@@ -822,30 +822,40 @@ class BusWorker:
 
     def _make_safe(self) -> tuple[bool, bool]:
         """Zero setpoint (slewed if a rate limit asks for it) and disable; (whether the zero setpoint went out,
-        whether the disable frame went out, or the drive was seen disabled)."""
+        whether the disable frame went out, or the drive was seen disabled). Each step is tried whatever the one
+        before it met: a drive that stops answering during the slew (faulted, or its bus gone quiet) is paced by
+        the clock from then on, and a bus that fails to take the slew still gets the zero and the disable tried."""
         if self.driver is None:
             return False, False
         zero_sent = disabled = False
         self._last_fed = None  # the way out is sent whatever the host's silence was
-        try:
-            lim = self.spec.limits
-            steps = 0
-            if lim.max_rate is not None:
-                steps = min(MAX_SLEW_STEPS, math.ceil(abs(self.last_sent) / (lim.max_rate * self.h)))
-            for _ in range(steps):
+        lim = self.spec.limits
+        steps = 0
+        if lim.max_rate is not None:
+            steps = min(MAX_SLEW_STEPS, math.ceil(abs(self.last_sent) / (lim.max_rate * self.h)))
+        answering = self.lockstep
+        for _ in range(steps):
+            try:
                 self._send(self._limit(0.0))
-                self.tick += 1
-                if not self.lockstep:
-                    time.sleep(self.h)
-                else:
+            except Exception:  # noqa: BLE001 - the bus may be what failed: the zero and the disable are still tried
+                break
+            self.tick += 1
+            if answering:
+                try:
                     self.driver.receive(0.0)
-            for _ in range(ZERO_SETPOINTS):
+                except Exception:  # noqa: BLE001 - no answer: the rest of the slew is paced by the clock
+                    answering = False
+            if not answering:
+                time.sleep(self.h)
+        for _ in range(ZERO_SETPOINTS):
+            try:
                 self._send(0.0)
-                self.tick += 1
-                zero_sent = True
+            except Exception:  # noqa: BLE001 - nothing more can be sent on this bus
+                break
+            self.tick += 1
+            zero_sent = True
+        with contextlib.suppress(Exception):  # the disable is tried even where the setpoints could not go out
             disabled = self.driver.disable()
-        except Exception:  # noqa: BLE001 - the bus may be what failed; nothing more can be done on it
-            pass
         return zero_sent, disabled
 
     def _close(self) -> None:
