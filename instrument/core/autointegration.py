@@ -519,9 +519,10 @@ class Autointegrator:
         """The fold bound on series (channel c, harmonic index k) after ``periods`` periods, and whether the content
         above the measured harmonics it is read from has settled. That content is the mean of the last quarter of
         the periods, after most of a transient (what is left of one counts as content); it has settled when that
-        mean differs from the previous quarter's by less than half its size. On a whole grid, the smaller of that
-        bound and :func:`~bodebench.core.phase_average.waveform_fold_bound` of the waveform averaged phase by
-        phase."""
+        mean differs from the previous quarter's by less than half its size. On a whole grid, where the waveform
+        averaged phase by phase shows the spectrum up to half the sample rate, its
+        :func:`~bodebench.core.phase_average.waveform_fold_bound` instead: the solved harmonics alone cannot tell
+        an output whose spectrum falls as 1/j (a relay, a quantiser's steps) from one that falls as 1/j^2."""
         if not self._high_count or not self._unmeasured:
             return 0.0, True
         unmeasured = _joined(self._unmeasured)
@@ -542,7 +543,7 @@ class Autointegrator:
                 scale = self.amplitude / abs(2.0 * np.fft.rfft(waveform[:, -1])[1] / waveform.shape[0])
             closer = scale * waveform_fold_bound(waveform[:, c], self.harmonics, self.samples_per_period,
                                                  self.harmonics[k], periods, self.fold_decay)
-            if closer < bound:  # False for NaN
+            if math.isfinite(closer):
                 bound = closer
         return bound, settled
 

@@ -483,11 +483,12 @@ class AnalysisConfig:
                "fold turn (a fraction of a percent), saying so: such content then shows in the spread of the "
                "periods and the point ends capped or noise-limited instead of converged to it"})
     fold_decay: float = field(default=2.0, metadata={
-        "min": 2, "max": 4,
+        "min": 1, "max": 4,
         "doc": "bench, folds = bound: the power j^-d at least as fast as which the output's harmonics fall in "
                "their tail, beyond those the record shows, for the fold bound on a whole number N of samples a "
                "period (read from harmonics N/4 to N/2 of the waveform averaged phase by phase; elsewhere the "
-               "bound extends the solved harmonics, up to 8, as j^-2): 2 (default) for an output with corners (a "
+               "bound extends the solved harmonics, up to 8, as j^-2): 1 for an output with steps (a relay, an "
+               "on/off valve, a coarse quantiser's staircase); 2 (default) for an output with corners (a "
                "saturated or rate-limited signal, a velocity where the force jumps); 3 for a position whose "
                "acceleration jumps (a mass under dry friction or a held setpoint); declared slower than the true "
                "fall, the bound errs large, declared faster, it can miss"})
