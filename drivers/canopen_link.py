@@ -38,7 +38,7 @@ import dataclasses
 import logging
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from enum import StrEnum
@@ -82,6 +82,11 @@ NMT_STATES = {0: "boot-up", 4: "stopped", 5: "operational", 127: "pre-operationa
 _SIGNAL_TYPES = {0x2: "int8", 0x3: "int16", 0x4: "int32", 0x5: "uint8", 0x6: "uint16", 0x7: "uint32",
                  0x8: "float32", 0x11: "float64"}
 _SIZES = {"int8": 1, "uint8": 1, "int16": 2, "uint16": 2, "int32": 4, "uint32": 4, "float32": 4, "float64": 8}
+
+
+def _mapping_text(entries: Sequence[tuple[int, int, int]]) -> str:
+    """PDO mapping entries (index, subindex, bits) in words: "[0x6041:00 16 bit, 0x6064:00 32 bit]"."""
+    return "[" + ", ".join(f"0x{index:04X}:{subindex:02X} {bits} bit" for index, subindex, bits in entries) + "]"
 
 
 @dataclass(frozen=True)
@@ -665,26 +670,42 @@ class CanopenDriver(Driver):
                 for index, subindex, _, what in reversed(restore)]
 
     def _map_pdos(self) -> None:
-        """Write the RPDO and TPDO mapping of ``setup`` (synchronous transmission) with SDO."""
+        """Write the RPDO and TPDO mapping of ``setup`` (synchronous transmission) with SDO, then read each mapping
+        back: a drive that acknowledges the writes but keeps a mapping of its own (a fixed one) would have another
+        object measured. DriveFaultError naming the PDO and its objects otherwise."""
         from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
         s = self.setup
-        rpdo = self.node.rpdo[s.rpdo]
-        tpdo = self.node.tpdo[s.tpdo]
-        try:
-            rpdo.clear()
-            rpdo.add_variable(s.setpoint.index, s.setpoint.subindex, s.setpoint.bits)
-            rpdo.cob_id, rpdo.trans_type, rpdo.enabled = s.rpdo_cob_id, 1, True
-            rpdo.save()
-            tpdo.clear()
-            tpdo.add_variable(STATUSWORD, 0, 16)
-            for _, ref, _ in s.actual:
-                tpdo.add_variable(ref.index, ref.subindex, ref.bits)
-            tpdo.cob_id, tpdo.trans_type, tpdo.enabled = s.tpdo_cob_id, 1, True
-            tpdo.save()
-        except (SdoAbortedError, SdoCommunicationError) as exc:
-            raise DriveFaultError(f"{self._where()}: mapping RPDO{s.rpdo}/TPDO{s.tpdo} failed: {exc}"
-                                  f"{self._pump_note()}") from None
+        for name, pdo, cob_id, objects in (
+                (f"RPDO{s.rpdo}", self.node.rpdo[s.rpdo], s.rpdo_cob_id, [(s.setpoint.index, s.setpoint.subindex,
+                                                                            s.setpoint.bits)]),
+                (f"TPDO{s.tpdo}", self.node.tpdo[s.tpdo], s.tpdo_cob_id,
+                 [(STATUSWORD, 0, 16), *((ref.index, ref.subindex, ref.bits) for _, ref, _ in s.actual)])):
+            mapping = pdo.map_array.od.index
+            where = f"{name} (communication 0x{pdo.com_record.od.index:04X}, mapping 0x{mapping:04X})"
+            try:
+                pdo.clear()
+                for index, subindex, bits in objects:
+                    pdo.add_variable(index, subindex, bits)
+                pdo.cob_id, pdo.trans_type, pdo.enabled = cob_id, 1, True
+                pdo.save()
+                read = self._mapping_of(mapping)
+            except (SdoAbortedError, SdoCommunicationError) as exc:
+                raise DriveFaultError(f"{self._where()}: mapping {where} to {_mapping_text(objects)} failed: {exc}"
+                                      f"{self._pump_note()}") from None
+            if read != objects:
+                raise DriveFaultError(f"{self._where()}: the drive did not take the {where} mapping: it reads "
+                                      f"{_mapping_text(read)}, {_mapping_text(objects)} was written (a fixed mapping "
+                                      "of the drive's own: map the objects it has, or change it in the drive)")
+
+    def _mapping_of(self, map_index: int) -> list[tuple[int, int, int]]:
+        """The (index, subindex, bits) entries a PDO mapping object ``map_index`` (0x1600.., 0x1A00..) reads."""
+        count = int.from_bytes(self.node.sdo.upload(map_index, 0)[:1], "little")
+        entries = []
+        for sub in range(1, count + 1):
+            raw = int.from_bytes(self.node.sdo.upload(map_index, sub)[:4], "little")
+            entries.append((raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF))
+        return entries
 
     def send_setpoint(self, value: float, counter: int = 0) -> None:
         """The setpoint RPDO, then SYNC when the host produces it (the drive applies the setpoint on SYNC).

@@ -242,6 +242,8 @@ class SimulatedCia402Drive:
     def _on_read(self, index: int, subindex: int, od: Any) -> int | None:
         if index == STATUSWORD:
             return self._statusword()
+        if self.faults is not None and self.faults.fixed_tpdo_mapping and 0x1A00 <= index <= 0x1A03:
+            return int(od.default or 0)  # the writes were acknowledged, not taken
         mode = self._read_mode(index)
         if mode is not None:
             return mode

@@ -224,7 +224,7 @@ class CanopenFaults:
     stops (the PDOs go on). silent_at_s: it answers nothing more (no heartbeat, PDO or SDO). sync_miss, tpdo_drop,
     tpdo_late: probabilities per SYNC that the drive misses it (no new setpoint taken, no TPDO; the plant goes on), that
     its TPDOs are not sent, that they are sent late (after the next SYNC arrived, before that SYNC's own); seed: of
-    these draws.
+    these draws. fixed_tpdo_mapping: the drive's TPDO mapping is its EDS's whatever the host writes.
     """
 
     refuse_enable: bool = field(default=False, metadata={"doc": "never reach operation enabled (CiA 408: ACTIVE)"})
@@ -243,10 +243,13 @@ class CanopenFaults:
     tpdo_late: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per SYNC that its "
                                                                                "TPDOs go out after the next SYNC"})
     seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of sync_miss, tpdo_drop and tpdo_late"})
+    fixed_tpdo_mapping: bool = field(default=False, metadata={
+        "doc": "the drive acknowledges writes to its TPDO mapping (0x1A00..0x1A03) but reads back, and keeps, the "
+               "mapping its EDS gives"})
 
     @property
     def any(self) -> bool:
         """True when any fault is configured."""
-        return self.refuse_enable or not self.enable_input or bool(
+        return self.refuse_enable or not self.enable_input or self.fixed_tpdo_mapping or bool(
             self.emcy_at_s or self.heartbeat_stops_at_s or self.silent_at_s or self.sync_miss or self.tpdo_drop
             or self.tpdo_late)

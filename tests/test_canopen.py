@@ -299,6 +299,25 @@ def test_a_missed_heartbeat_is_a_drive_fault(tmp_path: Path, limits: dict[str, f
     assert session.ended is not None and session.ended.disabled
 
 
+def test_a_drive_that_keeps_its_own_tpdo_mapping_is_refused_before_a_setpoint_naming_both(tmp_path: Path) -> None:
+    """The drive acknowledges the mapping writes but its TPDO keeps the mapping of its EDS (none): the host reads the
+    mapping back and stops before enabling, naming what it wrote and what the drive reads, rather than measure
+    whatever objects the drive sends."""
+    name = channel()
+    recorder = FrameRecorder(name)
+    session, error = run_session(bench(name, simulator={"canopen": {"fixed_tpdo_mapping": True}}), tmp_path)
+    frames = recorder.frames_seen()
+    assert error is not None and error.kind is FaultKind.DRIVE
+    assert str(error).endswith("the drive did not take the TPDO1 (communication 0x1800, mapping 0x1A00) mapping: it "
+                               "reads [], [0x6041:00 16 bit, 0x6064:00 32 bit, 0x2000:00 16 bit] was written (a fixed "
+                               "mapping of the drive's own: map the objects it has, or change it in the drive)"), error
+    setpoints = [int.from_bytes(bytes(m.data), "little", signed=True) for m in frames
+                 if m.arbitration_id == 0x200 + NODE]
+    assert set(setpoints) <= {0}  # the way out's zeros only
+    assert 0x0F not in [v for _, v in sdo_writes(frames, 0x6040)]  # never told to enable operation
+    assert session.ended is not None and session.ended.disabled
+
+
 def test_a_silent_drive_is_a_fault_and_the_session_says_it_was_not_seen_disabled(tmp_path: Path) -> None:
     name = channel()
     recorder = FrameRecorder(name)
