@@ -289,7 +289,7 @@ class CanopenDriver(Driver):
         self.od = load_od(setup.eds, setup.node_id)
         self.network = _port_network(port)
         self.node = canopen.RemoteNode(setup.node_id, self.od)
-        self.node.sdo.RESPONSE_TIMEOUT = min(setup.state_timeout_s, 1.0)
+        self.node.sdo.RESPONSE_TIMEOUT = setup.state_timeout_s
         self.network.add_node(self.node)
         self.network.subscribe(0x700 + setup.node_id, self._on_heartbeat)
         self.shutdown_account = ""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import time
 import uuid
 from pathlib import Path
 from typing import Any
@@ -236,6 +237,24 @@ def test_a_node_that_is_not_there_is_named_and_nothing_is_configured() -> None:
     frames = recorder.frames_seen()
     assert not any(m.arbitration_id == 0x600 + NODE for m in frames)  # node 5 was never addressed
     assert serving.drive.transitions == [] and serving.drive.nmt_state == "PRE-OPERATIONAL"
+
+
+def test_an_sdo_answer_is_waited_for_as_long_as_state_timeout_s_says() -> None:
+    """canopen.state_timeout_s is the longest wait for an SDO answer, above one second too (a drive busy with its
+    own start-up answers late): asked of a node that is not there, the first write is given up only after it."""
+    name = channel()
+    serving, host = _drive_and_host(name)
+    host.close()
+    setup = dataclasses.replace(host.setup, node_id=6, heartbeat_timeout_s=0.3, state_timeout_s=1.5)
+    host = CanopenDriver(CanPort.open("virtual", name), setup)
+    try:
+        started = time.monotonic()
+        with pytest.raises(DriveFaultError, match=r"node 6: no SDO answer writing producer heartbeat time"):
+            host.enable()
+        assert time.monotonic() - started >= 1.5
+    finally:
+        host.close()
+        serving.close()
 
 
 # --------------------------------------------------------------------------------------- whole sweeps
