@@ -186,7 +186,7 @@ def test_garbage_feedback_trips_the_watchdog_within_its_time_of_setpoints() -> N
     assert error is not None and error.kind == "watchdog"
     assert health is not None and 0 < health.health.invalid_samples < 10_000
     # the trip says what the silence held: the setpoints were answered, each reply dropped as invalid
-    said = re.search(r"\((\d+) setpoints sent and \d+ feedback frames received in that time; dropped: (\d+) "
+    said = re.search(r"\((\d+) setpoints sent and \d+ frames received on the bus in that time; dropped: (\d+) "
                      r"samples invalid", str(error))
     assert said is not None, str(error)
     assert int(said.group(2)) >= int(said.group(1)) > 0
@@ -198,7 +198,7 @@ def test_a_stuck_counter_trip_says_its_replies_were_dropped_as_repeats() -> None
     count), not a drive that said nothing."""
     _, _, error = run(can_config("faults-stuck-said", {"counter_stuck_after": 1500}, safety={"watchdog_s": 0.3}))
     assert error is not None and error.kind == "watchdog"
-    said = re.search(r"\((\d+) setpoints sent and (\d+) feedback frames received in that time; dropped: (.*)\)",
+    said = re.search(r"\((\d+) setpoints sent and (\d+) frames received on the bus in that time; dropped: (.*)\)",
                      str(error))
     assert said is not None, str(error)
     assert int(said.group(2)) >= int(said.group(1)) > 0, str(error)  # the drive answered every setpoint

@@ -625,8 +625,8 @@ class BusWorker:
                 self._next_heartbeat = time.monotonic() + self._heartbeat_s
 
     def _counts(self) -> tuple[int, ...]:
-        """Setpoints sent, feedback frames received, then what was dropped on the way to a sample (in the order of
-        :data:`DROPPED`), so far."""
+        """Setpoints sent, frames received on the bus (feedback or not), then what was dropped on the way to a
+        sample (in the order of :data:`DROPPED`), so far."""
         h = self.driver.health if self.driver is not None else None
         return (self.tick, h.frames_in if h else 0, self.invalid_samples, self.counter_anomalies, self.time_conflicts,
                 h.duplicates if h else 0, h.incomplete_samples if h else 0, h.rejected_total + h.errors if h else 0,
@@ -646,7 +646,7 @@ class BusWorker:
         sent, frames, *dropped = (now - then for now, then in zip(self._counts(), self._at_last_feedback,
                                                                   strict=True))
         seen = [f"{n} {what}" for n, what in zip(dropped, DROPPED, strict=True) if n]
-        said = (f"{sent} setpoints sent and {frames} feedback frames received in that time; dropped: "
+        said = (f"{sent} setpoints sent and {frames} frames received on the bus in that time; dropped: "
                 f"{', '.join(seen) if seen else 'none'}")
         if self._longest_turn_gap > 0.25 * limit:
             said += f"; this loop did not run for {self._longest_turn_gap:.3g} s of it (a stalled or overloaded host)"
