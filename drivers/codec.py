@@ -16,6 +16,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Protocol, TypeGuard, runtime_checkable
 
+import numpy as np
+
 from .errors import LayoutError
 
 __all__ = [
@@ -190,6 +192,16 @@ class Signal:
             except (OverflowError, struct.error) as exc:
                 raise LayoutError(f"{where()}: value {value!r} does not fit {self.type}") from exc
 
+    def carried(self, values: np.ndarray) -> np.ndarray:
+        """The physical values this signal's frames carry for ``values`` (an integer type's rounding to its step,
+        a float32's to its precision), as :meth:`encode_into` then :meth:`decode_from` give them; no range check."""
+        raw = (np.asarray(values, dtype=np.float64) - self.offset) / self.scale
+        if self.is_integer:
+            raw = np.round(raw)
+        elif _TYPES[self.type][1] == 4:
+            raw = raw.astype(np.float32).astype(np.float64)
+        return raw * self.scale + self.offset
+
     def decode_from(self, payload: bytes) -> float:
         """Physical value of this signal in ``payload`` (which must be long enough)."""
         (raw,) = struct.unpack_from(self._format, payload, self.byte)
@@ -278,6 +290,10 @@ class Codec(Protocol):
 
     def integer_modulus(self, name: str) -> int | None:
         """``2**bits`` when signal ``name`` is an unsigned integer with unit scale and zero offset, else None."""
+        ...
+
+    def carried(self, name: str, values: np.ndarray) -> np.ndarray:
+        """The physical values signal ``name``'s frames carry for ``values`` (rounded as the frame rounds them)."""
         ...
 
 
@@ -422,3 +438,7 @@ class Message:
         if limits is None or limits[0] != 0 or sig.scale != 1.0 or sig.offset != 0.0:
             return None
         return limits[1] + 1
+
+    def carried(self, name: str, values: np.ndarray) -> np.ndarray:
+        """The physical values signal ``name``'s frames carry for ``values`` (:meth:`Signal.carried`)."""
+        return self.signal(name).carried(values)

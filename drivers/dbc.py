@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
+import numpy as np
+
 from .codec import Codec, Message, Signal, is_number, show
 from .errors import LayoutError
 from .tables import FRAMES_KEYS, Roles, TableReader
@@ -116,6 +118,17 @@ class DbcMessage:
             return bytes(self._msg.encode(dbc_values, scaling=True, strict=True))
         except Exception as exc:  # cantools raises EncodeError, OverflowError, ValueError
             raise LayoutError(f"message {show(self.name)}: {exc}") from exc
+
+    def carried(self, name: str, values: np.ndarray) -> np.ndarray:
+        """The physical values our signal ``name``'s frames carry for ``values``: an integer signal's rounding to
+        its scale, a 32-bit float's to its precision."""
+        sig = self._sig[name]
+        raw = (np.asarray(values, dtype=np.float64) - float(sig.offset)) / float(sig.scale)
+        if not sig.is_float:
+            raw = np.round(raw)
+        elif sig.length == 32:
+            raw = raw.astype(np.float32).astype(np.float64)
+        return raw * float(sig.scale) + float(sig.offset)
 
     def decode(self, payload: bytes) -> dict[str, float]:
         """Physical value of every mapped signal; LayoutError naming the message on a short payload."""

@@ -340,3 +340,65 @@ def test_two_channel_mode_measures_one_period_ahead_whichever_the_order(
     for a, b in zip(results[APPLY_THEN_SAMPLE], results[SAMPLE_THEN_APPLY], strict=True):
         assert abs(a.value - b.value) <= max(a.uncertainty, tol * abs(a.value)) + max(b.uncertainty,
                                                                                     tol * abs(b.value))
+
+
+# ------------------------------------------------------------------------------------ a setpoint in coarse counts
+
+STEP = AMPLITUDE / 20  # the setpoint frame's step: the sine spans 20 of them
+
+
+class CountingDrive(IndependentDrive):
+    """The contract drive, but its setpoint frame carries a signed 16-bit count of ``STEP``: it applies the count
+    times STEP, the staircase the frame leaves of the host's sine."""
+
+    def _handle(self, msg: can.Message) -> None:
+        data = bytes(msg.data)
+        if msg.arbitration_id == SETPOINT_ID and len(data) == 4:
+            count, counter = struct.unpack("<hH", data)
+            self.record.setpoints += 1
+            self.record.last_received = count * STEP
+            position, echo = self.period(count * STEP)
+            for fid, v in ((POSITION_ID, position), (ECHO_ID, echo)):
+                self.bus.send(can.Message(arbitration_id=fid, data=feedback_payload(v, counter + 1),
+                                          is_extended_id=False))
+        else:
+            super()._handle(msg)
+
+
+@pytest.mark.slow
+def test_a_sine_in_coarse_counts_is_measured_against_the_staircase_the_drive_was_given(tmp_path: Path) -> None:
+    """The setpoint in counts of a twentieth of the amplitude, on whole grids of 500 and 100 ticks a period: the
+    frames round the sine the same way every period, which moves the excitation's fundamental by about 0.3 %, 30
+    times the tolerance. The point is taken against the staircase the drive was given, so it reads G_d within its
+    tolerance, as a drive with a fine setpoint does; the staircase's fundamental is computed here apart, from the
+    counts the drive received."""
+    rate_hz, freqs, h = 2000.0, [4.0, 20.0], 1.0 / 2000.0
+    tol = TOLERANCE_PERCENT / 100
+    channel = f"independent-{uuid.uuid4().hex[:8]}"
+    data = host_config(channel, rate_hz, freqs, reference=False)
+    data["frames"] = {**FRAMES, "setpoint": {"id": SETPOINT_ID, "signals": [
+        {"name": "setpoint", "byte": 0, "type": "int16", "scale": STEP},
+        {"name": "counter", "byte": 2, "type": "uint16"}]}}
+    config = parse_config(data, "counts.toml")
+    out = tmp_path / "out"
+    drive = CountingDrive(channel, rate_hz, LAG, APPLY_THEN_SAMPLE)
+    drive.thread.start()
+    try:
+        SweepProcedure(config, out).run()
+    finally:
+        drive.stop.set()
+        drive.thread.join(5.0)
+        drive.bus.shutdown()
+    assert not drive.record.errors and not drive.record.enabled and drive.record.last_received == 0.0
+    for p in load_response(out):
+        f = p.frequency_hz
+        ticks = round(rate_hz / f)
+        theta = 2 * np.pi * np.arange(ticks) / ticks
+        staircase = np.round(AMPLITUDE * np.sin(theta) / STEP) * STEP
+        moved = complex(np.sum(staircase * np.exp(-1j * theta)) / np.sum(AMPLITUDE * np.sin(theta)
+                                                                             * np.exp(-1j * theta)))
+        assert abs(moved - 1) > 10 * tol  # the rounding matters here
+        z = AMPLITUDE * LAG.g_d(f, h)
+        value = complex(p.p, p.q)
+        assert p.converged and abs(value - z) <= tol * abs(z), (f, abs(value - z) / abs(z))
+        assert abs(value - z * moved) > tol * abs(z)  # what the sine's fundamental would have given

@@ -44,8 +44,9 @@ from bodebench.core.autointegration import Autointegrator, period_budget
 from bodebench.core.benchgrid import flag_disturbed, mark_untied
 from bodebench.core.liveness import FlatWatch, no_fundamental
 from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.core.setpoint_rounding import rounding_ratios, taken_against
 from bodebench.drivers.codec import carries_lines
-from bodebench.drivers.layout import SETPOINT_ECHO
+from bodebench.drivers.layout import SETPOINT, SETPOINT_ECHO
 from bodebench.io.config import AnalysisConfig, BenchConfig, CaseConfig
 from bodebench.io.results import CSV_NAME, ResultsWriter, RowsOnDiskError, check_output
 from bodebench.io.samples import PointSamples
@@ -323,6 +324,11 @@ class BenchSession:
             if silent:
                 self._no_response(f, silent)
         points = flag_disturbed(mark_untied(points) if untied else points, self.disturbance_lines)
+        if not reference and self.case.layout is not None:  # taken against the sine as the frames carried it
+            setpoint = self.case.layout.setpoint
+            ratios = rounding_ratios(lambda values: setpoint.carried(SETPOINT, values), amplitude, f, self.period,
+                                     started.tick, record.t0, (p.periods for p in points))
+            points = taken_against(points, ratios)
         if refused:
             self.refused.append((f, refused))
             self.listener(PointFinished(index, (), skipped=True, refused=refused))
