@@ -26,7 +26,6 @@ DRAWING_PROCESSES = 2
 once the pool's workers are idle."""
 
 
-
 class DrawingError(RuntimeError):
     """The drawing process ended before a figure was drawn, or a figure's result could not be passed back."""
 

@@ -197,6 +197,12 @@ class SessionError(RuntimeError):
         self.kind = kind
 
 
+def point_not_written(directory: object, frequency_hz: float, exc: OSError) -> SessionError:
+    """The output fault of a point at ``frequency_hz`` (Hz) the disk would not take in ``directory``."""
+    return SessionError(FaultKind.OUTPUT, f"{directory}: cannot write the point at {frequency_hz:g} Hz: "
+                                          f"{exc.strerror or exc}")
+
+
 
 
 @dataclass(frozen=True)

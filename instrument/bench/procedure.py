@@ -33,6 +33,7 @@ from bodebench.bench.events import (
     PointStarted,
     SessionEnded,
     SessionError,
+    point_not_written,
 )
 from bodebench.bench.runinfo import RunClock, run_record
 from bodebench.bench.session import BenchSession, SessionResult, completed_frequencies
@@ -457,9 +458,7 @@ class SweepProcedure:
                 try:
                     writers[k].append(points)
                 except OSError as exc:
-                    raise SessionError(FaultKind.OUTPUT, f"{outcomes[k].directory}: cannot write the point at "
-                                                         f"{points[0].frequency_hz:g} Hz: {exc.strerror or exc}") \
-                        from None
+                    raise point_not_written(outcomes[k].directory, points[0].frequency_hz, exc) from None
                 skips[k].add(points[0].frequency_hz)
                 for point in points:
                     outcomes[k].response.add(point)

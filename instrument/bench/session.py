@@ -30,6 +30,7 @@ from bodebench.bench.events import (
     SessionError,
     SessionFault,
     SessionStarted,
+    point_not_written,
 )
 from bodebench.bench.window import PointWindow
 from bodebench.bench.worker import (
@@ -344,8 +345,7 @@ class BenchSession:
                     for p in points:
                         self.response.add(p)
                 self.listener(SessionFault(FaultKind.OUTPUT, str(exc), len(self.response.points)))
-                raise SessionError(FaultKind.OUTPUT, f"{self.out_dir}: cannot write the point at {f:g} Hz: "
-                                                     f"{exc.strerror or exc}") from None
+                raise point_not_written(self.out_dir, f, exc) from None
         for p in points:
             self.response.add(p)
         self.listener(PointFinished(index, tuple(points)))
