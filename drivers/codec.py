@@ -31,6 +31,7 @@ __all__ = [
     "Codec",
     "Message",
     "Signal",
+    "carried_values",
     "carries_lines",
 ]
 
@@ -50,6 +51,17 @@ def carries_lines(channel: str) -> bool:
     """Whether feedback ``channel`` can carry a disturbance line (mains hum): every measured signal can; the
     drive's echo of the setpoint it applied is a number, and carries none."""
     return channel != SETPOINT_ECHO
+
+
+def carried_values(values: np.ndarray, scale: float, offset: float, integer: bool, bits: int) -> np.ndarray:
+    """The physical ``values`` as a signal of ``scale`` and ``offset`` carries them: its raw value rounded to a
+    whole step where ``integer``, to a float32's precision where it is a 32-bit float; no range check."""
+    raw = (np.asarray(values, dtype=np.float64) - offset) / scale
+    if integer:
+        raw = np.round(raw)
+    elif bits == 32:
+        raw = raw.astype(np.float32).astype(np.float64)
+    return raw * scale + offset
 
 
 # type name -> (struct code, size in bytes, is integer, is signed)
@@ -193,14 +205,9 @@ class Signal:
                 raise LayoutError(f"{where()}: value {value!r} does not fit {self.type}") from exc
 
     def carried(self, values: np.ndarray) -> np.ndarray:
-        """The physical values this signal's frames carry for ``values`` (an integer type's rounding to its step,
-        a float32's to its precision), as :meth:`encode_into` then :meth:`decode_from` give them; no range check."""
-        raw = (np.asarray(values, dtype=np.float64) - self.offset) / self.scale
-        if self.is_integer:
-            raw = np.round(raw)
-        elif _TYPES[self.type][1] == 4:
-            raw = raw.astype(np.float32).astype(np.float64)
-        return raw * self.scale + self.offset
+        """The physical values this signal's frames carry for ``values``, as :meth:`encode_into` then
+        :meth:`decode_from` give them (:func:`carried_values`)."""
+        return carried_values(values, self.scale, self.offset, self.is_integer, _TYPES[self.type][1] * 8)
 
     def decode_from(self, payload: bytes) -> float:
         """Physical value of this signal in ``payload`` (which must be long enough)."""

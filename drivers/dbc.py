@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from .codec import Codec, Message, Signal, is_number, show
+from .codec import Codec, Message, Signal, carried_values, is_number, show
 from .errors import LayoutError
 from .tables import FRAMES_KEYS, Roles, TableReader
 
@@ -123,12 +123,7 @@ class DbcMessage:
         """The physical values our signal ``name``'s frames carry for ``values``: an integer signal's rounding to
         its scale, a 32-bit float's to its precision."""
         sig = self._sig[name]
-        raw = (np.asarray(values, dtype=np.float64) - float(sig.offset)) / float(sig.scale)
-        if not sig.is_float:
-            raw = np.round(raw)
-        elif sig.length == 32:
-            raw = raw.astype(np.float32).astype(np.float64)
-        return raw * float(sig.scale) + float(sig.offset)
+        return carried_values(values, float(sig.scale), float(sig.offset), not sig.is_float, sig.length)
 
     def decode(self, payload: bytes) -> dict[str, float]:
         """Physical value of every mapped signal; LayoutError naming the message on a short payload."""

@@ -203,8 +203,6 @@ def point_not_written(directory: object, frequency_hz: float, exc: OSError) -> S
                                           f"{exc.strerror or exc}")
 
 
-
-
 @dataclass(frozen=True)
 class CaseBegins:
     """The sweep procedure starts case ``index`` (``frequency_hz``: only that frequency, measured again)."""

@@ -534,18 +534,17 @@ class Autointegrator:
         last = high[periods - quarter: periods, c].mean(axis=0)
         before = high[periods - 2 * quarter: periods - quarter, c].mean(axis=0)
         settled = bool(np.max(np.abs(last - before)) <= 0.5 * np.max(np.abs(last)))
-        orders = self._integrator.high_harmonics  # type: ignore[union-attr]
-        bound = fold_bound(last, orders, self.samples_per_period, self.harmonics[k], periods)  # 1/j^2: not the tail
         waveform = self._phase.recent(periods) if self._phase is not None else None
         if waveform is not None:
             scale = 1.0
             if self.reference is not None:  # relative to the reference fundamental, as the measured coefficients
                 scale = self.amplitude / abs(2.0 * np.fft.rfft(waveform[:, -1])[1] / waveform.shape[0])
-            closer = scale * waveform_fold_bound(waveform[:, c], self.harmonics, self.samples_per_period,
-                                                 self.harmonics[k], periods, self.fold_decay)
-            if math.isfinite(closer):
-                bound = closer
-        return bound, settled
+            bound = scale * waveform_fold_bound(waveform[:, c], self.harmonics, self.samples_per_period,
+                                                self.harmonics[k], periods, self.fold_decay)
+            if math.isfinite(bound):
+                return bound, settled
+        orders = self._integrator.high_harmonics  # type: ignore[union-attr]
+        return fold_bound(last, orders, self.samples_per_period, self.harmonics[k], periods), settled  # 1/j^2
 
     def _reopen_for_folds(self, n: int, scales: list[float]) -> None:
         """Every series converged at period n whose fold bound and line leak push it past its tolerance, where more
