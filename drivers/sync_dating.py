@@ -6,51 +6,66 @@ TPDO the tick of the SYNC it answers from two facts only: the order of the frame
 (the time each SYNC was handed to the bus, ``time.time()``, and the receive time python-can stamps each frame
 with, which its interfaces give on the same epoch clock).
 
-The rules, for a TPDO received at time t, where L is the latest SYNC sent at or before t:
+What it assumes of the drive: one TPDO at most for each SYNC, sent after that SYNC and in the order of the SYNCs
+(a TPDO may be lost, and a drive may miss a SYNC and answer none). A TPDO received at time t then answers one of
+the SYNCs sent before t that no earlier TPDO answered. The rules, with L the latest SYNC sent at or before t and
+"pending" the SYNCs after the latest one decided, up to L:
 
-- it answers L or, sent late, L - 1 (a TPDO is never later than the next SYNC's own TPDO: a drive sends them in
-  order); SYNCs before L - 1 that got no answer are gaps (counted in ``lost``);
-- when L - 1 has an answer already (or L is the first SYNC), it answers L;
-- when neither L - 1 nor L has one, it is late for L - 1 or L - 1's TPDO was lost: it is held until the next
-  TPDO tells. A next TPDO that also follows L (no SYNC between them) means the held one was L - 1's (late) and
-  the next one L's, provided L - 2 has an answer (else the two may be L - 2's and L - 1's, from a drive that fell
-  behind: both are dropped); a next TPDO after a later SYNC leaves the held one undecided: it is dropped and
-  counted (``ambiguous``), and L - 1 and L are gaps. A sample is never given a SYNC it might not answer;
-- a TPDO with no SYNC left to answer (received before any SYNC, or a second answer to L) is dropped and counted
-  (``unmatched``).
+- **By count (exact).** When the undecided TPDOs are as many as the pending SYNCs, every pending SYNC has its
+  answer and the order gives each TPDO its SYNC: nothing else fits. This dates a TPDO late by any number of SYNCs
+  once the drive has caught up, such as the burst of answers a drive sends after it stalled for several SYNCs.
+- **By rhythm (after a gap).** While fewer TPDOs than pending SYNCs have come, a TPDO may be lost or still on its
+  way, and nothing tells which until the drive settles into its rhythm again: ``steady`` TPDOs in a row, each the
+  only one after its SYNC, each after the SYNC following the previous one's (one a SYNC, as a drive that keeps up
+  sends them). The newest of those then answers L; the undecided ones before it are dropped (counted in
+  ``ambiguous``) and the pending SYNCs before L are gaps (counted in ``lost``). A sample is never given a SYNC
+  from a guess while a burst is still arriving; what this rule assumes is that a drive which sends one TPDO a
+  SYNC, ``steady`` times in a row, is not behind.
+- A TPDO with no SYNC left to answer (received before any SYNC, or a second answer to a decided SYNC) is dropped
+  and counted (``unmatched``).
 
-The SYNCs remembered are the latest ``memory``; a TPDO older than all of them is unmatched.
+The SYNCs remembered are the latest ``memory``; a TPDO older than all of them is unmatched, and undecided TPDOs
+whose pending SYNCs are forgotten are dropped.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from typing import Generic, TypeVar
 
-__all__ = ["SyncMatcher"]
+__all__ = ["STEADY", "SyncMatcher"]
 
 T = TypeVar("T")
+
+STEADY = 3
+"""TPDOs in a row, one after each of consecutive SYNCs, that date the newest of them after a gap (the default)."""
 
 
 class SyncMatcher(Generic[T]):
     """Matches TPDOs (any item, with its receive time) to host-produced SYNCs (module docstring). Pure: no I/O, no
     clock of its own; feed ``sent`` and ``received`` in the order the host sent and read the frames."""
 
-    def __init__(self, memory: int = 4096) -> None:
-        """``memory``: how many of the latest SYNCs are remembered (at least 2)."""
+    def __init__(self, memory: int = 4096, steady: int = STEADY) -> None:
+        """``memory``: how many of the latest SYNCs are remembered (at least 2). ``steady``: how many TPDOs in a
+        row, one after each SYNC, date the newest of them after a gap (at least 2)."""
         if memory < 2:
             raise ValueError(f"SyncMatcher memory must be at least 2 SYNCs, got {memory!r}")
+        if steady < 2:
+            raise ValueError(f"SyncMatcher steady must be at least 2 TPDOs, got {steady!r}")
         self.memory = memory
+        self.steady = steady
         self._ticks = [0] * memory
         self._times = [0.0] * memory
         self._sent = 0  # SYNCs sent; SYNC n (0-based) is at n % memory
         self._done = -1  # the latest SYNC answered or given up: later TPDOs answer only later ones
-        self._held: tuple[int, float, T] | None = None  # (L, receive time, item) of a TPDO that may answer L-1 or L
+        self._held: list[T] = []  # TPDOs received since then, undecided, oldest first
+        self._after: deque[int] = deque(maxlen=steady + 1)  # the latest SYNC before each of the last TPDOs taken
         self.matched = 0
         """TPDOs given a SYNC."""
         self.lost = 0
-        """SYNCs that got no answer (a TPDO lost, or a SYNC the drive missed), counted when a later one is answered."""
+        """SYNCs that got no dated answer (a TPDO lost or dropped, or a SYNC the drive missed)."""
         self.ambiguous = 0
-        """TPDOs dropped because they answer one of two SYNCs and nothing tells which."""
+        """TPDOs dropped because they answer one of several SYNCs and nothing tells which."""
         self.unmatched = 0
         """TPDOs dropped because no SYNC is left for them to answer."""
 
@@ -64,43 +79,43 @@ class SyncMatcher(Generic[T]):
 
     def received(self, time_s: float, item: T) -> list[tuple[int, T]]:
         """A TPDO (``item``) received at ``time_s``: the (tick, item) pairs this decides, oldest first (none, this
-        one, or a held one and this one)."""
+        one, or undecided ones and this one)."""
         latest = self._latest_before(time_s)
-        out: list[tuple[int, T]] = []
-        held, self._held = self._held, None
-        if held is not None:
-            at, _, earlier = held
-            if latest == at:
-                if at - 2 <= self._done or at - 2 < self._oldest:
-                    # two TPDOs after the same SYNC: the first was the one before's, sent late
-                    out.append(self._give(at - 1, earlier))
-                    out.append(self._give(at, item))
-                    return out
-                # the SYNC before those is unanswered too: the two may answer it and the next (a drive that fell
-                # two SYNCs behind), so neither is dated
-                self.ambiguous += 2
-                self._give_up(at)
-                return out
-            self.ambiguous += 1
-            self._give_up(at)
+        if self._done + 1 < self._oldest:  # pending SYNCs forgotten: the undecided TPDOs cannot be dated
+            self._drop_held()
+            self._give_up(self._oldest - 1)
         if latest is None or latest <= self._done:
             self.unmatched += 1
-            return out
-        if latest - 1 <= self._done or latest == self._oldest:
-            out.append(self._give(latest, item))
-        else:
-            self._held = (latest, time_s, item)
-        return out
+            return []
+        self._held.append(item)
+        self._after.append(latest)
+        if len(self._held) == latest - self._done:
+            held, self._held = self._held, []
+            return [self._give(self._done + 1, each) for each in held]
+        if self._in_rhythm():
+            self._held.pop()
+            self._drop_held()
+            return [self._give(latest, item)]
+        return []
 
     @property
     def held(self) -> bool:
-        """Whether a TPDO waits for the next one to tell which SYNC it answers."""
-        return self._held is not None
+        """Whether TPDOs wait for later ones to tell which SYNCs they answer."""
+        return bool(self._held)
 
     @property
     def _oldest(self) -> int:
         """The oldest SYNC remembered."""
         return max(0, self._sent - self.memory)
+
+    def _in_rhythm(self) -> bool:
+        """Whether the last ``steady`` TPDOs came one after each of consecutive SYNCs, the first of them alone
+        after its SYNC."""
+        after = list(self._after)
+        run = after[-self.steady:]
+        if len(run) < self.steady or run != list(range(run[0], run[0] + self.steady)):
+            return False
+        return len(after) == len(run) or after[-self.steady - 1] < run[0]
 
     def _latest_before(self, time_s: float) -> int | None:
         """The number of the latest remembered SYNC sent at or before ``time_s``; None when there is none."""
@@ -117,6 +132,11 @@ class SyncMatcher(Generic[T]):
         self._done = n
         self.matched += 1
         return self._ticks[n % self.memory], item
+
+    def _drop_held(self) -> None:
+        """The undecided TPDOs are dropped."""
+        self.ambiguous += len(self._held)
+        self._held = []
 
     def _give_up(self, n: int) -> None:
         """SYNCs up to ``n`` get no answer."""

@@ -117,10 +117,12 @@ class SimulatedCia402Drive:
         self._heard: dict[int, float] = {}  # watched node id -> time.monotonic() of its latest heartbeat, once seen
         self._subscribed: set[int] = set()  # node ids whose heartbeat COB-ID is subscribed to
         self._draws = random.Random(self.faults.seed if self.faults is not None else 0)
-        self._late: list[tuple[int, bytes]] = []  # (COB-ID, data) of TPDOs held back to the next SYNC
+        self._late: list[tuple[int, bytes]] = []  # (COB-ID, data) of TPDOs held back to a later SYNC
+        self._stalled_for = 0  # SYNCs the drive still holds its TPDOs back for (tpdo_stall)
         self.missed_syncs = 0
         self.dropped_tpdos = 0
         self.late_tpdos = 0
+        self.stalls = 0
 
     # ----------------------------------------------------------------------------------------------------------
     def attach(self, network: canopen.Network) -> None:
@@ -396,10 +398,13 @@ class SimulatedCia402Drive:
             self._heartbeat_stopped = True
             self.node.nmt.stop_heartbeat()
             self.on_event("heartbeat stopped")
-        late, self._late = self._late, []
-        for cob_id, data in late:  # the answers to the previous SYNC, held back
-            assert self.network is not None
-            self.network.send_message(cob_id, data)
+        if self._stalled_for:
+            self._stalled_for -= 1
+        if not self._stalled_for:
+            late, self._late = self._late, []
+            for cob_id, data in late:  # the answers to earlier SYNCs, held back
+                assert self.network is not None
+                self.network.send_message(cob_id, data)
         missed = f is not None and f.sync_miss > 0 and self._draws.random() < f.sync_miss
         if missed:  # the setpoint of this SYNC is never taken in; the plant goes on with the one it had
             self.missed_syncs += 1
@@ -423,6 +428,9 @@ class SimulatedCia402Drive:
             self._fault(f"error 0x{f.emcy_code:04X}")
         drop = f is not None and f.tpdo_drop > 0 and self._draws.random() < f.tpdo_drop
         hold = f is not None and f.tpdo_late > 0 and self._draws.random() < f.tpdo_late
+        if f is not None and f.tpdo_stall > 0 and not self._stalled_for and self._draws.random() < f.tpdo_stall:
+            self._stalled_for = f.tpdo_stall_syncs
+            self.stalls += 1
         for tpdo in self._tpdos:
             if self.syncs % tpdo.trans_type:
                 continue
@@ -430,8 +438,8 @@ class SimulatedCia402Drive:
                 var.raw = self._value(var, y)
             if drop:
                 self.dropped_tpdos += 1
-            elif hold:
-                self.late_tpdos += 1
+            elif hold or self._stalled_for:
+                self.late_tpdos += hold
                 self._late.append((tpdo.cob_id, bytes(tpdo.data)))
             else:
                 tpdo.transmit()

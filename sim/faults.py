@@ -223,8 +223,10 @@ class CanopenFaults:
     from then on the drive is in fault, having sent an EMCY with this error code. heartbeat_stops_at_s: its heartbeat
     stops (the PDOs go on). silent_at_s: it answers nothing more (no heartbeat, PDO or SDO). sync_miss, tpdo_drop,
     tpdo_late: probabilities per SYNC that the drive misses it (no new setpoint taken, no TPDO; the plant goes on), that
-    its TPDOs are not sent, that they are sent late (after the next SYNC arrived, before that SYNC's own); seed: of
-    these draws. fixed_tpdo_mapping: the drive's TPDO mapping is its EDS's whatever the host writes.
+    its TPDOs are not sent, that they are sent late (after the next SYNC arrived, before that SYNC's own); tpdo_stall:
+    probability per SYNC that the drive stalls, holding back its TPDOs of this SYNC and the next tpdo_stall_syncs - 1
+    and sending them in one burst when SYNC tpdo_stall_syncs later arrives, before that SYNC's own; seed: of these
+    draws. fixed_tpdo_mapping: the drive's TPDO mapping is its EDS's whatever the host writes.
     """
 
     refuse_enable: bool = field(default=False, metadata={"doc": "never reach operation enabled (CiA 408: ACTIVE)"})
@@ -242,7 +244,13 @@ class CanopenFaults:
                                                                                "TPDOs are not sent"})
     tpdo_late: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per SYNC that its "
                                                                                "TPDOs go out after the next SYNC"})
-    seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of sync_miss, tpdo_drop and tpdo_late"})
+    tpdo_stall: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per SYNC that the "
+                                                                                "drive stalls: its TPDOs go out in "
+                                                                                "a burst tpdo_stall_syncs later"})
+    tpdo_stall_syncs: int = field(default=4, metadata={"min": 1, "max": 1000, "doc": "SYNCs a stall holds the "
+                                                                                    "TPDOs back for"})
+    seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of sync_miss, tpdo_drop, tpdo_late and "
+                                                            "tpdo_stall"})
     fixed_tpdo_mapping: bool = field(default=False, metadata={
         "doc": "the drive acknowledges writes to its TPDO mapping (0x1A00..0x1A03) but reads back, and keeps, the "
                "mapping its EDS gives"})
@@ -252,4 +260,4 @@ class CanopenFaults:
         """True when any fault is configured."""
         return self.refuse_enable or not self.enable_input or self.fixed_tpdo_mapping or bool(
             self.emcy_at_s or self.heartbeat_stops_at_s or self.silent_at_s or self.sync_miss or self.tpdo_drop
-            or self.tpdo_late)
+            or self.tpdo_late or self.tpdo_stall)
