@@ -281,14 +281,14 @@ class CanopenDriver(Driver):
     """A CiA 402 drive behind ``setup`` on ``port`` (a CAN port), with the cyclic PDOs of ``setup.layout()``."""
 
     def __init__(self, port: FramePort, setup: CanopenSetup, layout: Layout | None = None) -> None:
-        import canopen
+        from .sdo_answers import MatchingRemoteNode
 
         super().__init__(port, layout if layout is not None else setup.layout())
         self.setup = setup
         self.profile = setup.device_profile
         self.od = load_od(setup.eds, setup.node_id)
         self.network = _port_network(port)
-        self.node = canopen.RemoteNode(setup.node_id, self.od)
+        self.node = MatchingRemoteNode(setup.node_id, self.od)
         self.node.sdo.RESPONSE_TIMEOUT = setup.state_timeout_s
         self.network.add_node(self.node)
         self.network.subscribe(0x700 + setup.node_id, self._on_heartbeat)

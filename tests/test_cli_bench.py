@@ -154,6 +154,24 @@ def test_a_port_that_does_not_exist_is_one_line_that_claims_nothing(tmp_path: Pa
     assert not (tmp_path / "out").exists()
 
 
+def test_a_canopen_drive_that_falls_silent_is_one_line(tmp_path: Path) -> None:
+    """The drive stops answering mid-sweep: the host's SDO requests during the shutdown time out. The run's one line
+    says what failed and what was not confirmed; canopen's own log of the transfers it aborted stays out of it."""
+    cfg = Path(__file__).resolve().parents[1] / "configs" / "sim_canopen.toml"
+    proc = subprocess.run(command() + ["run", str(cfg), "--out", str(tmp_path / "out"), "--plots", "none",
+                                       "--set", "simulator.canopen.silent_at_s=0.5",
+                                       "--set", "canopen.state_timeout_s=0.3",
+                                       "--set", "canopen.heartbeat_timeout_s=0.4",
+                                       "--set", "excitation.frequencies_hz=[5]"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1
+    errors = [line for line in proc.stderr.strip().splitlines() if not line.startswith("sim_canopen: ")]
+    assert len(errors) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert "no heartbeat" in errors[0] and "NOT seen disabled" in errors[0]
+    assert "no SDO answer writing controlword (0x6040:00): No SDO response received" in errors[0]
+    assert (tmp_path / "out" / "response.json").exists()
+
+
 def test_results_that_cannot_be_written_are_found_before_the_first_setpoint(tmp_path: Path) -> None:
     cfg = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
     (tmp_path / "a-file").write_text("")

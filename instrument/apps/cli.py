@@ -118,7 +118,8 @@ def _common_options() -> _OneLineParser:
 
 def _configure_logging(verbose: int, quiet: bool) -> None:
     """Log lines on stderr: warnings by default, info with -v, debug with -vv, errors only with -q. python-can's
-    own warnings (missing vendor libraries, ...) show from -v on."""
+    own warnings (missing vendor libraries, ...) show from -v on, and canopen's own lines (an SDO transfer it
+    aborted, which the fault line names) too."""
     import logging
 
     level = logging.ERROR if quiet else logging.WARNING if verbose == 0 else logging.INFO if verbose == 1 \
@@ -126,6 +127,8 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
     logging.basicConfig(level=level, format="%(name)s: %(levelname)s: %(message)s", stream=sys.stderr, force=True)
     logging.getLogger("can").setLevel(level if verbose >= 2 else max(level, logging.ERROR) if verbose == 0
                                       else logging.WARNING)
+    logging.getLogger("canopen").setLevel(level if verbose >= 2 else logging.CRITICAL if verbose == 0
+                                          else logging.WARNING)
 EXECUTOR_HELP = ("run the frequencies on a Dask cluster: a scheduler address (tcp://host:8786), or local to start "
                  "one here with --jobs workers (needs the dask extra)")
 ACCEPT_HELP = ("with --resume: continue even where rows or samples files of --out changed, vanished or appeared "
