@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import queue
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -77,6 +78,10 @@ NMT_OPERATIONAL = 5
 _SYNC_MEMORY = 4096
 """SYNCs whose host ticks are remembered (4 s at 1 kHz): a sample answering an older one is dated by the latest."""
 NMT_STATES = {0: "boot-up", 4: "stopped", 5: "operational", 127: "pre-operational"}
+ANSWER_PROBES = 16
+"""SYNCs sent alone before enabling, on the realtime clock with ``timebase = "sync"``, to time the TPDO's answer."""
+ANSWER_LIMIT = 0.75
+"""The longest median answer time, as a fraction of the time between SYNCs, ``timebase = "sync"`` accepts."""
 
 # CANopen data types (CiA 301) -> signal types of drivers.codec
 _SIGNAL_TYPES = {0x2: "int8", 0x3: "int16", 0x4: "int32", 0x5: "uint8", 0x6: "uint16", 0x7: "uint32",
@@ -183,7 +188,9 @@ class CanopenSetup:
     ``node_id``); host_heartbeat_ms: its heartbeat period (0: no heartbeat, no
     protection); drive_heartbeat_timeout_ms: the consumer time written to the drive's 0x1016 (longer than
     host_heartbeat_ms); abort_connection: the code written to 0x6007 (1 fault, 2 disable voltage, 3 quick stop), where
-    the EDS has it. timebase: as ``[bench] timebase``. profile: "402" or "408" (``drivers.device_profile``).
+    the EDS has it. timebase: as ``[bench] timebase``. sync_period_s: the time between SYNCs when the host sends them
+    on its own clock (``[bench] clock = "realtime"``), s; 0 when it waits for each answer (lockstep). profile: "402"
+    or "408" (``drivers.device_profile``).
     assumed: (index, subindex, value, what) of device parameters the scales were derived from (a CiA 408 reference
     value or decimal prefix, from the EDS): read at enable, and a device that disagrees is refused. operating_point:
     where the RPDO carries another object than the mode's own target (an offset the drive adds inside its loop, such
@@ -208,6 +215,7 @@ class CanopenSetup:
     drive_heartbeat_timeout_ms: int = 500
     abort_connection: int = ABORT_CONNECTION_OPTIONS["quick stop"]
     timebase: str = "counter"
+    sync_period_s: float = 0.0
     profile: str = "402"
     assumed: tuple[tuple[int, int, int, str], ...] = ()
     operating_point: tuple[ObjectRef, ObjectRef | None] | None = None
@@ -293,7 +301,6 @@ class CanopenDriver(Driver):
         self.network.add_node(self.node)
         self.network.subscribe(0x700 + setup.node_id, self._on_heartbeat)
         self.shutdown_account = ""
-        self.start_account = ""
         self._lock = threading.Lock()
         self._last_heartbeat: float | None = None  # time.monotonic() when the latest heartbeat was taken in
         self._nmt_state: int | None = None
@@ -307,6 +314,7 @@ class CanopenDriver(Driver):
         self._syncs_sent = 0
         self._first_counter: int | None = None
         self._matcher: SyncMatcher[FeedbackSample] = SyncMatcher(_SYNC_MEMORY)
+        self._answer_times: queue.Queue[float] | None = None  # receive times of TPDOs while their answer is timed
         self.protection = ""
         """What the start did so that the drive stops itself if the host dies, or why it could not (empty before)."""
         self._unprotected = ""  # why the drive cannot protect itself (said again in shutdown_account)
@@ -329,6 +337,8 @@ class CanopenDriver(Driver):
         if frame.is_error:
             return []
         if frame.id == self.setup.tpdo_cob_id and not frame.extended:
+            if self._answer_times is not None:
+                self._answer_times.put(frame.timestamp)
             if len(frame.data) >= 2:
                 word = int.from_bytes(frame.data[:2], "little")
                 self._status = word
@@ -507,6 +517,8 @@ class CanopenDriver(Driver):
             if not self._wait_heartbeat(wait, NMT_OPERATIONAL):
                 raise DriveFaultError(f"{self._where()}: did not report NMT operational within {wait:g} s")
             steps.append("NMT operational")
+            if self._by_sync and s.sync_period_s > 0:
+                steps.append(self._time_answers())
             for step in p.enable:
                 word, state = self._command(step, s.state_timeout_s)
                 if state is not step.targets[0]:
@@ -521,6 +533,51 @@ class CanopenDriver(Driver):
         self._syncs_sent = 0
         self._matcher = SyncMatcher(_SYNC_MEMORY)
         self._cyclic = True
+
+    def _time_answers(self) -> str:
+        """``timebase = "sync"`` on the realtime clock: how long the drive's TPDO takes to answer a SYNC, as the host
+        sees it (its time before sending the SYNC to the receive time of the TPDO), from ``ANSWER_PROBES`` SYNCs sent
+        one at a time before the drive is enabled. Dating by SYNC takes a TPDO to come, as a rule, before the next
+        SYNC: DriveFaultError when the median answer takes more than ``ANSWER_LIMIT`` of the time between SYNCs, or
+        when a TPDO is stamped before its SYNC (the interface stamps frames on a clock of its own). Returns what was
+        measured, for the start's account."""
+        period = self.setup.sync_period_s
+        answers: queue.Queue[float] = queue.Queue()
+        times = []
+        self._answer_times = answers
+        try:
+            for _ in range(ANSWER_PROBES):
+                sent = time.time()  # as send_setpoint notes it, before the send
+                self.port.send(Frame(SYNC_COB_ID, b""))
+                try:
+                    times.append(answers.get(timeout=max(0.05, 20 * period)) - sent)
+                except queue.Empty:
+                    continue
+                time.sleep(period)  # a second answer to the same SYNC would come now, and is not timed
+                while not answers.empty():
+                    answers.get_nowait()
+        finally:
+            self._answer_times = None
+        rate = f"with {period * 1e3:.3g} ms between SYNCs (bench.rate_hz = {1 / period:g})"
+        if not times:
+            log.warning("%s: its TPDO answered none of %d SYNCs sent before enabling: the time it takes to answer "
+                        "is not known", self._where(), ANSWER_PROBES)
+            return f"TPDO answer time not measured (no answer to {ANSWER_PROBES} SYNCs before enabling)"
+        times.sort()
+        median, longest = times[len(times) // 2], times[-1]
+        measured = (f"TPDO answers its SYNC in {median * 1e3:.3g} ms (median of {len(times)}, longest "
+                    f"{longest * 1e3:.3g} ms) {rate}")
+        if times[0] < 0:
+            raise DriveFaultError(f"{self._where()}: a TPDO is stamped {-times[0]:.3g} s before the SYNC it answers: "
+                                  f"the interface stamps received frames on a clock other than the host's, and "
+                                  f'bench.timebase = "sync" needs the host\'s; date by a sample counter the drive '
+                                  f'sends (timebase = "counter")')
+        if median > ANSWER_LIMIT * period:
+            slower = int(ANSWER_LIMIT / longest) if longest > 0 else 0
+            raise DriveFaultError(f"{self._where()}: {measured}: with bench.timebase = \"sync\" its samples could be "
+                                  f"dated by the next SYNC; lower bench.rate_hz to {slower} Hz or less, or date by "
+                                  f'a sample counter the drive sends (timebase = "counter")')
+        return measured
 
     # ----------------------------------------------------------------------------------------------------------
     # the lost-host protection

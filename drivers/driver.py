@@ -189,6 +189,9 @@ class Driver:
             values[COUNTER] = int(counter) % self._setpoint_modulus
         self._send(self.layout.setpoint, values)
 
+    start_account = ""
+    """What ``enable`` did and measured, in words, where it did more than send the enable frame (empty here)."""
+
     def enable(self) -> None:
         """Send the enable message (no-op when the layout has none)."""
         if self.layout.enable is not None:

@@ -28,6 +28,7 @@ What it honours, as a drive does:
 from __future__ import annotations
 
 import math
+import queue
 import random
 import threading
 import time
@@ -119,6 +120,7 @@ class SimulatedCia402Drive:
         self._draws = random.Random(self.faults.seed if self.faults is not None else 0)
         self._late: list[tuple[int, bytes]] = []  # (COB-ID, data) of TPDOs held back to a later SYNC
         self._stalled_for = 0  # SYNCs the drive still holds its TPDOs back for (tpdo_stall)
+        self._delayed: queue.Queue[tuple[float, int, bytes] | None] | None = None  # (due, COB-ID, data): tpdo_delay_s
         self.missed_syncs = 0
         self.dropped_tpdos = 0
         self.late_tpdos = 0
@@ -403,8 +405,7 @@ class SimulatedCia402Drive:
         if not self._stalled_for:
             late, self._late = self._late, []
             for cob_id, data in late:  # the answers to earlier SYNCs, held back
-                assert self.network is not None
-                self.network.send_message(cob_id, data)
+                self._transmit(cob_id, data)
         missed = f is not None and f.sync_miss > 0 and self._draws.random() < f.sync_miss
         if missed:  # the setpoint of this SYNC is never taken in; the plant goes on with the one it had
             self.missed_syncs += 1
@@ -442,7 +443,33 @@ class SimulatedCia402Drive:
                 self.late_tpdos += hold
                 self._late.append((tpdo.cob_id, bytes(tpdo.data)))
             else:
-                tpdo.transmit()
+                self._transmit(tpdo.cob_id, bytes(tpdo.data))
+
+    def _transmit(self, cob_id: int, data: bytes) -> None:
+        """Send a TPDO now, or ``tpdo_delay_s`` later from a thread of its own (in order)."""
+        assert self.network is not None
+        delay = self.faults.tpdo_delay_s if self.faults is not None else 0.0
+        if not delay:
+            self.network.send_message(cob_id, data)
+            return
+        if self._delayed is None:
+            self._delayed = queue.Queue()
+            threading.Thread(target=self._send_delayed, args=(self.network, self._delayed), name="tpdo-delay",
+                             daemon=True).start()
+        self._delayed.put((time.monotonic() + delay, cob_id, data))
+
+    @staticmethod
+    def _send_delayed(network: canopen.Network, items: queue.Queue[tuple[float, int, bytes] | None]) -> None:
+        while (item := items.get()) is not None:
+            due, cob_id, data = item
+            time.sleep(max(0.0, due - time.monotonic()))
+            network.send_message(cob_id, data)
+
+    def stop_sending(self) -> None:
+        """Stop the thread that sends delayed TPDOs (``tpdo_delay_s``), if there is one."""
+        if self._delayed is not None:
+            self._delayed.put(None)
+            self._delayed = None
 
     def _due(self, at_s: float) -> bool:
         return bool(at_s) and self.controller.time >= at_s
@@ -591,6 +618,7 @@ class ServingCanopen:
         """Stop the heartbeat consumer, the heartbeat, the notifier and the bus."""
         self.stop.set()
         self._consumer_timer.join(timeout=2.0)
+        self.drive.stop_sending()
         if self.drive.node is not None:
             self.drive.node.nmt.stop_heartbeat()
         self.network.disconnect()

@@ -226,7 +226,8 @@ class CanopenFaults:
     its TPDOs are not sent, that they are sent late (after the next SYNC arrived, before that SYNC's own); tpdo_stall:
     probability per SYNC that the drive stalls, holding back its TPDOs of this SYNC and the next tpdo_stall_syncs - 1
     and sending them in one burst when SYNC tpdo_stall_syncs later arrives, before that SYNC's own; seed: of these
-    draws. fixed_tpdo_mapping: the drive's TPDO mapping is its EDS's whatever the host writes.
+    draws. tpdo_delay_s: every TPDO reaches the bus this long after it is due (as a gateway or a USB adapter delays
+    it). fixed_tpdo_mapping: the drive's TPDO mapping is its EDS's whatever the host writes.
     """
 
     refuse_enable: bool = field(default=False, metadata={"doc": "never reach operation enabled (CiA 408: ACTIVE)"})
@@ -249,6 +250,8 @@ class CanopenFaults:
                                                                                 "a burst tpdo_stall_syncs later"})
     tpdo_stall_syncs: int = field(default=4, metadata={"min": 1, "max": 1000, "doc": "SYNCs a stall holds the "
                                                                                     "TPDOs back for"})
+    tpdo_delay_s: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "every TPDO is sent this "
+                                                                                  "long after it is due, s"})
     seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of sync_miss, tpdo_drop, tpdo_late and "
                                                             "tpdo_stall"})
     fixed_tpdo_mapping: bool = field(default=False, metadata={
@@ -260,4 +263,4 @@ class CanopenFaults:
         """True when any fault is configured."""
         return self.refuse_enable or not self.enable_input or self.fixed_tpdo_mapping or bool(
             self.emcy_at_s or self.heartbeat_stops_at_s or self.silent_at_s or self.sync_miss or self.tpdo_drop
-            or self.tpdo_late or self.tpdo_stall)
+            or self.tpdo_late or self.tpdo_stall or self.tpdo_delay_s)

@@ -5,14 +5,19 @@ python-can's virtual bus with canopen's stack, "sync" against its own sample cou
 from __future__ import annotations
 
 import dataclasses
+import json
+import re
 import types
 import uuid
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
 from bodebench.bench.connection import plan_link
+from bodebench.bench.events import SessionError
+from bodebench.bench.procedure import SweepProcedure
 from bodebench.bench.session import BenchSession
 from bodebench.drivers.canopen_link import CanopenDriver
 from bodebench.drivers.ports import CanPort
@@ -22,6 +27,7 @@ from bodebench.sim.canopen_device import serve_canopen
 from bodebench.sim.controller import ControllerTiming, SimulatedController
 from bodebench.sim.faults import CanopenFaults
 from bodebench.sim.models import plant_from_config
+from bodebench.status import FaultKind
 
 PERIOD = 1e-3
 ANSWER = 0.3e-3  # the drive's TPDO follows its SYNC by this long
@@ -370,3 +376,50 @@ def test_a_missed_sync_holds_the_setpoint_and_biases_the_response_as_the_held_in
                for a, b in zip(faulty.response.points, clean.response.points, strict=True)]
     assert any(shifted)
     assert faulty.health.bus.lost_samples > 0
+
+
+# ------------------------------------------------------------------------------- the TPDO's answer time, realtime
+
+
+def realtime_case(delay_s: float) -> Any:
+    """The lag on the simulated drive, SYNC every 4 ms on the host's clock, its TPDOs reaching the bus ``delay_s``
+    after each SYNC (as a gateway or a USB adapter delays them)."""
+    data = {**BASE, "excitation": {"amplitude": 0.01, "frequencies_hz": [10.0]},
+            "bench": {"transport": "canopen", "rate_hz": 250.0, "clock": "realtime", "worker": "process"},
+            "can": {"interface": "virtual", "channel": f"sync-{uuid.uuid4().hex[:8]}"},
+            "canopen": {"node_id": 9, "setpoint_scale": 1e-9, "actual": {"position": "0x6064"},
+                        "actual_scale": {"position": 1e-9}, "heartbeat_timeout_s": 1.0},
+            "safety": {"max_amplitude": 0.02, "watchdog_s": 3.0},
+            "simulator": {"seed": 1, "canopen": {"tpdo_delay_s": delay_s}}}
+    return parse_config(data, "sync.toml")
+
+
+def test_a_tpdo_that_answers_after_the_next_sync_is_refused_before_the_drive_is_enabled() -> None:
+    """6 ms, one and a half SYNC periods: every sample would be dated by the next SYNC (the points converged 7.2
+    degrees off at 5 Hz). The host times the answer first, and refuses, saying how slow a rate would do."""
+    case = realtime_case(0.006).cases[0]
+    session = BenchSession(case, plan_link(case))
+    with pytest.raises(SessionError) as info:
+        session.run()
+    message = str(info.value)
+    assert info.value.kind is FaultKind.DRIVE and "\n" not in message
+    found = re.search(r"TPDO answers its SYNC in ([\d.]+) ms .*4 ms between SYNCs .* lower bench\.rate_hz to (\d+) Hz",
+                      message)
+    assert found is not None, message
+    assert float(found[1]) >= 6.0 and int(found[2]) <= 0.75 / 0.006
+    assert not session.response.points
+
+
+def test_a_tpdo_within_the_sync_period_is_timed_and_its_samples_keep_their_syncs(tmp_path: Path) -> None:
+    """2 ms, half a SYNC period: accepted; the run's record says how long the answer took (never less than the
+    delay), and the phase is the drive's own (the sampled lag's G_d; a sample dated a SYNC off is 14.4 degrees)."""
+    outcome = SweepProcedure(realtime_case(0.002), tmp_path).run()[0]
+    assert outcome.result is not None and outcome.result.completed
+    record = json.loads((outcome.directory / "response.json").read_text())["runs"][-1]
+    found = re.search(r"TPDO answers its SYNC in ([\d.]+) ms \(median of (\d+)", record["drive_start"])
+    assert found is not None and float(found[1]) >= 2.0 and int(found[2]) >= 8, record["drive_start"]
+    (point,) = outcome.response.points
+    z = np.exp(2j * np.pi * point.frequency_hz / 250.0)
+    a = np.exp(-1.0 / (250.0 * PLANT["time_constant"]))
+    expected = np.degrees(np.angle((1 - a) / (z - a)))
+    assert point.converged and abs(np.degrees(np.arctan2(point.q, point.p)) - expected) < 1.0

@@ -571,7 +571,8 @@ class SweepProcedure:
                             resumed=outcome.resumed, result=result,
                             completed=completed and (outcome.result is None or outcome.result.completed),
                             reason=reason, refused=session.refused if session is not None else (),
-                            plan_notes=outcome.case.plan_notes)
+                            plan_notes=outcome.case.plan_notes,
+                            drive_start=session.drive_start if session is not None else "")
         if not (outcome.directory / SIDECAR_NAME).exists():  # a run that measured nothing still leaves its record
             ResultsWriter(outcome.directory, outcome.case.name, outcome.case.raw, resume=True)
         plan = {"plan": outcome.plan.record()} if outcome.plan is not None else {}

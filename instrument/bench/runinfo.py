@@ -67,12 +67,14 @@ class RunClock:
 
 def run_record(case: CaseConfig, clock: RunClock, *, direct: bool, points: int, resumed: bool,
                result: SessionResult | None, completed: bool, reason: str = "",
-               refused: Sequence[tuple[float, str]] = (), plan_notes: Sequence[str] = ()) -> dict[str, Any]:
+               refused: Sequence[tuple[float, str]] = (), plan_notes: Sequence[str] = (),
+               drive_start: str = "") -> dict[str, Any]:
     """The record of one run: start, end and duration (s), software, host, link, points in the directory at its
     end, whether it resumed an earlier run, how it ended, and for a bench run the bus counters, the round trip
     (s), the pacing statistics (s) at its end, the sample counters (with the periods discarded for gaps in the
     feedback) and, when the bus log stopped recording early, why (``bus_log_failure``); the frequencies whose points
-    were refused, with why (``refused``); what the loader moved in the plan or warned of (``plan``)."""
+    were refused, with why (``refused``); what the loader moved in the plan or warned of (``plan``); what the driver
+    did and measured to enable the drive (``drive_start``, where it says)."""
     ended = datetime.now(UTC)
     record: dict[str, Any] = {
         "started": clock.started.isoformat(timespec="milliseconds"),
@@ -95,6 +97,8 @@ def run_record(case: CaseConfig, clock: RunClock, *, direct: bool, points: int, 
         record["samples"] = {"time_conflicts": health.time_conflicts, "invalid": health.invalid_samples,
                              "missed_replies": health.missed_replies, "counter_anomalies": health.counter_anomalies,
                              "periods_discarded": result.periods_discarded, "stale_setpoint": result.stale_samples}
+    if drive_start:
+        record["drive_start"] = drive_start
     if plan_notes:
         record["plan"] = list(plan_notes)
     if refused:

@@ -101,6 +101,8 @@ class BenchSession:
         self.refused: list[tuple[float, str]] = []  # (frequency, reason) of points not written
         self.periods_discarded = 0  # periods not integrated for gaps in the feedback, all points so far
         self.stale_samples = 0  # realtime: feedback samples left out, the drive holding a stale setpoint
+        self.drive_start = ""
+        """What the driver did and measured to enable the drive (``Ready.drive_start``; empty before)."""
         self.last_samples: PointSamples | None = None
         """The samples of the frequency measured last (saved in ``samples/`` when there is a results directory)."""
         self._writer: ResultsWriter | None = None
@@ -149,6 +151,7 @@ class BenchSession:
         additions, in turn."""
         ready = self._worker.expect(Ready, timeout=60.0)
         self.channels = ready.channels
+        self.drive_start = ready.drive_start
         done = completed_frequencies(self.response, self.case.analysed_channels, self.analysis.harmonics)
         self.listener(self._started(ready.channels, done))
         queue = [f for f in self.case.excitation.frequencies_hz if f not in done]

@@ -87,10 +87,12 @@ class Stop:
 
 @dataclass(frozen=True)
 class Ready:
-    """The bus is open and the drive enabled; ``channels`` are the feedback columns of every Samples batch."""
+    """The bus is open and the drive enabled; ``channels`` are the feedback columns of every Samples batch;
+    ``drive_start``: what the driver did and measured to enable the drive, in words (empty for the frame layouts)."""
 
     channels: tuple[str, ...]
     period_s: float
+    drive_start: str = ""
 
 
 @dataclass(frozen=True)
@@ -736,7 +738,7 @@ class BusWorker:
             # the host's silence is known where this loop sends every frame that feeds the drive's watchdog
             if self.layout.heartbeat is None or self._heartbeat_s:
                 self._last_fed = time.monotonic()
-            self._post(Ready(self.layout.channels, self.h))
+            self._post(Ready(self.layout.channels, self.h, self.driver.start_account))
             self.wall0 = time.time()
             self.last_feedback = time.monotonic()
             next_ship = next_health = next_poll = now = time.monotonic()

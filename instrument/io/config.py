@@ -585,7 +585,8 @@ def _check_bench(tables: Mapping[str, Any], frames: Mapping[str, Any] | None, ke
         if frames is not None:
             raise _Fault(FRAMES, "not used on transport canopen: the PDOs come from [canopen]")
         setup = replace(_canopen_setup(tables["canopen"], tables.get("simulator") is not None, key, source),
-                        timebase=bench.timebase)
+                        timebase=bench.timebase,
+                        sync_period_s=1.0 / bench.rate_hz if bench.clock == "realtime" else 0.0)
     elif tables.get("canopen") is not None:
         raise _Fault("canopen", f'only used with bench.transport = "canopen" (not "{bench.transport}")')
     simulated = tables.get("simulator") is not None
