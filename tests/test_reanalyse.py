@@ -166,3 +166,20 @@ def test_analyse_names_every_stored_point_that_its_samples_do_not_give_again(tmp
     assert len(named) == 1 and named[0].startswith(f"  {target[0]:g} Hz harmonic {target[1]} position:"), named
     change = float(named[0].rsplit("= ", 1)[1].rstrip(")"))
     assert change == pytest.approx(0.1 / 1.1, rel=1e-3)  # printed to 3 digits
+
+
+def test_the_setpoint_ratios_are_kept_and_a_bad_one_is_named(tmp_path: Path) -> None:
+    from bodebench.io.samples import PointSamples
+
+    record = PointSamples(4.0, AMPLITUDE, ("position",), 0.25)
+    record.add(np.linspace(0.2, 1.3, 12), np.arange(12.0))
+    record.setpoint_ratios = np.array([1.002 - 0.003j, 1.0015 - 0.002j, 1.001 - 0.0025j])
+    path = record.save(tmp_path)
+    again = load_samples(path)
+    assert again.setpoint_ratios.tolist() == record.setpoint_ratios.tolist()
+    assert load_samples(PointSamples(4.0, AMPLITUDE, ("position",)).save(tmp_path / "none")).setpoint_ratios.size == 0
+    with np.load(path) as data:
+        arrays = {name: data[name] for name in data.files}
+    np.savez(path, **{**arrays, "setpoint_ratios": np.ones((2, 2))})
+    with pytest.raises(SamplesError, match=r"4\.0Hz\.npz: setpoint_ratios float64 \(2, 2\): not a complex vector"):
+        load_samples(path)

@@ -20,6 +20,7 @@ import numpy as np
 from bodebench.core.autointegration import AnalysisSettings, Autointegrator, GapsError
 from bodebench.core.benchgrid import flag_disturbed, mark_untied
 from bodebench.core.response import FrequencyResponse, ResponsePoint
+from bodebench.core.setpoint_rounding import taken_against
 from bodebench.drivers.codec import carries_lines
 from bodebench.io.config import AnalysisConfig, ConfigError, build_table, disturbance_lines_of, measured_of
 from bodebench.io.results import SIDECAR_NAME, load_response
@@ -71,6 +72,9 @@ def reanalyse_point(samples: PointSamples, analysis: AnalysisSettings, rate_hz: 
         sampler.end_of_record()
     with np.errstate(all="ignore"):
         points = sampler.points()
+    ratios = samples.setpoint_ratios
+    if ratios.size:  # taken against the setpoints as their frames carried them, as live
+        points = taken_against(points, {n: complex(ratios[n - 1]) for n in range(1, ratios.size + 1)})
     return (mark_untied(points) if samples.untied else points), ended
 
 

@@ -330,8 +330,10 @@ class BenchSession:
         points = flag_disturbed(mark_untied(points) if untied else points, self.disturbance_lines)
         if not reference and self.case.layout is not None:  # taken against the sine as the frames carried it
             setpoint = self.case.layout.setpoint
+            whole = int(math.floor((record.t[-1] - record.t0) * f + 1e-9)) if record.batches else 0
             ratios = rounding_ratios(lambda values: setpoint.carried(SETPOINT, values), amplitude, f, self.period,
-                                     started.tick, record.t0, (p.periods for p in points))
+                                     started.tick, record.t0, range(1, max([whole, *(p.periods for p in points)]) + 1))
+            record.setpoint_ratios = np.array([ratios[n] for n in sorted(ratios)], dtype=np.complex128)
             points = taken_against(points, ratios)
         if refused:
             self.refused.append((f, refused))

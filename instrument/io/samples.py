@@ -21,6 +21,9 @@ rows are appended to ``response.csv``. Its arrays:
                                     file has none: a two-channel measurement's reference is phase zero)
 ``untied``         bool             realtime samples of a drive that gave no way to date the sine on its clock (False
                                     where the file has none)
+``setpoint_ratios`` complex128 (p,) bench, single-channel: element n - 1 the fundamental of the setpoints as their
+                                    frames carried them over periods 1..n, over the sine's, each whole period of the
+                                    record (empty where the file has none, or two-channel)
 =================  ===============  ===============================================================================
 
 The samples are those the sampler integrated: on a bench, from the end of the amplitude ramp (the last sample
@@ -67,6 +70,10 @@ class PointSamples:
     reference_phase: float = 0.0
     untied: bool = False
     batches: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    setpoint_ratios: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.complex128))
+    """Bench, single-channel: element n - 1 is the fundamental of the setpoints as their frames carried them over
+    periods 1..n after ``t0``, over the sine's (``core.setpoint_rounding``), for every whole period of the record;
+    empty where the points were not taken against it (a reference channel, the offline experiment)."""
 
     def add(self, t: np.ndarray, y: np.ndarray) -> None:
         """One batch: times ``t`` (s, shape (n,)) and samples ``y`` (shape (n, columns)); copied."""
@@ -98,6 +105,7 @@ class PointSamples:
             "reference": np.array(self.reference), "t": self.t, "y": self.y,
             "chunks": np.array([len(b[0]) for b in self.batches], dtype=np.int64),
             "reference_phase": np.float64(self.reference_phase), "untied": np.bool_(self.untied),
+            "setpoint_ratios": np.asarray(self.setpoint_ratios, dtype=np.complex128),
         }
         buffer = io.BytesIO()
         # an .npz as numpy.savez_compressed writes it, at deflate level 1: samples are mostly noise-like mantissas,
@@ -138,6 +146,10 @@ def load_samples(path: str | Path) -> PointSamples:
     out = PointSamples(float(arrays["frequency_hz"]), float(arrays["amplitude"]), channels, float(arrays["t0"]),
                        reference, str(arrays["source"]), float(arrays.get("reference_phase", 0.0)),
                        bool(arrays.get("untied", False)))
+    ratios = arrays.get("setpoint_ratios", np.zeros(0, dtype=np.complex128))
+    if ratios.ndim != 1 or not np.issubdtype(ratios.dtype, np.complexfloating):
+        raise SamplesError(f"{path}: setpoint_ratios {ratios.dtype} {ratios.shape}: not a complex vector")
+    out.setpoint_ratios = ratios.astype(np.complex128)
     if chunks.size:
         edges = np.cumsum(chunks)[:-1]
         for tb, yb in zip(np.split(t, edges), np.split(y, edges), strict=True):
