@@ -549,11 +549,13 @@ class CanopenDriver(Driver):
             for _ in range(ANSWER_PROBES):
                 sent = time.time()  # as send_setpoint notes it, before the send
                 self.port.send(Frame(SYNC_COB_ID, b""))
+                wait = max(0.05, 20 * period)
                 try:
-                    times.append(answers.get(timeout=max(0.05, 20 * period)) - sent)
-                except queue.Empty:
-                    continue
-                time.sleep(period)  # a second answer to the same SYNC would come now, and is not timed
+                    times.append(answers.get(timeout=wait) - sent)
+                except queue.Empty:  # an answer later still is not taken for the next SYNC's
+                    time.sleep(wait)
+                else:
+                    time.sleep(period)  # a second answer to the same SYNC would come now, and is not timed
                 while not answers.empty():
                     answers.get_nowait()
         finally:
