@@ -4,8 +4,9 @@ canopen's ``SdoClient`` reads the next response in its queue as the answer to th
 that answers after the request timed out (a busy drive, a slow gateway) leaves that answer to be read by the next
 request: a write of the controlword then fails with "Unexpected response 0x4B" (the late answer to a read), and
 every request after it may be read one answer off. CiA 301's responses to an initiate request (upload, download)
-and its aborts carry the object's index and subindex, so a response naming another object is a late one, dropped
-and counted (``late_answers``), and the wait goes on for the right one within ``RESPONSE_TIMEOUT``.
+and its aborts carry the object's index and subindex, so a response naming another object, or answering another
+kind of request (a read's answer to a write), is a late one or a second copy of one: it is dropped and counted
+(``late_answers``), and the wait goes on for the right one within ``RESPONSE_TIMEOUT``.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 __all__ = ["MatchingRemoteNode", "MatchingSdoClient"]
 
-_INITIATE_REQUESTS = (1, 2)  # client command specifiers: initiate download, initiate upload
+_ANSWERS = {1: 3, 2: 2}  # client command specifier of an initiate request -> the server's (download 1 -> 3, upload 2)
 _NAMING_RESPONSES = (2, 3, 4)  # server command specifiers that carry the object: upload, download initiate; abort
 _ABORT = 4
 
@@ -31,12 +32,17 @@ class MatchingSdoClient(SdoClient):
     def __init__(self, rx_cobid: int, tx_cobid: int, od: object) -> None:
         super().__init__(rx_cobid, tx_cobid, od)
         self._object: bytes | None = None  # index (little endian) and subindex of the transfer under way
+        self._answer: int | None = None  # the server command specifier that answers its initiate request
         self.late_answers = 0
-        """Responses dropped because they named another object (answers to earlier requests that timed out)."""
+        """Responses dropped because they named another object or answered another kind of request (answers to
+        earlier requests that timed out, or a second copy of one)."""
 
     def send_request(self, request: bytes | bytearray) -> None:
-        if request[0] >> 5 in _INITIATE_REQUESTS:
-            self._object = bytes(request[1:4])
+        answer = _ANSWERS.get(request[0] >> 5)
+        if answer is not None:
+            self._object, self._answer = bytes(request[1:4]), answer
+        else:
+            self._answer = None  # a segment: its answers name no object
         super().send_request(request)
 
     def read_response(self) -> bytes:
@@ -48,8 +54,13 @@ class MatchingSdoClient(SdoClient):
                 raise SdoCommunicationError("No SDO response received") from None
             specifier = response[0] >> 5
             named = bytes(response[1:4])
-            if (specifier in _NAMING_RESPONSES and self._object is not None and named != self._object
-                    and not (specifier == _ABORT and named == bytes(3))):
+            if specifier == _ABORT:
+                stale = self._object is not None and named not in (self._object, bytes(3))
+            elif self._answer is not None:
+                stale = specifier != self._answer or named != self._object
+            else:
+                stale = specifier in _NAMING_RESPONSES  # an initiate answer while segments are under way
+            if stale:
                 self.late_answers += 1
                 continue
             if specifier == _ABORT:

@@ -121,6 +121,7 @@ class SimulatedCia402Drive:
         self._late: list[tuple[int, bytes]] = []  # (COB-ID, data) of TPDOs held back to a later SYNC
         self._stalled_for = 0  # SYNCs the drive still holds its TPDOs back for (tpdo_stall)
         self._delayed: queue.Queue[tuple[float, int, bytes] | None] | None = None  # (due, COB-ID, data): tpdo_delay_s
+        self._delayed_until = 0.0  # time.monotonic() the latest delayed TPDO is due at
         self.missed_syncs = 0
         self.dropped_tpdos = 0
         self.late_tpdos = 0
@@ -448,15 +449,17 @@ class SimulatedCia402Drive:
     def _transmit(self, cob_id: int, data: bytes) -> None:
         """Send a TPDO now, or ``tpdo_delay_s`` later from a thread of its own (in order)."""
         assert self.network is not None
-        delay = self.faults.tpdo_delay_s if self.faults is not None else 0.0
-        if not delay:
+        f = self.faults
+        if f is None or not f.tpdo_delay_s:
             self.network.send_message(cob_id, data)
             return
         if self._delayed is None:
             self._delayed = queue.Queue()
             threading.Thread(target=self._send_delayed, args=(self.network, self._delayed), name="tpdo-delay",
                              daemon=True).start()
-        self._delayed.put((time.monotonic() + delay, cob_id, data))
+        delay = f.tpdo_delay_s if f.tpdo_delay_share >= 1 or self._draws.random() < f.tpdo_delay_share else 0.0
+        self._delayed_until = max(self._delayed_until, time.monotonic() + delay)  # in order: none overtakes
+        self._delayed.put((self._delayed_until, cob_id, data))
 
     @staticmethod
     def _send_delayed(network: canopen.Network, items: queue.Queue[tuple[float, int, bytes] | None]) -> None:

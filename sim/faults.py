@@ -226,8 +226,9 @@ class CanopenFaults:
     its TPDOs are not sent, that they are sent late (after the next SYNC arrived, before that SYNC's own); tpdo_stall:
     probability per SYNC that the drive stalls, holding back its TPDOs of this SYNC and the next tpdo_stall_syncs - 1
     and sending them in one burst when SYNC tpdo_stall_syncs later arrives, before that SYNC's own; seed: of these
-    draws. tpdo_delay_s: every TPDO reaches the bus this long after it is due (as a gateway or a USB adapter delays
-    it). fixed_tpdo_mapping: the drive's TPDO mapping is its EDS's whatever the host writes.
+    draws. tpdo_delay_s, tpdo_delay_share: a TPDO reaches the bus this long after it is due (as a gateway or a USB
+    adapter delays it), every one or this share of them at random (later ones wait for it: none overtakes).
+    fixed_tpdo_mapping: the drive's TPDO mapping is its EDS's whatever the host writes.
     """
 
     refuse_enable: bool = field(default=False, metadata={"doc": "never reach operation enabled (CiA 408: ACTIVE)"})
@@ -250,8 +251,10 @@ class CanopenFaults:
                                                                                 "a burst tpdo_stall_syncs later"})
     tpdo_stall_syncs: int = field(default=4, metadata={"min": 1, "max": 1000, "doc": "SYNCs a stall holds the "
                                                                                     "TPDOs back for"})
-    tpdo_delay_s: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "every TPDO is sent this "
-                                                                                  "long after it is due, s"})
+    tpdo_delay_s: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "a TPDO is sent this long "
+                                                                                  "after it is due, s"})
+    tpdo_delay_share: float = field(default=1.0, metadata={"min": 0, "max": 1, "doc": "the share of TPDOs "
+                                                                                      "tpdo_delay_s delays"})
     seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of sync_miss, tpdo_drop, tpdo_late and "
                                                             "tpdo_stall"})
     fixed_tpdo_mapping: bool = field(default=False, metadata={

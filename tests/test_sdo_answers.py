@@ -25,11 +25,13 @@ class SlowServer:
     """Expedited SDO server of one node: 0x6041 (statusword) reads back 0x0200 | the last controlword written to
     0x6040; writes to 0x6060 are refused (abort). ``late`` answers are held back: each goes out when the next request
     has come, just before that request's own answer (a drive that answers after the host stopped waiting); with
-    ``silent`` it answers nothing."""
+    ``twice`` every answer goes out again then (a copy, as a gateway may repeat a frame); with ``silent`` it answers
+    nothing."""
 
     def __init__(self, channel: str) -> None:
         self.bus = can.Bus(interface="virtual", channel=channel)
         self.late = 0
+        self.twice = False
         self.silent = False
         self.controlword = 0
         self.requests: list[tuple[int, int, int]] = []  # (command, index, subindex)
@@ -65,7 +67,7 @@ class SlowServer:
                 continue
             for data in [*self._held, answer]:
                 self.bus.send(can.Message(arbitration_id=0x580 + NODE, data=data, is_extended_id=False))
-            self._held.clear()
+            self._held = [answer] if self.twice else []  # its copy goes out when the next request has come
 
     def close(self) -> None:
         self._stop.set()
@@ -140,3 +142,15 @@ def test_no_answer_at_all_times_out(bench: tuple[SlowServer, MatchingRemoteNode]
     with pytest.raises(SdoCommunicationError, match="No SDO response"):
         statusword(node)
     assert time.monotonic() - start >= TIMEOUT_S
+
+
+def test_a_second_copy_of_an_answer_is_not_the_next_requests(bench: tuple[SlowServer, MatchingRemoteNode]) -> None:
+    # a read of the controlword's object, then a write of it: the read's answer comes again, about the same object,
+    # after the write went out; it answers a read, not a write
+    server, node = bench
+    server.twice = True
+    assert statusword(node) == 0x0200
+    node.sdo.download(0x6041, 0, (0x0000).to_bytes(2, "little"))  # the copy of the read's answer comes first
+    node.sdo.download(0x6040, 0, (0x0006).to_bytes(2, "little"))
+    assert statusword(node) == 0x0206
+    assert server.controlword == 0x0006 and node.sdo.late_answers == 3
