@@ -813,6 +813,7 @@ class CanopenDriver(Driver):
                      for tick, s in m.received(sample.receive_time, sample)]
             self.health.undated = m.ambiguous + m.unmatched
             self.health.lost_samples = m.lost
+            self.health.dated_by_rhythm = m.by_rhythm
             return dated
         out = []
         for sample in samples:

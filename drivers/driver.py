@@ -102,7 +102,9 @@ class BusHealth:
     noise, garbage); ``rejected``: feedback frames refused before assembly, by cause (``REJECT_CAUSES``): never part
     of a sample; ``broken_frames``: serial lines only, frames cut short (the line went quiet inside one), dropped at
     once; ``undated``: CANopen with ``timebase = "sync"``, TPDOs dropped because the SYNC they answer cannot be
-    told (``drivers.sync_dating``; the SYNCs left without an answer count in ``lost_samples``)."""
+    told (``drivers.sync_dating``; the SYNCs left without an answer count in ``lost_samples``); ``dated_by_rhythm``:
+    there too, the gaps after which TPDOs were dated by their rhythm alone (a lost TPDO, or a drive fallen a SYNC
+    behind, which the host cannot tell apart: 0 on a bus that loses no frame)."""
 
     frames_in: int = 0
     frames_out: int = 0
@@ -116,6 +118,7 @@ class BusHealth:
     resyncs: int = 0
     broken_frames: int = 0
     undated: int = 0
+    dated_by_rhythm: int = 0
     rejected: dict[str, int] = dataclasses.field(default_factory=lambda: dict.fromkeys(REJECT_CAUSES, 0))
 
     @property

@@ -68,6 +68,9 @@ class SyncMatcher(Generic[T]):
         """TPDOs dropped because they answer one of several SYNCs and nothing tells which."""
         self.unmatched = 0
         """TPDOs dropped because no SYNC is left for them to answer."""
+        self.by_rhythm = 0
+        """Gaps after which a TPDO was dated by the rhythm rule (a lost TPDO, or a drive fallen a SYNC behind: the
+        rule cannot tell them apart)."""
 
     def sent(self, tick: int, time_s: float) -> None:
         """A SYNC went out for host tick ``tick`` at ``time_s`` (s, the clock received frames are stamped with,
@@ -95,6 +98,7 @@ class SyncMatcher(Generic[T]):
         if self._in_rhythm():
             self._held.pop()
             self._drop_held()
+            self.by_rhythm += 1
             return [self._give(latest, item)]
         return []
 

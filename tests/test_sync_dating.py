@@ -69,7 +69,7 @@ def test_a_lost_tpdo_is_a_gap_and_later_samples_keep_their_ticks() -> None:
     assert STEADY == 3
     out, m = run(steady(range(10), skip_tpdo=(4,)))
     assert out == [(100 + k, k) for k in range(10) if k not in (4, 5, 6)]
-    assert (m.lost, m.ambiguous, m.unmatched) == (3, 2, 0)
+    assert (m.lost, m.ambiguous, m.unmatched, m.by_rhythm) == (3, 2, 0, 1)
 
 
 def test_a_sync_the_drive_missed_is_a_gap_like_a_lost_tpdo() -> None:
@@ -135,7 +135,7 @@ def test_a_burst_after_a_stall_that_straddles_a_sync_keeps_every_sample_on_its_o
         m.sent(100 + k, k * PERIOD)
         out += m.received(k * PERIOD + ANSWER, k)
     assert out == [(100 + k, k) for k in range(12)]
-    assert (m.lost, m.ambiguous, m.unmatched) == (0, 0, 0)
+    assert (m.lost, m.ambiguous, m.unmatched, m.by_rhythm) == (0, 0, 0, 0)
 
 
 def drive_events(rng: np.random.Generator, n: int, lose: float, miss: float,
@@ -177,8 +177,8 @@ def test_through_stalls_bursts_losses_and_missed_syncs_no_sample_is_dated_off_it
     assert m.unmatched == 0
     # a gap costs at most the answers held when it is found, a burst's worth
     assert len(out) >= answered - 10 * gaps - m.held * 10
-    if gaps == 0:
-        assert len(out) + len(m._held) == answered
+    if gaps == 0:  # stalls and bursts alone: every answer dated by count
+        assert len(out) + len(m._held) == answered and m.by_rhythm == 0
 
 
 def test_a_duplicate_tpdo_is_dropped_and_counted() -> None:
@@ -337,6 +337,8 @@ def test_every_sample_dated_by_sync_is_dated_by_the_drives_own_tick_through_lost
     assert len(samples) + host.health.undated <= answered
     # a gap costs the TPDOs held until the drive's rhythm tells, and as many may be held at the end
     assert len(samples) >= answered - (STEADY - 1) * (drive.dropped_tpdos + drive.missed_syncs + 1)
+    # each gap dated by rhythm is one the drive made: a lost TPDO or a missed SYNC (none from a stall alone)
+    assert host.health.dated_by_rhythm <= drive.dropped_tpdos + drive.missed_syncs
     assert host.health.lost_samples + len(samples) <= syncs
 
 

@@ -112,5 +112,6 @@ class ProgressPrinter:
             h = event.health.bus
             rejected = " ".join(f"{cause} {n}" for cause, n in h.rejected.items() if n)
             self._bus = (f", bus in {h.frames_in} out {h.frames_out} err {h.errors} lost {h.lost_samples}"
-                         + (f" rejected {rejected}" if rejected else ""))
+                         + (f" rejected {rejected}" if rejected else "")
+                         + (f" dated by rhythm {h.dated_by_rhythm}" if h.dated_by_rhythm else ""))
         # a fault and the end of the session are the command's last line (with what the drive was sent), once
