@@ -290,6 +290,11 @@ def _port_network(port: FramePort) -> canopen.Network:
     return PortNetwork(None)
 
 
+def _same_values(a: FeedbackSample, b: FeedbackSample) -> bool:
+    """Whether two TPDO samples carry the same values (a frame received twice, for ``SyncMatcher``)."""
+    return a.values == b.values
+
+
 def _sdo_failure(exc: Exception) -> str:
     """What an SDO transfer that failed without an abort met: no answer in time, or an answer it cannot take."""
     return "no SDO answer" if "No SDO response" in str(exc) else "an SDO answer out of place"
@@ -323,7 +328,7 @@ class CanopenDriver(Driver):
         self._sync_ticks = [0] * _SYNC_MEMORY  # the host tick of each SYNC sent, by SYNC number modulo the memory
         self._syncs_sent = 0
         self._first_counter: int | None = None
-        self._matcher: SyncMatcher[FeedbackSample] = SyncMatcher(_SYNC_MEMORY)
+        self._matcher: SyncMatcher[FeedbackSample] = SyncMatcher(_SYNC_MEMORY, same=_same_values)
         self._answer_times: queue.Queue[float] | None = None  # receive times of TPDOs while their answer is timed
         self.protection = ""
         """What the start did so that the drive stops itself if the host dies, or why it could not (empty before)."""
@@ -541,7 +546,7 @@ class CanopenDriver(Driver):
         self._left = None
         self._first_counter = None
         self._syncs_sent = 0
-        self._matcher = SyncMatcher(_SYNC_MEMORY)
+        self._matcher = SyncMatcher(_SYNC_MEMORY, same=_same_values)
         self._cyclic = True
 
     def _time_answers(self) -> str:
@@ -812,6 +817,7 @@ class CanopenDriver(Driver):
             dated = [dataclasses.replace(s, counter=tick + 1) for sample in samples
                      for tick, s in m.received(sample.receive_time, sample)]
             self.health.undated = m.ambiguous + m.unmatched
+            self.health.duplicates = m.repeats
             self.health.lost_samples = m.lost
             self.health.dated_by_rhythm = m.by_rhythm
             return dated

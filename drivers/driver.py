@@ -95,7 +95,8 @@ class FeedbackSample:
 class BusHealth:
     """Link statistics (plain data). ``errors`` = port errors (error frames, CRC failures, malformed input) plus
     feedback frames that failed to decode or were rejected; ``lost_samples``: counter values never seen;
-    ``duplicates``: repeated or stale counter values (dropped); ``incomplete_samples``: counters with some but not
+    ``duplicates``: repeated or stale counter values (dropped; CANopen with ``timebase = "sync"``: TPDOs the same as
+    the one before with no SYNC between them); ``incomplete_samples``: counters with some but not
     all feedback frames (dropped); ``bus_state``: "active", "passive", "bus-off" or "unknown"; ``last_error``:
     description of the latest error; ``counter_restarts``: times the feedback counter jumped back by more than 64
     samples (assembly restarted there); ``resyncs``: serial lines only, runs of bytes discarded between frames (line

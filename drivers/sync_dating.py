@@ -23,6 +23,11 @@ the SYNCs sent before t that no earlier TPDO answered. The rules, with L the lat
   SYNC, ``steady`` times in a row, is not behind.
 - A TPDO with no SYNC left to answer (received before any SYNC, or a second answer to a decided SYNC) is dropped
   and counted (``unmatched``).
+- A TPDO the same as the one before it (``same``, where given), with no SYNC sent between the two or received
+  within a quarter of the time between the latest SYNCs after it, is dropped as a repeat (a frame received twice)
+  and counted (``repeats``): counted as an answer it could fill the place of a lost one and date the TPDOs
+  between a SYNC off. A drive's own answers to two SYNCs that happen to be equal, in a burst, are dropped with
+  it: a gap, never a shift.
 
 The SYNCs remembered are the latest ``memory``; a TPDO older than all of them is unmatched, and undecided TPDOs
 whose pending SYNCs are forgotten are dropped.
@@ -31,6 +36,7 @@ whose pending SYNCs are forgotten are dropped.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from typing import Generic, TypeVar
 
 __all__ = ["STEADY", "SyncMatcher"]
@@ -45,9 +51,10 @@ class SyncMatcher(Generic[T]):
     """Matches TPDOs (any item, with its receive time) to host-produced SYNCs (module docstring). Pure: no I/O, no
     clock of its own; feed ``sent`` and ``received`` in the order the host sent and read the frames."""
 
-    def __init__(self, memory: int = 4096, steady: int = STEADY) -> None:
+    def __init__(self, memory: int = 4096, steady: int = STEADY, same: Callable[[T, T], bool] | None = None) -> None:
         """``memory``: how many of the latest SYNCs are remembered (at least 2). ``steady``: how many TPDOs in a
-        row, one after each SYNC, date the newest of them after a gap (at least 2)."""
+        row, one after each SYNC, date the newest of them after a gap (at least 2). ``same``: whether two TPDOs
+        carry the same data (None: repeats are not looked for)."""
         if memory < 2:
             raise ValueError(f"SyncMatcher memory must be at least 2 SYNCs, got {memory!r}")
         if steady < 2:
@@ -71,6 +78,10 @@ class SyncMatcher(Generic[T]):
         self.by_rhythm = 0
         """Gaps after which a TPDO was dated by the rhythm rule (a lost TPDO, or a drive fallen a SYNC behind: the
         rule cannot tell them apart)."""
+        self.repeats = 0
+        """TPDOs dropped as repeats of the one before (the same data, no SYNC sent between them)."""
+        self._same = same
+        self._previous: tuple[int | None, float, T] | None = None  # (latest SYNC before, time, item): the last TPDO
 
     def sent(self, tick: int, time_s: float) -> None:
         """A SYNC went out for host tick ``tick`` at ``time_s`` (s, the clock received frames are stamped with,
@@ -84,6 +95,11 @@ class SyncMatcher(Generic[T]):
         """A TPDO (``item``) received at ``time_s``: the (tick, item) pairs this decides, oldest first (none, this
         one, or undecided ones and this one)."""
         latest = self._latest_before(time_s)
+        previous, self._previous = self._previous, (latest, time_s, item)
+        if self._same is not None and previous is not None and self._same(previous[2], item) and (
+                previous[0] == latest or time_s - previous[1] < 0.25 * self._interval()):
+            self.repeats += 1
+            return []
         if self._done + 1 < self._oldest:  # pending SYNCs forgotten: the undecided TPDOs cannot be dated
             self._drop_held()
             self._give_up(self._oldest - 1)
@@ -120,6 +136,12 @@ class SyncMatcher(Generic[T]):
         if len(run) < self.steady or run != list(range(run[0], run[0] + self.steady)):
             return False
         return len(after) == len(run) or after[-self.steady - 1] < run[0]
+
+    def _interval(self) -> float:
+        """The time between the two latest SYNCs sent, s (0 before there are two)."""
+        if self._sent < 2:
+            return 0.0
+        return self._times[(self._sent - 1) % self.memory] - self._times[(self._sent - 2) % self.memory]
 
     def _latest_before(self, time_s: float) -> int | None:
         """The number of the latest remembered SYNC sent at or before ``time_s``; None when there is none."""

@@ -126,6 +126,7 @@ class SimulatedCia402Drive:
         self.dropped_tpdos = 0
         self.late_tpdos = 0
         self.stalls = 0
+        self.repeated_tpdos = 0
 
     # ----------------------------------------------------------------------------------------------------------
     def attach(self, network: canopen.Network) -> None:
@@ -448,6 +449,14 @@ class SimulatedCia402Drive:
 
     def _transmit(self, cob_id: int, data: bytes) -> None:
         """Send a TPDO now, or ``tpdo_delay_s`` later from a thread of its own (in order)."""
+        assert self.network is not None
+        f = self.faults
+        if f is not None and f.tpdo_repeat > 0 and self._draws.random() < f.tpdo_repeat:
+            self.repeated_tpdos += 1
+            self._transmit_once(cob_id, data)  # a frame the host receives twice
+        self._transmit_once(cob_id, data)
+
+    def _transmit_once(self, cob_id: int, data: bytes) -> None:
         assert self.network is not None
         f = self.faults
         if f is None or not f.tpdo_delay_s:

@@ -228,7 +228,8 @@ class CanopenFaults:
     and sending them in one burst when SYNC tpdo_stall_syncs later arrives, before that SYNC's own; seed: of these
     draws. tpdo_delay_s, tpdo_delay_share: a TPDO reaches the bus this long after it is due (as a gateway or a USB
     adapter delays it), every one or this share of them at random (later ones wait for it: none overtakes).
-    fixed_tpdo_mapping: the drive's TPDO mapping is its EDS's whatever the host writes.
+    tpdo_repeat: probability per TPDO that it goes out twice (as a frame received twice). fixed_tpdo_mapping: the
+    drive's TPDO mapping is its EDS's whatever the host writes.
     """
 
     refuse_enable: bool = field(default=False, metadata={"doc": "never reach operation enabled (CiA 408: ACTIVE)"})
@@ -253,6 +254,8 @@ class CanopenFaults:
                                                                                     "TPDOs back for"})
     tpdo_delay_s: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "a TPDO is sent this long "
                                                                                   "after it is due, s"})
+    tpdo_repeat: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per TPDO that the "
+                                                                                "host receives it twice"})
     tpdo_delay_share: float = field(default=1.0, metadata={"min": 0, "max": 1, "doc": "the share of TPDOs "
                                                                                       "tpdo_delay_s delays"})
     seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of sync_miss, tpdo_drop, tpdo_late and "
@@ -266,4 +269,4 @@ class CanopenFaults:
         """True when any fault is configured."""
         return self.refuse_enable or not self.enable_input or self.fixed_tpdo_mapping or bool(
             self.emcy_at_s or self.heartbeat_stops_at_s or self.silent_at_s or self.sync_miss or self.tpdo_drop
-            or self.tpdo_late or self.tpdo_stall or self.tpdo_delay_s)
+            or self.tpdo_late or self.tpdo_stall or self.tpdo_delay_s or self.tpdo_repeat)

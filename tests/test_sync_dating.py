@@ -138,33 +138,43 @@ def test_a_burst_after_a_stall_that_straddles_a_sync_keeps_every_sample_on_its_o
     assert (m.lost, m.ambiguous, m.unmatched, m.by_rhythm) == (0, 0, 0, 0)
 
 
-def drive_events(rng: np.random.Generator, n: int, lose: float, miss: float,
-                 stall: float) -> list[tuple[float, str, int]]:
+def drive_events(rng: np.random.Generator, n: int, lose: float, miss: float, stall: float,
+                 repeat: float = 0.0) -> list[tuple[float, str, int]]:
     """A drive answering SYNCs 0..n-1 (one a PERIOD): each answer 0.05 to 0.7 periods after its SYNC, in order;
     answers lost with probability ``lose``, SYNCs missed with ``miss``; with ``stall`` the drive stalls 1 to 8
-    SYNCs at a SYNC, then sends what it owes in a burst, 0.02 to 0.45 periods apart (two or more a SYNC, as a
-    drive catching up does). Events (time, kind, SYNC number), in time order."""
+    SYNCs at a SYNC (once it has caught up), then sends what it owes in a burst, 0.02 to 0.45 periods apart (two
+    or more a SYNC, as a drive catching up does: docs/canopen.md says what one working off a backlog at one a SYNC
+    meets); with ``repeat`` an answer is received twice, the copy 0.01 periods later. Events
+    (time, kind, SYNC number), in time order."""
     events: list[tuple[float, str, int]] = [(k * PERIOD, "sync", k) for k in range(n)]
     free = 0.0  # the earliest the drive can send its next answer
     for k in range(n):
         if rng.random() < miss:
             continue
         at = k * PERIOD + rng.uniform(0.05, 0.7) * PERIOD
-        if rng.random() < stall:
+        if rng.random() < stall and free < k * PERIOD:  # a stall once the drive has caught up with the last one
             at += int(rng.integers(1, 9)) * PERIOD
         at = max(at, free + rng.uniform(0.02, 0.45) * PERIOD)
         free = at
         if rng.random() >= lose:
             events.append((at, "tpdo", k))
+            if rng.random() < repeat:
+                events.append((at + 0.01 * PERIOD, "tpdo", k))
+                free = at + 0.01 * PERIOD
     return sorted(events, key=lambda e: (e[0], e[1] == "tpdo"))
 
 
-@pytest.mark.parametrize("seed", range(12))
-def test_through_stalls_bursts_losses_and_missed_syncs_no_sample_is_dated_off_its_sync(seed: int) -> None:
+KINDS = [(0.0, 0.0, 0.02, 0.0), (0.0, 0.0, 0.05, 0.05), (0.01, 0.0, 0.01, 0.0), (0.01, 0.01, 0.02, 0.0),
+         (0.03, 0.02, 0.05, 0.0), (0.05, 0.0, 0.02, 0.05), (0.02, 0.01, 0.03, 0.02)]
+"""(lost, missed, stalls, repeated) per answer or SYNC, for drive_events."""
+
+
+@pytest.mark.parametrize("seed", range(3 * len(KINDS)))
+def test_through_stalls_bursts_losses_repeats_and_missed_syncs_no_sample_is_dated_off_its_sync(seed: int) -> None:
     rng = np.random.default_rng(seed)
-    lose, miss, stall = [(0.0, 0.0, 0.02), (0.01, 0.0, 0.01), (0.01, 0.01, 0.02), (0.03, 0.02, 0.05)][seed % 4]
-    events = drive_events(rng, 3000, lose, miss, stall)
-    m: SyncMatcher[int] = SyncMatcher(64)
+    lose, miss, stall, repeat = KINDS[seed % len(KINDS)]
+    events = drive_events(rng, 3000, lose, miss, stall, repeat)
+    m: SyncMatcher[int] = SyncMatcher(64, same=lambda a, b: a == b)
     out: list[tuple[int, int]] = []
     for at, kind, k in events:
         if kind == "sync":
@@ -172,8 +182,9 @@ def test_through_stalls_bursts_losses_and_missed_syncs_no_sample_is_dated_off_it
         else:
             out += m.received(at, k)
     assert all(tick == 100 + k for tick, k in out), [(tick - 100, k) for tick, k in out if tick != 100 + k][:5]
-    answered = sum(1 for e in events if e[1] == "tpdo")
+    answered = len({e[2] for e in events if e[1] == "tpdo"})
     gaps = 3000 - answered
+    assert m.repeats == sum(1 for e in events if e[1] == "tpdo") - answered
     assert m.unmatched == 0
     # a gap costs at most the answers held when it is found, a burst's worth
     assert len(out) >= answered - 10 * gaps - m.held * 10
@@ -297,13 +308,14 @@ def test_a_sweep_dated_by_sync_agrees_with_one_dated_by_the_drives_counter() -> 
     CanopenFaults(tpdo_drop=0.05, tpdo_late=0.05, sync_miss=0.03, seed=5),
     CanopenFaults(tpdo_stall=0.03, tpdo_stall_syncs=4, tpdo_drop=0.02, seed=2),
     CanopenFaults(tpdo_stall=0.02, tpdo_stall_syncs=9, tpdo_late=0.02, seed=3),
-], ids=["lost-late-missed", "stalls-4-lost", "stalls-9-late"])
+    CanopenFaults(tpdo_repeat=0.05, tpdo_drop=0.05, tpdo_stall=0.02, seed=4),
+], ids=["lost-late-missed", "stalls-4-lost", "stalls-9-late", "repeats-lost-stalls"])
 def test_every_sample_dated_by_sync_is_dated_by_the_drives_own_tick_through_lost_late_and_missed(
         faults: CanopenFaults) -> None:
     """The drive's own tick (its sample counter 0x2000, mapped as an ordinary channel the host does not date by)
     against the tick the host gives each TPDO by its SYNC: one offset for every sample, however many TPDOs were
-    lost, late or held back in a stall and SYNCs missed. The host waits for each answer as lockstep does, with a
-    short timeout (a stalled drive's answers come in a burst several SYNCs later)."""
+    lost, late, held back in a stall or received twice and SYNCs missed. The host waits for each answer as lockstep
+    does, with a short timeout (a stalled drive's answers come in a burst several SYNCs later)."""
     case = canopen_case("sync", {"position": "0x6064", "drive_tick": "0x2000"})
     setup, layout = case.canopen_setup, case.layout
     name = case.can.channel
@@ -328,15 +340,19 @@ def test_every_sample_dated_by_sync_is_dated_by_the_drives_own_tick_through_lost
     drive = serving.drive
     syncs = 400 + faults.tpdo_stall_syncs
     for chance, count in [(faults.tpdo_drop, drive.dropped_tpdos), (faults.tpdo_late, drive.late_tpdos),
-                          (faults.sync_miss, drive.missed_syncs), (faults.tpdo_stall, drive.stalls)]:
+                          (faults.sync_miss, drive.missed_syncs), (faults.tpdo_stall, drive.stalls),
+                          (faults.tpdo_repeat, drive.repeated_tpdos)]:
         assert (count >= 0.4 * chance * 400) if chance else count == 0
     tick = layout.channels.index("drive_tick")
     offsets = {s.counter - int(s.values[tick]) for s in samples}
     assert len(offsets) == 1, sorted(offsets)
     answered = syncs - drive.dropped_tpdos - drive.missed_syncs
     assert len(samples) + host.health.undated <= answered
-    # a gap costs the TPDOs held until the drive's rhythm tells, and as many may be held at the end
-    assert len(samples) >= answered - (STEADY - 1) * (drive.dropped_tpdos + drive.missed_syncs + 1)
+    # a gap costs the TPDOs held until the drive's rhythm tells (a stall's burst with it, where the gap fell in
+    # one), and as many may be held at the end; a repeat costs nothing but itself
+    held = STEADY - 1 + (faults.tpdo_stall_syncs if faults.tpdo_stall else 0)
+    assert len(samples) >= answered - held * (drive.dropped_tpdos + drive.missed_syncs + 1)
+    assert host.health.duplicates == drive.repeated_tpdos
     # each gap dated by rhythm is one the drive made: a lost TPDO or a missed SYNC (none from a stall alone)
     assert host.health.dated_by_rhythm <= drive.dropped_tpdos + drive.missed_syncs
     assert host.health.lost_samples + len(samples) <= syncs
