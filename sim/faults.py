@@ -225,8 +225,8 @@ class CanopenFaults:
     tpdo_late: probabilities per SYNC that the drive misses it (no new setpoint taken, no TPDO; the plant goes on), that
     its TPDOs are not sent, that they are sent late (after the next SYNC arrived, before that SYNC's own); tpdo_stall:
     probability per SYNC that the drive stalls, holding back its TPDOs of this SYNC and the next tpdo_stall_syncs - 1
-    and sending them in one burst when SYNC tpdo_stall_syncs later arrives, before that SYNC's own; seed: of these
-    draws. tpdo_delay_s, tpdo_delay_share: a TPDO reaches the bus this long after it is due (as a gateway or a USB
+    and sending them in one burst when SYNC tpdo_stall_syncs later arrives, before that SYNC's own; seed: of all
+    these draws. tpdo_delay_s, tpdo_delay_share: a TPDO reaches the bus this long after it is due (as a gateway or a USB
     adapter delays it), every one or this share of them at random (later ones wait for it: none overtakes).
     tpdo_repeat: probability per TPDO that it goes out twice (as a frame received twice). fixed_tpdo_mapping: the
     drive's TPDO mapping is its EDS's whatever the host writes.
@@ -254,12 +254,12 @@ class CanopenFaults:
                                                                                     "TPDOs back for"})
     tpdo_delay_s: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "a TPDO is sent this long "
                                                                                   "after it is due, s"})
-    tpdo_repeat: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per TPDO that the "
-                                                                                "host receives it twice"})
     tpdo_delay_share: float = field(default=1.0, metadata={"min": 0, "max": 1, "doc": "the share of TPDOs "
                                                                                       "tpdo_delay_s delays"})
-    seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of sync_miss, tpdo_drop, tpdo_late and "
-                                                            "tpdo_stall"})
+    tpdo_repeat: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per TPDO that the "
+                                                                                "host receives it twice"})
+    seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of the draws above (sync_miss to "
+                                                            "tpdo_repeat)"})
     fixed_tpdo_mapping: bool = field(default=False, metadata={
         "doc": "the drive acknowledges writes to its TPDO mapping (0x1A00..0x1A03) but reads back, and keeps, the "
                "mapping its EDS gives"})
