@@ -231,6 +231,12 @@ class CanopenSetup:
         return PROFILES[self.profile]
 
     @property
+    def times_answers(self) -> bool:
+        """Whether the TPDO's answer to a SYNC is timed before enabling (``CanopenDriver._time_answers``): samples
+        dated by SYNC (``timebase = "sync"``, host-produced SYNC) on the host's own clock (realtime)."""
+        return self.timebase == "sync" and self.sync == "produce" and self.sync_period_s > 0
+
+    @property
     def host_heartbeat_cob_id(self) -> int:
         """COB-ID of the host's heartbeat."""
         return 0x700 + self.host_node_id
@@ -532,7 +538,7 @@ class CanopenDriver(Driver):
             if not self._wait_heartbeat(wait, NMT_OPERATIONAL):
                 raise DriveFaultError(f"{self._where()}: did not report NMT operational within {wait:g} s")
             steps.append("NMT operational")
-            if self._by_sync and s.sync_period_s > 0:
+            if s.times_answers:
                 steps.append(self._time_answers())
             for step in p.enable:
                 word, state = self._command(step, s.state_timeout_s)

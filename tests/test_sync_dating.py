@@ -12,14 +12,16 @@ import uuid
 from pathlib import Path
 from typing import Any
 
+import can
 import numpy as np
 import pytest
 
+from bodebench.apps.check import check_lines
 from bodebench.bench.connection import plan_link
 from bodebench.bench.events import SessionError
 from bodebench.bench.procedure import SweepProcedure
 from bodebench.bench.session import BenchSession
-from bodebench.drivers.canopen_link import CanopenDriver
+from bodebench.drivers.canopen_link import ANSWER_PROBES, CanopenDriver
 from bodebench.drivers.ports import CanPort
 from bodebench.drivers.sync_dating import STEADY, SyncMatcher
 from bodebench.io.config import ConfigError, parse_config
@@ -433,8 +435,19 @@ def test_a_tpdo_that_answers_after_the_next_sync_is_refused_before_the_drive_is_
 
 def test_a_tpdo_within_the_sync_period_is_timed_and_its_samples_keep_their_syncs(tmp_path: Path) -> None:
     """2 ms, half a SYNC period: accepted; the run's record says how long the answer took (never less than the
-    delay), and the phase is the drive's own (the sampled lag's G_d; a sample dated a SYNC off is 14.4 degrees)."""
-    outcome = SweepProcedure(realtime_case(0.002), tmp_path).run()[0]
+    delay), and the phase is the drive's own (the sampled lag's G_d; a sample dated a SYNC off is 14.4 degrees).
+    The bus log holds the timing SYNCs `bodebench check` lists, between NMT operational and the first
+    controlword."""
+    config = realtime_case(0.002)
+    said = [line for line in check_lines(config) if "x SYNC (id 0x80) one at a time" in line]
+    assert len(said) == 1
+    log = tmp_path / "bus.asc"
+    outcome = SweepProcedure(config, tmp_path, log_bus=log).run()[0]
+    sent = [(m.arbitration_id, bytes(m.data)) for m in can.LogReader(log) if not m.is_rx]
+    operational = sent.index((0x000, bytes([0x01, 9])))
+    first_control = next(i for i, (fid, data) in enumerate(sent) if fid == 0x609 and data[1:3] == b"\x40\x60")
+    timing = [fid for fid, _ in sent[operational + 1:first_control]]
+    assert timing.count(0x80) == ANSWER_PROBES and f"{ANSWER_PROBES} x SYNC" in said[0]
     assert outcome.result is not None and outcome.result.completed
     record = json.loads((outcome.directory / "response.json").read_text())["runs"][-1]
     found = re.search(r"TPDO answers its SYNC in ([\d.]+) ms \(median of (\d+)", record["drive_start"])

@@ -269,6 +269,9 @@ def _canopen_lines(case: CaseConfig) -> Iterator[str]:
     from bodebench.bench.worker import ZERO_SETPOINTS
     from bodebench.drivers.canopen_link import (
         ABORT_CONNECTION,
+        ANSWER_LIMIT,
+        ANSWER_PROBES,
+        ANSWER_QUANTILE,
         CONTROLWORD_OBJECT,
         HEARTBEAT_CONSUMER,
         HEARTBEAT_PRODUCER,
@@ -332,6 +335,10 @@ def _canopen_lines(case: CaseConfig) -> Iterator[str]:
         start.append(sdo(target.index, target.subindex, f"{held} as read" if held is not None else "0",
                          f"{target.name}: the operating point, held while the offset is excited"))
     start.append(nmt("OPERATIONAL"))
+    if setup.times_answers:
+        start.append(f"{ANSWER_PROBES} x SYNC (id 0x{SYNC_COB_ID:X}) one at a time, each TPDO's answer timed: "
+                     f"refused unless {ANSWER_QUANTILE:.0%} come within {ANSWER_LIMIT:.0%} of the "
+                     f"{_number(setup.sync_period_s * 1e3)} ms between SYNCs (timebase sync on the realtime clock)")
     start += [control(step) for step in profile.enable]
     sync = (f", then SYNC (id 0x{SYNC_COB_ID:X})" if setup.sync == "produce" else " (SYNC from another node)")
     start.append(f"at {_number(case.bench.rate_hz)} Hz: RPDO{setup.rpdo} id 0x{setup.rpdo_cob_id:X} setpoint in counts "
