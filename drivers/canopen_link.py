@@ -303,7 +303,9 @@ def _same_values(a: FeedbackSample, b: FeedbackSample) -> bool:
 
 def _sdo_failure(exc: Exception) -> str:
     """What an SDO transfer that failed without an abort met: no answer in time, or an answer it cannot take."""
-    return "no SDO answer" if "No SDO response" in str(exc) else "an SDO answer out of place"
+    from .sdo_answers import NoSdoAnswer
+
+    return "no SDO answer" if isinstance(exc, NoSdoAnswer) else "an SDO answer out of place"
 
 
 class CanopenDriver(Driver):
@@ -566,11 +568,11 @@ class CanopenDriver(Driver):
         answers: queue.Queue[float] = queue.Queue()
         times = []
         self._answer_times = answers
+        wait = max(0.05, 20 * period)
         try:
             for _ in range(ANSWER_PROBES):
                 sent = time.time()  # as send_setpoint notes it, before the send
                 self.port.send(Frame(SYNC_COB_ID, b""))
-                wait = max(0.05, 20 * period)
                 try:
                     times.append(answers.get(timeout=wait) - sent)
                 except queue.Empty:  # an answer later still is not taken for the next SYNC's

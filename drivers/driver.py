@@ -157,6 +157,8 @@ class Driver:
         self.port = port
         self.layout = layout
         self.health = BusHealth()
+        self.start_account = ""
+        """What ``enable`` did and measured, in words, where it did more than send the enable frame (empty here)."""
         self._channels = layout.channels
         self._by_key: dict[tuple[int, bool], int] = {
             (msg.id, msg.extended): index for index, msg in enumerate(layout.feedback)
@@ -192,9 +194,6 @@ class Driver:
         if self._setpoint_modulus is not None:
             values[COUNTER] = int(counter) % self._setpoint_modulus
         self._send(self.layout.setpoint, values)
-
-    start_account = ""
-    """What ``enable`` did and measured, in words, where it did more than send the enable frame (empty here)."""
 
     def enable(self) -> None:
         """Send the enable message (no-op when the layout has none)."""

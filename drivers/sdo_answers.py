@@ -19,11 +19,16 @@ from canopen import RemoteNode
 from canopen.sdo.client import SdoClient
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-__all__ = ["MatchingRemoteNode", "MatchingSdoClient"]
+__all__ = ["MatchingRemoteNode", "MatchingSdoClient", "NoSdoAnswer"]
 
 _ANSWERS = {1: 3, 2: 2}  # client command specifier of an initiate request -> the server's (download 1 -> 3, upload 2)
 _NAMING_RESPONSES = (2, 3, 4)  # server command specifiers that carry the object: upload, download initiate; abort
 _ABORT = 4
+
+
+class NoSdoAnswer(SdoCommunicationError):
+    """No answer to the transfer under way came within ``RESPONSE_TIMEOUT`` (other SdoCommunicationErrors: an answer
+    came that the transfer cannot take)."""
 
 
 class MatchingSdoClient(SdoClient):
@@ -51,7 +56,7 @@ class MatchingSdoClient(SdoClient):
             try:
                 response: bytes = self.responses.get(block=True, timeout=max(0.0, deadline - time.monotonic()))
             except queue.Empty:
-                raise SdoCommunicationError("No SDO response received") from None
+                raise NoSdoAnswer("No SDO response received") from None
             specifier = response[0] >> 5
             named = bytes(response[1:4])
             if specifier == _ABORT:

@@ -448,8 +448,7 @@ class SimulatedCia402Drive:
                 self._transmit(tpdo.cob_id, bytes(tpdo.data))
 
     def _transmit(self, cob_id: int, data: bytes) -> None:
-        """Send a TPDO now, or ``tpdo_delay_s`` later from a thread of its own (in order)."""
-        assert self.network is not None
+        """Send a TPDO, twice where ``tpdo_repeat`` draws it."""
         f = self.faults
         if f is not None and f.tpdo_repeat > 0 and self._draws.random() < f.tpdo_repeat:
             self.repeated_tpdos += 1
@@ -457,6 +456,7 @@ class SimulatedCia402Drive:
         self._transmit_once(cob_id, data)
 
     def _transmit_once(self, cob_id: int, data: bytes) -> None:
+        """Send a TPDO now, or ``tpdo_delay_s`` later from a thread of its own (in order)."""
         assert self.network is not None
         f = self.faults
         if f is None or not f.tpdo_delay_s:

@@ -74,7 +74,8 @@ def reanalyse_point(samples: PointSamples, analysis: AnalysisSettings, rate_hz: 
         points = sampler.points()
     ratios = samples.setpoint_ratios
     if ratios.size:  # taken against the setpoints as their frames carried them, as live
-        points = taken_against(points, {n: complex(ratios[n - 1]) for n in range(1, ratios.size + 1)})
+        points = taken_against(points, {p.periods: complex(ratios[p.periods - 1]) for p in points
+                                        if 1 <= p.periods <= ratios.size})
     return (mark_untied(points) if samples.untied else points), ended
 
 

@@ -330,7 +330,8 @@ class BenchSession:
         points = flag_disturbed(mark_untied(points) if untied else points, self.disturbance_lines)
         if not reference and self.case.layout is not None:  # taken against the sine as the frames carried it
             setpoint = self.case.layout.setpoint
-            whole = int(math.floor((record.t[-1] - record.t0) * f + 1e-9)) if record.batches else 0
+            last = record.batches[-1][0][-1] if record.batches else record.t0
+            whole = int(math.floor((last - record.t0) * f + 1e-9))
             ratios = rounding_ratios(lambda values: setpoint.carried(SETPOINT, values), amplitude, f, self.period,
                                      started.tick, record.t0, range(1, max([whole, *(p.periods for p in points)]) + 1))
             record.setpoint_ratios = np.array([ratios[n] for n in sorted(ratios)], dtype=np.complex128)
