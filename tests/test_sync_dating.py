@@ -25,6 +25,7 @@ from bodebench.drivers.canopen_link import ANSWER_PROBES, CanopenDriver
 from bodebench.drivers.ports import CanPort
 from bodebench.drivers.sync_dating import STEADY, SyncMatcher
 from bodebench.io.config import ConfigError, parse_config
+from bodebench.io.results import load_response
 from bodebench.sim.canopen_device import serve_canopen
 from bodebench.sim.controller import ControllerTiming, SimulatedController
 from bodebench.sim.faults import CanopenFaults
@@ -415,14 +416,15 @@ def realtime_case(delay_s: float, share: float = 1.0) -> Any:
 
 
 @pytest.mark.parametrize("share", [1.0, 0.3], ids=["every-answer", "three-in-ten"])
-def test_a_tpdo_that_answers_after_the_next_sync_is_refused_before_the_drive_is_enabled(share: float) -> None:
+def test_a_tpdo_that_answers_after_the_next_sync_is_refused_before_the_drive_is_enabled(
+        share: float, tmp_path: Path) -> None:
     """6 ms, one and a half SYNC periods: every sample would be dated by the next SYNC (the points converged 7.2
     degrees off at 5 Hz); or three answers in ten that late (runs of three would be). The host times the answer
-    first, and refuses, saying how slow a rate would do."""
-    case = realtime_case(0.006, share).cases[0]
-    session = BenchSession(case, plan_link(case))
+    first, and refuses, saying how slow a rate would do. The bus log: never told to enable operation, the drive
+    is sent setpoint 0 (applied by a SYNC), quick stop, disable voltage and NMT pre-operational."""
+    log = tmp_path / "bus.asc"
     with pytest.raises(SessionError) as info:
-        session.run()
+        SweepProcedure(realtime_case(0.006, share), tmp_path / "out", log_bus=log).run()
     message = str(info.value)
     assert info.value.kind is FaultKind.DRIVE and "\n" not in message
     found = re.search(r"TPDO answers its SYNC in ([\d.]+) ms \(median of 64; 90% within ([\d.]+) ms.*4 ms between "
@@ -430,7 +432,16 @@ def test_a_tpdo_that_answers_after_the_next_sync_is_refused_before_the_drive_is_
     assert found is not None, message
     assert float(found[2]) >= 6.0 and int(found[3]) <= 0.75 / 0.006
     assert float(found[1]) >= 6.0 if share == 1.0 else float(found[1]) < 4.0
-    assert not session.response.points
+    assert not load_response(tmp_path / "out").points
+    sent = [(m.arbitration_id, bytes(m.data)) for m in can.LogReader(log) if not m.is_rx]
+    controlwords = [(i, int.from_bytes(data[4:6], "little")) for i, (fid, data) in enumerate(sent)
+                    if fid == 0x609 and data[0] == 0x2B and data[1:3] == b"\x40\x60"]
+    last_setpoint = max(i for i, (fid, _) in enumerate(sent) if fid == 0x209)
+    assert sent[last_setpoint][1] == bytes(4) and sent[last_setpoint + 1][0] == 0x80
+    assert [v for i, v in controlwords if i > last_setpoint] == [0x0002, 0x0000]  # quick stop, disable voltage
+    assert 0x000F not in [v for _, v in controlwords]  # enable operation never sent
+    nmt = [(i, data) for i, (fid, data) in enumerate(sent) if fid == 0x000]
+    assert nmt[-1][1] == bytes([0x80, 9]) and nmt[-1][0] > controlwords[-1][0]  # pre-operational, the last word
 
 
 def test_a_tpdo_within_the_sync_period_is_timed_and_its_samples_keep_their_syncs(tmp_path: Path) -> None:
