@@ -13,7 +13,9 @@ them unchanged. ``CanopenDriver`` adds the device's life cycle:
   the mode (CiA 402: modes of operation 0x6060, checked in 0x6061; CiA 408: device mode 0x6042 = 1 and control mode
   0x6043, each read back); NMT operational, then the profile's enable steps (CiA 402: shutdown, switch on, enable
   operation; CiA 408: DISABLED, HOLD, ACTIVE), each checked in the statusword;
-- ``send_setpoint()``: the RPDO, then SYNC (when the host produces it);
+- ``send_setpoint()``: the RPDO, then SYNC (when the host produces it; on the realtime clock with ``timebase``
+  "sync", after a gap dated by rhythm, one SYNC is left out at a tick where the setpoint hardly moves, to check
+  that the drive still answers within a SYNC period: ``drivers.sync_dating``);
 - ``receive()``: TPDO samples, dated by the host tick of the SYNC they answer when the host produces SYNC: by the
   drive's sample counter (``timebase`` "counter") or, without one, by the order and receive times of the frames
   (``timebase`` "sync", ``drivers.sync_dating``); an EMCY, a statusword that leaves the running state ("operation
@@ -40,6 +42,7 @@ import math
 import queue
 import threading
 import time
+from collections import deque
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -87,6 +90,15 @@ answers in ten (``ANSWER_QUANTILE``): runs of answers later than a SYNC period c
 ANSWER_QUANTILE = 0.9
 """The share of the timed answers that must come within ``ANSWER_LIMIT`` of the period (the rest: a busy host's
 hiccups)."""
+
+CHECK_STEP = 0.2
+"""After a gap dated by rhythm, a SYNC is left out to check the answer time (``SyncMatcher.skip``) at the first tick
+whose setpoint step is at most this fraction of the largest of the last ``CHECK_MEMORY`` steps (near a peak of the
+sine or a ramp's start, so the setpoint the drive holds one tick longer is close to the one it misses): an idle tick
+(a ramp, between points: ``Driver.send_setpoint``), or any after a gap whose answer times shifted
+(``SyncMatcher.shifted``), where a drive fallen behind is likely."""
+CHECK_MEMORY = 256
+"""Setpoint steps remembered for ``CHECK_STEP``."""
 
 # CANopen data types (CiA 301) -> signal types of drivers.codec
 _SIGNAL_TYPES = {0x2: "int8", 0x3: "int16", 0x4: "int32", 0x5: "uint8", 0x6: "uint16", 0x7: "uint32",
@@ -338,6 +350,14 @@ class CanopenDriver(Driver):
         self._first_counter: int | None = None
         self._matcher: SyncMatcher[FeedbackSample] = SyncMatcher(_SYNC_MEMORY, same=_same_values)
         self._answer_times: queue.Queue[float] | None = None  # receive times of TPDOs while their answer is timed
+        # a gap was dated by rhythm (or a check left undecided): leave a SYNC out "soon" (the answer times shifted)
+        # or on an "idle" tick; "" while no check is wanted (CHECK_STEP)
+        self._check_wanted = ""
+        self._gaps_checked = (0, 0)  # the matcher's (shifted, by_rhythm + checks_undecided) when last looked at
+        self._steps: deque[float] = deque(maxlen=CHECK_MEMORY)  # the latest setpoint steps (setpoint units)
+        self._last_setpoint = 0.0
+        self._taken: list[FeedbackSample] = []  # samples dated while a check was being decided, for ``receive``
+        self._answer_s: float | None = None  # s, the TPDO's median time after its SYNC before enabling (timed)
         self.protection = ""
         """What the start did so that the drive stops itself if the host dies, or why it could not (empty before)."""
         self._unprotected = ""  # why the drive cannot protect itself (said again in shutdown_account)
@@ -554,7 +574,9 @@ class CanopenDriver(Driver):
         self._left = None
         self._first_counter = None
         self._syncs_sent = 0
-        self._matcher = SyncMatcher(_SYNC_MEMORY, same=_same_values)
+        self._matcher = SyncMatcher(_SYNC_MEMORY, same=_same_values, answer_s=self._answer_s)
+        self._check_wanted = ""
+        self._gaps_checked = (0, 0)
         self._cyclic = True
 
     def _time_answers(self) -> str:
@@ -590,6 +612,7 @@ class CanopenDriver(Driver):
             return f"TPDO answer time not measured (no answer to {ANSWER_PROBES} SYNCs before enabling)"
         times.sort()
         median, most, longest = times[len(times) // 2], times[math.ceil(ANSWER_QUANTILE * len(times)) - 1], times[-1]
+        self._answer_s = median
         measured = (f"TPDO answers its SYNC in {median * 1e3:.3g} ms (median of {len(times)}; "
                     f"{ANSWER_QUANTILE:.0%} within {most * 1e3:.3g} ms, longest {longest * 1e3:.3g} ms) {rate}")
         if times[0] < 0:
@@ -789,11 +812,14 @@ class CanopenDriver(Driver):
             entries.append((raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF))
         return entries
 
-    def send_setpoint(self, value: float, counter: int = 0) -> None:
+    def send_setpoint(self, value: float, counter: int = 0, idle: bool = False) -> None:
         """The setpoint RPDO, then SYNC when the host produces it (the drive applies the setpoint on SYNC).
-        ``counter``: the host's tick of this setpoint; a sample is dated by the SYNC it answers (below)."""
+        ``counter``: the host's tick of this setpoint; a sample is dated by the SYNC it answers (below). ``idle``:
+        the tick may be spent checking the answer time (``_leaves_sync_out``)."""
         super().send_setpoint(value, counter)
         if self.setup.sync == "produce":
+            if self._leaves_sync_out(value, idle):
+                return
             sent = time.time()  # before the send: the clock python-can stamps received frames with
             self.port.send(Frame(SYNC_COB_ID, b""))
             self._sync_ticks[self._syncs_sent % _SYNC_MEMORY] = counter
@@ -801,6 +827,31 @@ class CanopenDriver(Driver):
             if self._by_sync:
                 self._matcher.sent(counter, sent)
             self._update_health()
+
+    def _leaves_sync_out(self, value: float, idle: bool) -> bool:
+        """Whether this tick's SYNC is left out to check the drive's answer time (``SyncMatcher.skip``): wanted after
+        a gap dated by rhythm on the realtime clock, made once the latest SYNC has its answer at a tick where the
+        setpoint hardly moves (``CHECK_STEP``): an ``idle`` one, or any after a gap whose answer times shifted."""
+        if not self.setup.times_answers:
+            return False
+        step = abs(value - self._last_setpoint)  # the drive holds the last setpoint one tick longer without a SYNC
+        self._last_setpoint = value
+        self._steps.append(step)
+        if not (self._check_wanted == "soon" or self._check_wanted and idle) or step > CHECK_STEP * max(self._steps):
+            return False
+        for frame in self.port.recv(0.0):  # the answer to the latest SYNC may be in: dated now, returned next
+            self._taken.extend(self._dispatch(frame))
+        if not self._matcher.settled:
+            return False
+        self._check_wanted = ""
+        self._matcher.skip()
+        self.health.answer_checks = self._matcher.checks
+        return True
+
+    @property
+    def dating_unchecked(self) -> bool:
+        """A gap dated by rhythm (or an undecided check) waits for its check, or a check is under way."""
+        return bool(self._check_wanted) or self._matcher.checking
 
     @property
     def _by_sync(self) -> bool:
@@ -828,6 +879,11 @@ class CanopenDriver(Driver):
             self.health.duplicates = m.repeats
             self.health.lost_samples = m.lost
             self.health.dated_by_rhythm = m.by_rhythm
+            gaps = (m.shifted, m.by_rhythm + m.checks_undecided)
+            if gaps != self._gaps_checked and self.setup.times_answers:
+                soon = gaps[0] > self._gaps_checked[0] or self._check_wanted == "soon"
+                self._gaps_checked = gaps
+                self._check_wanted = "soon" if soon else "idle"
             return dated
         out = []
         for sample in samples:
@@ -850,7 +906,7 @@ class CanopenDriver(Driver):
         if not isinstance(timeout, (int, float)) or not timeout >= 0:
             raise ValueError(f"receive timeout must be a number >= 0 s, got {timeout!r}")
         deadline = time.monotonic() + timeout
-        samples: list[FeedbackSample] = []
+        samples, self._taken = self._taken, []
         try:
             while True:
                 for frame in self.port.recv(max(0.0, deadline - time.monotonic())):
@@ -870,6 +926,14 @@ class CanopenDriver(Driver):
                                   f"error register 0x{e.register:02X}")
         if self._left is not None:
             raise DriveFaultError(f"{self._where()} left {self.profile.running}: {self._left}")
+        if self._matcher.late:
+            period = self.setup.sync_period_s
+            raise DriveFaultError(
+                f"{self._where()}: its TPDO came while no SYNC was out for it (a SYNC left out to check the answer "
+                f"time after a gap in the TPDOs): it answers more than a SYNC period ({period * 1e3:.3g} ms) late, "
+                f"or sends TPDOs unasked, and the samples dated by SYNC since tick {self._matcher.rhythm_tick} are "
+                f"a SYNC off; lower bench.rate_hz, or date by a sample counter the drive sends "
+                f'(timebase = "counter")')
         limit = self.setup.heartbeat_timeout_s
         with self._lock:
             seen, state = self._last_heartbeat, self._nmt_state

@@ -105,7 +105,8 @@ class BusHealth:
     once; ``undated``: CANopen with ``timebase = "sync"``, TPDOs dropped because the SYNC they answer cannot be
     told (``drivers.sync_dating``; the SYNCs left without an answer count in ``lost_samples``); ``dated_by_rhythm``:
     there too, the gaps after which TPDOs were dated by their rhythm alone (a lost TPDO, or a drive fallen a SYNC
-    behind, which the host cannot tell apart: 0 on a bus that loses no frame)."""
+    behind, which the host cannot tell apart: 0 on a bus that loses no frame); ``answer_checks``: there too, on the
+    realtime clock, the SYNCs left out after such gaps to check that the drive still answers within a SYNC period."""
 
     frames_in: int = 0
     frames_out: int = 0
@@ -120,6 +121,7 @@ class BusHealth:
     broken_frames: int = 0
     undated: int = 0
     dated_by_rhythm: int = 0
+    answer_checks: int = 0
     rejected: dict[str, int] = dataclasses.field(default_factory=lambda: dict.fromkeys(REJECT_CAUSES, 0))
 
     @property
@@ -187,9 +189,11 @@ class Driver:
 
     # ----------------------------------------------------------------------------------------------------------
     # commands
-    def send_setpoint(self, value: float, counter: int = 0) -> None:
+    def send_setpoint(self, value: float, counter: int = 0, idle: bool = False) -> None:
         """Send the setpoint ``value`` (physical units of the layout) with ``counter`` (reduced modulo the counter
-        modulus; ignored when the setpoint message has no counter). LayoutError when the value does not fit."""
+        modulus; ignored when the setpoint message has no counter). LayoutError when the value does not fit.
+        ``idle``: the sample answering this tick enters no point (a ramp, or between points), so the driver may
+        spend the tick checking its link (``dating_unchecked``)."""
         values = {SETPOINT: value}
         if self._setpoint_modulus is not None:
             values[COUNTER] = int(counter) % self._setpoint_modulus
@@ -199,6 +203,13 @@ class Driver:
         """Send the enable message (no-op when the layout has none)."""
         if self.layout.enable is not None:
             self._send(self.layout.enable, {})
+
+    @property
+    def dating_unchecked(self) -> bool:
+        """Whether samples already returned may be dated wrongly until the driver has checked its link, which it
+        does on an ``idle`` tick (CANopen, ``timebase = "sync"``: a gap in the TPDOs whose dating assumed a drive
+        that keeps up). False for links whose samples carry their own date."""
+        return False
 
     counts_host_ticks = False
     """True when ``FeedbackSample.counter`` is the host's tick after the setpoint the sample answers (the

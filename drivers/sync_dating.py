@@ -29,32 +29,52 @@ the SYNCs sent before t that no earlier TPDO answered. The rules, with L the lat
   between a SYNC off. A drive's own answers to two SYNCs that happen to be equal, in a burst, are dropped with
   it: a gap, never a shift.
 
+A gap dated by rhythm assumes the drive is not behind. A drive whose answer time grew past the SYNC period looks
+like one that lost a TPDO, except that its answers then seem to come sooner after their SYNC: where the newest
+TPDOs' time after their SYNCs moved by more than ``SHIFT`` of the SYNC interval from before the gap (the median of
+the latest TPDOs that came alone after their SYNC, else the time measured before, ``answer_s``), the gap is counted
+in ``shifted``. Either way the host can check (``skip``): it sends no SYNC for one
+tick just after a SYNC whose answer has come. Until the next SYNC a drive that keeps up sends nothing; one that
+answers more than a SYNC period late sends the answer to that SYNC now, a second TPDO after it (counted in
+``late``: every sample dated by rhythm since is a SYNC off). A repeat of the TPDO before (the same data) there leaves
+the check undecided (``checks_undecided``): a frame received twice and a late answer with the same values look
+alike.
+
 The SYNCs remembered are the latest ``memory``; a TPDO older than all of them is unmatched, and undecided TPDOs
 whose pending SYNCs are forgotten are dropped.
 """
 
 from __future__ import annotations
 
+import statistics
 from collections import deque
 from collections.abc import Callable
 from typing import Generic, TypeVar
 
-__all__ = ["STEADY", "SyncMatcher"]
+__all__ = ["SHIFT", "STEADY", "SyncMatcher"]
 
 T = TypeVar("T")
 
 STEADY = 3
 """TPDOs in a row, one after each of consecutive SYNCs, that date the newest of them after a gap (the default)."""
+SHIFT = 0.5
+"""The change in the TPDOs' time after their SYNC across a gap, as a fraction of the SYNC interval, beyond which the
+gap counts in ``SyncMatcher.shifted``: a drive that answers a period later than before its answers' jitter."""
+TIMED = 16
+"""The latest answer times (TPDOs alone after their SYNC) whose median is the reference for ``SHIFT``."""
 
 
 class SyncMatcher(Generic[T]):
     """Matches TPDOs (any item, with its receive time) to host-produced SYNCs (module docstring). Pure: no I/O, no
     clock of its own; feed ``sent`` and ``received`` in the order the host sent and read the frames."""
 
-    def __init__(self, memory: int = 4096, steady: int = STEADY, same: Callable[[T, T], bool] | None = None) -> None:
+    def __init__(self, memory: int = 4096, steady: int = STEADY, same: Callable[[T, T], bool] | None = None,
+                 answer_s: float | None = None) -> None:
         """``memory``: how many of the latest SYNCs are remembered (at least 2). ``steady``: how many TPDOs in a
         row, one after each SYNC, date the newest of them after a gap (at least 2). ``same``: whether two TPDOs
-        carry the same data (None: repeats are not looked for)."""
+        carry the same data (None: repeats are not looked for). ``answer_s``: the TPDO's time after its SYNC
+        measured before (s), the reference for ``shifted`` until TPDOs have been timed (None: unknown, so a gap
+        before any is shifted)."""
         if memory < 2:
             raise ValueError(f"SyncMatcher memory must be at least 2 SYNCs, got {memory!r}")
         if steady < 2:
@@ -67,6 +87,9 @@ class SyncMatcher(Generic[T]):
         self._done = -1  # the latest SYNC answered or given up: later TPDOs answer only later ones
         self._held: list[T] = []  # TPDOs received since then, undecided, oldest first
         self._after: deque[int] = deque(maxlen=steady + 1)  # the latest SYNC before each of the last TPDOs taken
+        self._after_s: deque[float] = deque(maxlen=steady)  # and the time each came after it, s
+        self._timed: deque[float] = deque(maxlen=TIMED)  # times after their SYNC of TPDOs that came alone, s
+        self._answer_s = answer_s
         self.matched = 0
         """TPDOs given a SYNC."""
         self.lost = 0
@@ -80,8 +103,22 @@ class SyncMatcher(Generic[T]):
         rule cannot tell them apart)."""
         self.repeats = 0
         """TPDOs dropped as repeats of the one before (the same data, no SYNC sent between them)."""
+        self.shifted = 0
+        """Gaps dated by rhythm after which the TPDOs' time after their SYNC moved by more than ``SHIFT`` of the
+        SYNC interval (module docstring)."""
+        self.rhythm_tick: int | None = None
+        """The tick of the SYNC the latest gap dated by rhythm ended at (None before the first)."""
+        self.checks = 0
+        """Checks made (``skip``): ticks the host sent no SYNC for, after a SYNC answered."""
+        self.checks_undecided = 0
+        """Checks in which a repeat of the TPDO before came (a frame received twice, or a late answer: ``skip``)."""
+        self.late = 0
+        """TPDOs received in a check while no SYNC was left to answer: a drive answering more than a period late."""
         self._same = same
         self._previous: tuple[int | None, float, T] | None = None  # (latest SYNC before, time, item): the last TPDO
+        self._checking: int | None = None  # the SYNC after which the host sent none for a tick, while checked
+        self._check_repeats = 0  # repeats received in the current check
+        self._late_before = 0  # ``late`` when the current check began
 
     def sent(self, tick: int, time_s: float) -> None:
         """A SYNC went out for host tick ``tick`` at ``time_s`` (s, the clock received frames are stamped with,
@@ -95,28 +132,69 @@ class SyncMatcher(Generic[T]):
         """A TPDO (``item``) received at ``time_s``: the (tick, item) pairs this decides, oldest first (none, this
         one, or undecided ones and this one)."""
         latest = self._latest_before(time_s)
+        checked = self._checking is not None and latest == self._checking  # received in a check's window
+        if self._checking is not None and not checked and (latest is None or latest > self._checking):
+            self._end_check()
         previous, self._previous = self._previous, (latest, time_s, item)
         if self._same is not None and previous is not None and self._same(previous[2], item) and (
                 previous[0] == latest or time_s - previous[1] < 0.25 * self._interval()):
             self.repeats += 1
+            self._check_repeats += checked
             return []
         if self._done + 1 < self._oldest:  # pending SYNCs forgotten: the undecided TPDOs cannot be dated
             self._drop_held()
             self._give_up(self._oldest - 1)
         if latest is None or latest <= self._done:
             self.unmatched += 1
+            self.late += checked
             return []
         self._held.append(item)
         self._after.append(latest)
+        since = time_s - self._times[latest % self.memory]
+        self._after_s.append(since)
         if len(self._held) == latest - self._done:
             held, self._held = self._held, []
+            if len(held) == 1:
+                self._timed.append(since)
             return [self._give(self._done + 1, each) for each in held]
         if self._in_rhythm():
             self._held.pop()
             self._drop_held()
             self.by_rhythm += 1
+            before = statistics.median(self._timed) if self._timed else self._answer_s
+            if before is None or abs(statistics.median(self._after_s) - before) > SHIFT * self._interval():
+                self.shifted += 1
+            self.rhythm_tick = self._ticks[latest % self.memory]
             return [self._give(latest, item)]
         return []
+
+    def skip(self) -> None:
+        """The host sends no SYNC for one tick after the latest, which is answered (``settled``): a check that the
+        drive answers within a SYNC period (module docstring). The TPDOs received before the next SYNC (by their
+        times) are the check's; it ends with the first TPDO received after that SYNC."""
+        if not self.settled:
+            raise ValueError("SyncMatcher.skip: the latest SYNC has no answer yet")
+        self._end_check()
+        self._checking = self._sent - 1
+        self._check_repeats = 0
+        self._late_before = self.late
+        self.checks += 1
+
+    def _end_check(self) -> None:
+        """The check under way (if any) is over: a TPDO after a later SYNC came, or another check begins."""
+        if self._checking is not None:
+            self.checks_undecided += self._check_repeats > 0 and self.late == self._late_before
+            self._checking = None
+
+    @property
+    def checking(self) -> bool:
+        """Whether a check (``skip``) is under way: no TPDO after the SYNC that followed it has come yet."""
+        return self._checking is not None
+
+    @property
+    def settled(self) -> bool:
+        """Whether the latest SYNC sent has its answer and no TPDO waits to be dated (a check may start)."""
+        return self._sent > 0 and not self._held and self._done == self._sent - 1
 
     @property
     def held(self) -> bool:

@@ -456,10 +456,11 @@ class SimulatedCia402Drive:
         self._transmit_once(cob_id, data)
 
     def _transmit_once(self, cob_id: int, data: bytes) -> None:
-        """Send a TPDO now, or ``tpdo_delay_s`` later from a thread of its own (in order)."""
+        """Send a TPDO now, or ``tpdo_delay_s`` later (from ``tpdo_delay_at_s`` on) from a thread of its own (in
+        order)."""
         assert self.network is not None
         f = self.faults
-        if f is None or not f.tpdo_delay_s:
+        if f is None or not f.tpdo_delay_s or f.tpdo_delay_at_s and not self._due(f.tpdo_delay_at_s):
             self.network.send_message(cob_id, data)
             return
         if self._delayed is None:

@@ -227,7 +227,8 @@ class CanopenFaults:
     probability per SYNC that the drive stalls, holding back its TPDOs of this SYNC and the next tpdo_stall_syncs - 1
     and sending them in one burst when SYNC tpdo_stall_syncs later arrives, before that SYNC's own; seed: of all
     these draws. tpdo_delay_s, tpdo_delay_share: a TPDO reaches the bus this long after it is due (as a gateway or a USB
-    adapter delays it), every one or this share of them at random (later ones wait for it: none overtakes).
+    adapter delays it), every one or this share of them at random (later ones wait for it: none overtakes), from
+    controller time tpdo_delay_at_s on (0: from the start, before the drive is enabled).
     tpdo_repeat: probability per TPDO that it goes out twice (as a frame received twice). fixed_tpdo_mapping: the
     drive's TPDO mapping is its EDS's whatever the host writes.
     """
@@ -256,6 +257,8 @@ class CanopenFaults:
                                                                                   "after it is due, s"})
     tpdo_delay_share: float = field(default=1.0, metadata={"min": 0, "max": 1, "doc": "the share of TPDOs "
                                                                                       "tpdo_delay_s delays"})
+    tpdo_delay_at_s: float = field(default=0.0, metadata={"min": 0, "doc": "tpdo_delay_s applies from this "
+                                                                           "controller time on, s (0: always)"})
     tpdo_repeat: float = field(default=0.0, metadata={"min": 0, "max": 1, "doc": "probability per TPDO that the "
                                                                                 "host receives it twice"})
     seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of the draws above (sync_miss to "

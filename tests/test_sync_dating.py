@@ -9,6 +9,7 @@ import json
 import re
 import types
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -233,6 +234,97 @@ def test_a_tpdo_held_waits_and_the_matcher_says_so() -> None:
     assert m.received(0.0013, 1) == [(0, 0), (1, 1)] and not m.held
 
 
+# ---------------------------------------------------------------------- checking the answer time with a SYNC left out
+
+
+def checked_run(n: int, answer: Callable[[int], float], rng: np.random.Generator, lose: float = 0.0,
+                repeat: float = 0.0) -> tuple[list[tuple[int, int]], SyncMatcher[int], list[int]]:
+    """A host ticking one a PERIOD for ``n`` ticks and a drive answering each SYNC it gets ``answer(tick)`` after
+    it (s; in order, none overtaking), losing answers with probability ``lose``, sending an answer twice (the copy
+    0.01 periods later) with ``repeat``. The host reads what was received before each tick, then, while a gap
+    dated by rhythm (or an undecided check) waits for its check and the latest SYNC has its answer, leaves that
+    tick's SYNC out (``skip``), as the CANopen driver does on an idle tick; it stops at the first late TPDO, as the
+    driver does. Returns the (tick, answered tick) pairs, the matcher, and the ticks whose SYNC was left out."""
+    m: SyncMatcher[int] = SyncMatcher(256, same=lambda a, b: a == b)
+    out: list[tuple[int, int]] = []
+    pending: list[tuple[float, int]] = []  # (receive time, tick answered), in time order
+    skipped: list[int] = []
+    free, seen = 0.0, 0
+    for tick in range(n):
+        now = tick * PERIOD
+        while pending and pending[0][0] < now:
+            at, k = pending.pop(0)
+            out += m.received(at, k)
+        if m.late:  # the driver ends the sweep here
+            break
+        if m.by_rhythm + m.checks_undecided > seen and m.settled:
+            seen = m.by_rhythm + m.checks_undecided
+            m.skip()
+            skipped.append(tick)
+            continue
+        m.sent(tick, now)
+        free = max(now + answer(tick), free + 0.02 * PERIOD)
+        if rng.random() >= lose:
+            pending.append((free, tick))
+            if rng.random() < repeat:
+                pending.append((free + 0.01 * PERIOD, tick))
+        pending.sort()
+    return out, m, skipped
+
+
+@pytest.mark.parametrize("late", [1.05, 1.2, 1.7, 2.3])
+def test_a_drive_fallen_behind_is_found_by_the_first_sync_left_out_after_the_gap(late: float) -> None:
+    """Answers 0.3 periods after their SYNC, then ``late`` periods from tick 500: the TPDOs look punctual to the
+    SYNC after (the rhythm rule dates them a SYNC off); the SYNC left out after that gap has a TPDO come while no
+    SYNC is out for it (``late``). Before the change every sample keeps its own tick."""
+    out, m, skipped = checked_run(700, lambda tick: (0.3 if tick < 500 else late) * PERIOD, np.random.default_rng(0))
+    assert m.by_rhythm >= 1 and m.rhythm_tick is not None and 500 <= m.rhythm_tick <= 505
+    assert m.late >= 1 and skipped and skipped[0] <= m.rhythm_tick + 3
+    assert all(tick == k for tick, k in out if k < 500)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_a_punctual_drive_that_loses_and_repeats_tpdos_passes_every_check(seed: int) -> None:
+    """Answers 0.05 to 0.7 periods after their SYNC, 2 to 5 % lost, 0 to 3 % received twice: every gap dated by
+    rhythm is checked and none finds a late TPDO; no sample off its tick, no gap counted as shifted."""
+    rng = np.random.default_rng(seed)
+    lose, repeat = (0.02, 0.05)[seed % 2], (0.0, 0.03)[seed // 4]
+    out, m, skipped = checked_run(4000, lambda tick: rng.uniform(0.05, 0.7) * PERIOD, rng, lose, repeat)
+    assert m.by_rhythm > 20 and m.checks == len(skipped) >= m.by_rhythm // 2
+    assert m.late == 0 and m.shifted == 0
+    assert all(tick == k for tick, k in out)
+
+
+def test_answers_drifting_past_the_period_make_a_shifted_gap_and_a_steady_drive_none() -> None:
+    """The answer time grows from 0.5 to 1.15 periods over ticks 200 to 400: past the period the newest TPDOs
+    seem to answer 0.9 periods sooner than before the gap (``shifted``), the case for a check at once."""
+    out, m, _ = checked_run(600, lambda tick: (0.5 + 0.65 * min(1.0, max(0.0, (tick - 200) / 200))) * PERIOD,
+                            np.random.default_rng(1))
+    assert m.shifted >= 1 and m.late >= 1
+    steady_drive = SyncMatcher[int](64, answer_s=0.3 * PERIOD)
+    for k in range(40):
+        steady_drive.sent(k, k * PERIOD)
+        if k != 20:
+            steady_drive.received(k * PERIOD + 0.3 * PERIOD, k)
+    assert steady_drive.by_rhythm == 1 and steady_drive.shifted == 0
+
+
+def test_a_copy_of_the_tpdo_before_in_a_check_leaves_it_undecided() -> None:
+    """A frame received twice and a late answer with the same values look alike: the check is made again."""
+    m: SyncMatcher[int] = SyncMatcher(16, same=lambda a, b: a == b)
+    for k in range(3):
+        m.sent(k, k * PERIOD)
+        m.received(k * PERIOD + ANSWER, k)
+    m.skip()
+    m.received(2 * PERIOD + 2 * ANSWER, 2)  # the copy, while no SYNC is out
+    m.sent(4, 4 * PERIOD)
+    m.received(4 * PERIOD + ANSWER, 4)
+    assert (m.checks, m.checks_undecided, m.late, m.repeats) == (1, 1, 0, 1)
+    with pytest.raises(ValueError, match="no answer yet"):
+        m.sent(5, 5 * PERIOD)
+        m.skip()
+
+
 # ------------------------------------------------------------------------------------------- on the virtual bus
 
 RATE_HZ = 1000.0
@@ -402,16 +494,18 @@ def test_a_missed_sync_holds_the_setpoint_and_biases_the_response_as_the_held_in
 # ------------------------------------------------------------------------------- the TPDO's answer time, realtime
 
 
-def realtime_case(delay_s: float, share: float = 1.0) -> Any:
+def realtime_case(delay_s: float, share: float = 1.0, frequencies_hz: tuple[float, ...] = (10.0,),
+                  **faults: float) -> Any:
     """The lag on the simulated drive, SYNC every 4 ms on the host's clock, its TPDOs (all, or ``share`` of them)
-    reaching the bus ``delay_s`` after each SYNC (as a gateway or a USB adapter delays them)."""
-    data = {**BASE, "excitation": {"amplitude": 0.01, "frequencies_hz": [10.0]},
+    reaching the bus ``delay_s`` after each SYNC (as a gateway or a USB adapter delays them); more
+    ``[simulator.canopen]`` faults in ``faults``."""
+    data = {**BASE, "excitation": {"amplitude": 0.01, "frequencies_hz": list(frequencies_hz)},
             "bench": {"transport": "canopen", "rate_hz": 250.0, "clock": "realtime", "worker": "process"},
             "can": {"interface": "virtual", "channel": f"sync-{uuid.uuid4().hex[:8]}"},
             "canopen": {"node_id": 9, "setpoint_scale": 1e-9, "actual": {"position": "0x6064"},
                         "actual_scale": {"position": 1e-9}, "heartbeat_timeout_s": 1.0},
             "safety": {"max_amplitude": 0.02, "watchdog_s": 3.0},
-            "simulator": {"seed": 1, "canopen": {"tpdo_delay_s": delay_s, "tpdo_delay_share": share}}}
+            "simulator": {"seed": 1, "canopen": {"tpdo_delay_s": delay_s, "tpdo_delay_share": share, **faults}}}
     return parse_config(data, "sync.toml")
 
 
@@ -450,8 +544,10 @@ def test_a_tpdo_within_the_sync_period_is_timed_and_its_samples_keep_their_syncs
     The bus log holds the timing SYNCs `bodebench check` lists, between NMT operational and the first
     controlword."""
     config = realtime_case(0.002)
-    said = [line for line in check_lines(config) if "x SYNC (id 0x80) one at a time" in line]
+    lines = check_lines(config)
+    said = [line for line in lines if "x SYNC (id 0x80) one at a time" in line]
     assert len(said) == 1
+    assert sum("after a gap in the TPDOs, one SYNC left out to check the answer time" in line for line in lines) == 1
     log = tmp_path / "bus.asc"
     outcome = SweepProcedure(config, tmp_path, log_bus=log).run()[0]
     sent = [(m.arbitration_id, bytes(m.data)) for m in can.LogReader(log) if not m.is_rx]
@@ -468,3 +564,42 @@ def test_a_tpdo_within_the_sync_period_is_timed_and_its_samples_keep_their_syncs
     a = np.exp(-1.0 / (250.0 * PLANT["time_constant"]))
     expected = np.degrees(np.angle((1 - a) / (z - a)))
     assert point.converged and abs(np.degrees(np.arctan2(point.q, point.p)) - expected) < 1.0
+
+
+def lag_response(frequency_hz: float) -> complex:
+    """The simulated lag's sampled response at 250 Hz, setpoint held over each SYNC period (G_d)."""
+    z = np.exp(2j * np.pi * frequency_hz / 250.0)
+    a = np.exp(-1.0 / (250.0 * PLANT["time_constant"]))
+    return complex((1 - a) / (z - a))
+
+
+def test_a_drive_whose_answer_grows_past_the_period_mid_point_ends_the_sweep_and_its_point_is_not_written(
+        tmp_path: Path) -> None:
+    """Answers within 0.1 ms through the start's timing, then 4.6 ms (1.15 SYNC periods) from controller time 1 s,
+    in the 10 Hz point: its samples would be dated a SYNC off (14.4 degrees at 10 Hz). The gap is checked with a
+    SYNC left out, the sweep ends with the driver's line, and the point, measured, is not written."""
+    with pytest.raises(SessionError) as info:
+        SweepProcedure(realtime_case(0.0046, tpdo_delay_at_s=1.0), tmp_path).run()
+    message = str(info.value)
+    assert info.value.kind is FaultKind.DRIVE and "\n" not in message
+    assert re.search(r"answers more than a SYNC period \(4 ms\) late.*since tick \d+ are a SYNC off", message), message
+    record = json.loads((tmp_path / "response.json").read_text())["runs"][-1]
+    assert record["bus"]["dated_by_rhythm"] >= 1
+    assert not (tmp_path / "response.csv").exists() or not load_response(tmp_path).points
+    (refused,) = record["refused"]
+    assert refused["frequency_hz"] == 10.0 and "measured, not written" in refused["reason"]
+
+
+def test_gaps_of_a_drive_that_loses_tpdos_are_checked_on_idle_ticks_and_its_points_are_right(tmp_path: Path) -> None:
+    """3 % of the TPDOs lost: each gap dated by rhythm waits for a SYNC left out on a ramp or between points (a
+    point measured while one waits is written after it), every check passes, and the points are G_d's within
+    their tolerance."""
+    outcome = SweepProcedure(realtime_case(0.0, frequencies_hz=(5.0, 10.0), tpdo_drop=0.03), tmp_path).run()[0]
+    assert outcome.result is not None and outcome.result.completed
+    record = json.loads((outcome.directory / "response.json").read_text())["runs"][-1]
+    assert record["bus"]["dated_by_rhythm"] > 0 and record["bus"]["answer_checks"] >= 1
+    assert len(outcome.response.points) == 2
+    for point in outcome.response.points:
+        expected = lag_response(point.frequency_hz)
+        measured = complex(point.p, point.q) / 0.01
+        assert point.converged and abs(measured - expected) <= 1e-3 * abs(expected)

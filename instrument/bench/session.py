@@ -35,6 +35,7 @@ from bodebench.bench.events import (
 from bodebench.bench.window import PointWindow
 from bodebench.bench.worker import (
     Credit,
+    FinishSine,
     Health,
     Ready,
     Samples,
@@ -52,6 +53,9 @@ from bodebench.io.config import AnalysisConfig, BenchConfig, CaseConfig
 from bodebench.io.results import CSV_NAME, ResultsWriter, RowsOnDiskError, check_output
 from bodebench.io.samples import PointSamples
 from bodebench.status import FaultKind
+
+DATING_WAIT_S = 5.0
+"""How long after its ramp out a measured point waits for the driver to check the dating of its samples (s)."""
 
 
 @dataclass
@@ -275,6 +279,7 @@ class BenchSession:
         window = PointWindow(t0, f, sampler.max_gap_periods / f)
         scope = ScopeWindow(f)
         self.controls.skip.clear()
+        unchecked = False  # the latest batch's samples may be dated wrongly until the driver checks its link
         while not sampler.done:
             self._check_abort()
             if self.controls.skip.is_set():
@@ -286,6 +291,7 @@ class BenchSession:
             message = self._worker.receive(1.0)
             if not isinstance(message, Samples):
                 continue
+            unchecked = message.dating_unchecked
             t, values = message.t, message.values[:, watched]
             if t.size:  # the samples of the analysed periods (a friction link may stick through the ramp), each
                 # with whether the host's setpoint moved at its tick
@@ -340,6 +346,8 @@ class BenchSession:
             self.refused.append((f, refused))
             self.listener(PointFinished(index, (), skipped=True, refused=refused))
             return
+        if unchecked:
+            self._await_dating(f)
         self.last_samples = record
         if self.out_dir is not None:
             try:
@@ -355,6 +363,27 @@ class BenchSession:
         for p in points:
             self.response.add(p)
         self.listener(PointFinished(index, tuple(points)))
+
+    def _await_dating(self, f: float) -> None:
+        """The point at ``f`` Hz is measured but its samples' dating is not checked yet: the sine ramps out, and the
+        point is written once the driver has checked its link on the idle ticks (a failed check ends the sweep with
+        the driver's fault, the point unwritten); SessionError when no check comes within ``DATING_WAIT_S`` after
+        the ramp."""
+        self._worker.send(FinishSine())
+        deadline = time.monotonic() + self.bench.ramp_out_periods / f + DATING_WAIT_S
+        while time.monotonic() < deadline:
+            self._check_abort()
+            try:
+                message = self._worker.receive(0.1)
+            except SessionError as exc:
+                self.refused.append((f, f"{f:g} Hz: measured, not written: {exc}"))
+                raise
+            if isinstance(message, Samples) and not message.dating_unchecked:
+                return
+        why = (f"{f:g} Hz: the dating of the samples by SYNC was not checked within {DATING_WAIT_S:g} s of the "
+               "ramp out (a gap in the TPDOs, and no SYNC answered since): no point at this frequency")
+        self.refused.append((f, why))
+        raise SessionError(FaultKind.BUS, why)
 
 
 def sine_dating(bench: BenchConfig, channels: tuple[str, ...], frequency_hz: float) -> tuple[str, float, bool]:

@@ -68,6 +68,12 @@ class StartTable:
 
 
 @dataclass(frozen=True)
+class FinishSine:
+    """Ramp the running program out, then send zero setpoints until the next start (a point measured, its dating
+    still to be checked: ``Samples.dating_unchecked``)."""
+
+
+@dataclass(frozen=True)
 class Credit:
     """Lockstep: setpoints may be sent up to and including tick ``until_tick``."""
 
@@ -107,13 +113,16 @@ class SineStarted:
 class Samples:
     """Feedback samples: session time t (s), values (n, channels), and the setpoint sent at each sample's tick;
     ``held``: realtime clock, the stretches (start, end) of session time (s) since the last batch in which the drive
-    held a stale setpoint, because one went out more than a control period late or the pacing skipped ticks."""
+    held a stale setpoint, because one went out more than a control period late or the pacing skipped ticks;
+    ``dating_unchecked``: samples returned so far may be dated wrongly until the driver has checked its link on an
+    idle tick (``Driver.dating_unchecked``)."""
 
     t: np.ndarray
     values: np.ndarray
     setpoint: np.ndarray
     last_tick: int
     held: tuple[tuple[float, float], ...] = ()
+    dating_unchecked: bool = False
 
 
 @dataclass(frozen=True)
@@ -227,6 +236,10 @@ class SineProgram:
         if self.out_tick is None:
             return False
         return self.ramp_out == 0 or (tick - self.out_tick) * self.h * self.f >= self.ramp_out
+
+    def ramping(self, tick: int) -> bool:
+        """Whether ``tick`` is in a ramp (in or out), or before or after the program."""
+        return self.out_tick is not None or (tick - self.tick0) * self.h * self.f < self.ramp_in
 
     def value(self, tick: int) -> float:
         t = (tick - self.tick0) * self.h
@@ -430,9 +443,11 @@ class BusWorker:
         end of the credit: the session answers every batch with the next credit, so it must hear of this stretch
         even when every reply in it was lost)."""
         if self._t or even_empty:
+            assert self.driver is not None
             self._post(Samples(np.array(self._t, dtype=float),
                                np.array(self._v, dtype=float).reshape(len(self._t), len(self.layout_channels)),
-                               np.array(self._u, dtype=float), self.tick - 1, tuple(self._held)))
+                               np.array(self._u, dtype=float), self.tick - 1, tuple(self._held),
+                               self.driver.dating_unchecked))
             self._t, self._v, self._u, self._held = [], [], [], []
 
     def _session_can_take(self) -> bool:
@@ -459,6 +474,9 @@ class BusWorker:
             if self.program is not None:
                 self.program.finish(self.tick)
             self.pending = message
+        elif isinstance(message, FinishSine):
+            if self.program is not None:
+                self.program.finish(self.tick)
         elif isinstance(message, Stop):
             self.stopping = message
             if self.program is not None:
@@ -503,7 +521,7 @@ class BusWorker:
     def _send(self, u: float) -> None:
         assert self.driver is not None
         self._check_fed()
-        self.driver.send_setpoint(u, self.tick)
+        self.driver.send_setpoint(u, self.tick, self.program is None or self.program.ramping(self.tick))
         self.last_sent = u
         if self._last_fed is not None:
             self._last_fed = time.monotonic()
