@@ -2,9 +2,10 @@
 
 A sampled sine of known amplitude and phase, with samples cut out, must give the exact coefficient from its whole
 periods, and the count of discarded periods must be the number of periods the gap touched; a stream with gaps in
-most periods fails with a message. On the virtual CAN bus the simulated drive stalls (answers nothing for a while,
-its clock going on): the sweep's gains stay within their stated uncertainty of the exact response, and the samples'
-replay discards the same periods.
+most periods fails with a message, at the discarded period from which no later period could bring the share back
+within ``max_discarded_percent`` of the period budget. On the virtual CAN bus the simulated drive stalls (answers
+nothing for a while, its clock going on): the sweep's gains stay within their stated uncertainty of the exact
+response, and the samples' replay discards the same periods.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from scipy import signal
 
 from bodebench.analysis.reanalyse import reanalyse
 from bodebench.bench.procedure import SweepProcedure
-from bodebench.core.autointegration import Autointegrator, GapsError
+from bodebench.core.autointegration import Autointegrator, GapsError, discard_limit, too_many_discarded
 from bodebench.core.fourier import PeriodIntegrator
 from bodebench.io.config import ConfigError, parse_config
 from bodebench.io.results import load_response, save_response
@@ -147,15 +148,110 @@ def test_gaps_in_most_periods_fail_the_point() -> None:
     assert [p.periods_discarded for p in tolerant.points()] == [36, 36]
 
 
-def test_a_stream_of_gaps_only_fails_at_the_period_limit() -> None:
+def test_a_stream_of_gaps_only_fails_once_it_has_discarded_more_than_its_share_of_the_budget() -> None:
     t, y = stream(300, [(i + 0.3, i + 0.6) for i in range(300)])
     sampler = Autointegrator(F, A, ("y",), fixed(max_periods=50), t0=T0)
     for part in np.array_split(np.arange(t.size), 30):
         sampler.feed(t[part], y[:, None][part])
         if sampler.done:
             break
-    assert sampler.failure.startswith("2 Hz: 50 of 50 periods discarded")
+    # 26 of the 50 periods the budget holds are more than half of them, whatever the other 24 would be
+    assert sampler.failure == ("2 Hz: 26 of 26 periods discarded for gaps in the samples longer than 41.7 ms "
+                               "(0.0833 of a period), more than max_discarded_percent = 50 % of the 50 periods the "
+                               "point may span")
     assert sampler.periods == 0
+
+
+def three_of_four_gapped(periods: int, until: int) -> tuple[np.ndarray, np.ndarray]:
+    """``periods`` periods of the sine; up to period ``until`` a gap in periods 1 to 3 of every 4 (the 4th whole)."""
+    return stream(periods, [(i + 0.3, i + 0.6) for i in range(until) if i % 4 != 3])
+
+
+def never_stopping(**analysis: Any) -> AnalysisConfig:
+    """The fixed scheme averaging more periods than the budget holds: its rules stop only at the budget."""
+    return fixed(average_periods=1000, **analysis)
+
+
+@pytest.mark.parametrize("percent", [50.0, 33.3, 70.0])
+@pytest.mark.parametrize("chunks", [1, 9, 400])
+def test_a_point_fails_at_the_first_period_that_makes_failing_certain(percent: float, chunks: int) -> None:
+    """Three periods of every four discarded, a budget of 400 periods: the point fails at the discarded period
+    that takes the count past ``percent`` of the 400, long before the periods spanned reach them."""
+    budget = 400
+    allowed = math.floor(percent * budget / 100)  # 200, 133 and 280 discarded periods fit within the share
+    pattern = [i % 4 != 3 for i in range(budget)]  # period i + 1 discarded
+    spanned = next(n for n in range(1, budget + 1) if sum(pattern[:n]) == allowed + 1)
+    t, y = three_of_four_gapped(budget, budget)
+    sampler = Autointegrator(F, A, ("y",), never_stopping(max_periods=budget, max_discarded_percent=percent), t0=T0)
+    assert sampler.max_periods == budget and sampler.discard_limit == allowed
+    for part in np.array_split(np.arange(t.size), chunks):
+        sampler.feed(t[part], y[:, None][part])
+        if sampler.done:
+            break
+    assert sampler.discarded == allowed + 1  # and no period after it taken
+    assert sampler.failure == (f"2 Hz: {allowed + 1} of {spanned} periods discarded for gaps in the samples longer "
+                               f"than 41.7 ms (0.0833 of a period), more than max_discarded_percent = {percent:g} % "
+                               f"of the {budget} periods the point may span")
+    assert spanned < budget  # for 50 %: period 267, where the judgement at the budget would have come at 400
+
+
+def test_a_point_that_can_still_pass_is_not_failed_early() -> None:
+    """The same pattern stopped one discarded period short of the share, whole periods after it: 200 of the 400
+    periods the budget holds are discarded, exactly half, not more, and the point is measured."""
+    budget = 400
+    t, y = three_of_four_gapped(budget + 210, 266)  # periods 1 to 266 hold 200 gaps, every later one is whole
+    sampler = Autointegrator(F, A, ("y",), never_stopping(max_periods=budget), t0=T0)
+    for part in np.array_split(np.arange(t.size), 40):
+        sampler.feed(t[part], y[:, None][part])
+        assert not sampler.failure, sampler.failure
+        if sampler.done:
+            break
+    assert sampler.done and sampler.discarded == sampler.discard_limit == 200
+    first, _ = sampler.points()  # judged at period 400 (200 of 400: half) and at every period after it
+    assert (first.periods, first.periods_discarded) == (budget, 200)
+    assert first.p == pytest.approx(A * math.cos(PHI), abs=1e-12)
+    # one more discarded period, and the same point fails the moment it comes
+    t, y = three_of_four_gapped(budget + 210, 267)
+    sampler = Autointegrator(F, A, ("y",), never_stopping(max_periods=budget), t0=T0)
+    sampler.feed(t, y[:, None])
+    assert sampler.failure.startswith("2 Hz: 201 of 267 periods discarded")
+
+
+def test_the_share_allowed_of_the_budget_is_the_judgement_of_the_whole_point() -> None:
+    """A point whose rules stop before its budget is judged on the periods it spanned: 36 of 48 discarded fail it
+    at 50 % though 36 is well within half of the budget of 400 (the early failure takes nothing away from that)."""
+    t, y = three_of_four_gapped(200, 200)
+    sampler = Autointegrator(F, A, ("y",), fixed(), t0=T0)
+    sampler.feed(t, y[:, None])
+    assert sampler.discard_limit == 200 and sampler.failure.startswith("2 Hz: 36 of 48 periods discarded")
+    assert sampler.failure.endswith("more than max_discarded_percent = 50 %")
+
+
+@pytest.mark.parametrize("periods", [1, 7, 256, 400, 6000, 20000])
+@pytest.mark.parametrize("percent", [0.0, 0.1, 12.5, 33.3, 50.0, 66.7, 99.9])
+def test_the_discard_limit_is_the_most_the_share_allows(periods: int, percent: float) -> None:
+    limit = discard_limit(periods, percent)
+    assert 0 <= limit <= periods
+    assert not too_many_discarded(limit, periods, percent)
+    assert limit == periods or too_many_discarded(limit + 1, periods, percent)
+
+
+def test_the_progress_line_says_how_many_periods_were_discarded_and_how_many_may_be() -> None:
+    import io
+
+    from bodebench.apps.progress import ProgressPrinter
+    from bodebench.bench.events import PointProgress, PointStarted
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    screen = Terminal()
+    printer = ProgressPrinter("sweep", 1, screen, refresh_s=0.0)
+    printer(PointStarted(0, 10.0))
+    printer(PointProgress(0, 10.0, 0, (), discarded=2999, discard_limit=3000))
+    assert screen.getvalue().endswith("10 Hz, period 0 (2999 discarded for gaps, at most 3000 allowed), ETA --")
+    assert PointProgress(0, 10.0, 5, ()).gaps() == ""
 
 
 def test_results_files_keep_the_count_and_older_files_load(tmp_path: Path) -> None:
@@ -266,11 +362,12 @@ def test_a_point_with_gaps_in_every_period_is_refused_and_the_drive_left_safe(tm
     result = session.run()
     assert result.completed and session.ended is not None
     assert session.ended.drive_state() == "drive left at setpoint 0, disabled"
-    why = ("5 Hz: 20 of 20 periods discarded for gaps in the samples longer than 50 ms (0.25 of a period), more "
-           "than max_discarded_percent = 50 %")
+    # 11 of the 20 periods the budget holds are more than half of them: no need to wait for the other 9
+    why = ("5 Hz: 11 of 11 periods discarded for gaps in the samples longer than 50 ms (0.25 of a period), more "
+           "than max_discarded_percent = 50 % of the 20 periods the point may span")
     assert session.refused == [(5.0, why)]
     assert finished[0].refused == why and not finished[0].points
-    assert result.periods_discarded == 20 and not session.response.points
+    assert result.periods_discarded == 11 and not session.response.points
     assert not (tmp_path / "out").exists()  # nothing measured, nothing written
 
 

@@ -90,7 +90,7 @@ class ProgressPrinter:
                 self.timer.progress(event.periods, event.states, now)
             if now - self._last >= self.refresh_s:
                 self._last = now
-                gaps = f" ({event.discarded} discarded for gaps)" if event.discarded else ""
+                gaps = f" ({event.gaps()})" if event.discarded else ""
                 self._line(f"{self.label}: {self.done}/{self.total} done, {event.frequency_hz:g} Hz, "
                            f"period {event.periods}{gaps}, ETA {self._eta()}{self._bus}", False)
         elif isinstance(event, PointFinished):

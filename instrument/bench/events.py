@@ -107,7 +107,9 @@ class PointStarted:
 @dataclass(frozen=True)
 class PointProgress:
     """The current point after the latest batch of periods; ``scope``: recent (t, setpoint, output) samples;
-    ``discarded``: periods not integrated so far for gaps in the feedback (``periods`` counts the whole ones)."""
+    ``discarded``: periods not integrated so far for gaps in the feedback (``periods`` counts the whole ones);
+    ``discard_limit``: the most periods the point may discard before it fails whatever comes (one more fails it;
+    -1: not known)."""
 
     index: int
     frequency_hz: float
@@ -115,6 +117,14 @@ class PointProgress:
     states: tuple[SeriesState, ...]
     scope: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     discarded: int = 0
+    discard_limit: int = -1
+
+    def gaps(self) -> str:
+        """The periods discarded for gaps so far and the most allowed, for a progress display ("" without any)."""
+        if not self.discarded:
+            return ""
+        allowed = f", at most {self.discard_limit} allowed" if self.discard_limit >= 0 else ""
+        return f"{self.discarded} discarded for gaps{allowed}"
 
 
 @dataclass(frozen=True)

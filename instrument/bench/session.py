@@ -317,7 +317,7 @@ class BenchSession:
             if bench.clock == "lockstep" and not sampler.done:
                 self._worker.send(Credit(message.last_tick + ticks_per_period))
             self.listener(PointProgress(index, f, sampler.periods, tuple(sampler.states()), scope.view(),
-                                        discarded=sampler.discarded))
+                                        discarded=sampler.discarded, discard_limit=sampler.discard_limit))
         self.periods_discarded += sampler.discarded
         if sampler.failure:  # too many periods with gaps in the feedback: no measurement
             self.refused.append((f, sampler.failure))

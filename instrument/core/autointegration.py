@@ -8,7 +8,9 @@ Gaps in the stream: a period that holds part of an interval between two samples 
 cycles of the highest harmonic integrated is not integrated but discarded (counted in ``discarded``); the rules see
 the whole periods only, numbered 1, 2, ... in the order they came. A point of which more than
 ``max_discarded_percent`` of the periods were discarded fails (``failure`` says why), judged when the rules have
-stopped and at every period once the periods spanned reach ``max_periods``.
+stopped, at every period once the periods spanned reach ``max_periods`` (the period budget), and before that at
+every discarded period against the budget: once the discarded periods exceed that share of it
+(:func:`discard_limit`), no later period can make the point pass.
 """
 
 from __future__ import annotations
@@ -100,6 +102,23 @@ def period_budget(analysis: AnalysisSettings, frequency_hz: float, on_bench: boo
         return analysis.max_periods
     return min(analysis.max_periods, max(MIN_BUDGET_PERIODS, analysis.skip_periods + 1,
                                          math.ceil(seconds * frequency_hz)))
+
+
+def too_many_discarded(discarded: int, periods: int, max_discarded_percent: float) -> bool:
+    """Whether ``discarded`` periods are more than ``max_discarded_percent`` (percent) of ``periods`` periods: the
+    share of a point's periods discarded for gaps that fails it."""
+    return 100.0 * discarded > max_discarded_percent * periods
+
+
+def discard_limit(periods: int, max_discarded_percent: float) -> int:
+    """The most periods of ``periods`` that may be discarded within ``max_discarded_percent`` (percent): one more is
+    :func:`too_many_discarded`."""
+    limit = min(periods, math.floor(max_discarded_percent * periods / 100.0))
+    while limit > 0 and too_many_discarded(limit, periods, max_discarded_percent):  # the product's round-off
+        limit -= 1
+    while limit < periods and not too_many_discarded(limit + 1, periods, max_discarded_percent):
+        limit += 1
+    return limit
 
 
 MAX_DIVISOR_SCATTER = 0.25
@@ -202,7 +221,8 @@ class Autointegrator:
     only have its noise read as one, near the fundamental at a cost of many periods.
 
     periods: whole periods integrated; discarded: periods a gap in the samples touched, up to the period at which
-    the rules stopped (see the module docstring); failure: why the point is not a measurement ("" while it is).
+    the rules stopped (see the module docstring); discard_limit: the most of them the point may discard before it
+    fails whatever comes; failure: why the point is not a measurement ("" while it is).
     """
 
     def __init__(self, frequency_hz: float, amplitude: float, channels: Sequence[str],
@@ -226,6 +246,9 @@ class Autointegrator:
         self.max_gap_periods = analysis.max_gap_cycles / max(harmonics)
         """Longest interval between two samples a whole period may contain, in periods of f."""
         self.max_discarded_percent = analysis.max_discarded_percent
+        self.discard_limit = discard_limit(self.max_periods, self.max_discarded_percent)
+        """The most periods this point may discard for gaps before it fails whatever comes (:func:`discard_limit` of
+        the period budget): one more fails it at once."""
         columns = len(self.channels) + (reference is not None)
         fit_order = alias_fit_order(samples_per_period, max(harmonics))
         self.standing_lines: tuple[float, ...] = () if grid_steps_per_period else \
@@ -322,13 +345,17 @@ class Autointegrator:
         return self._pending == 0 or bool(self.failure)
 
     def _judge_gaps(self, whole: int) -> None:
-        """Fail the point when more than ``max_discarded_percent`` of the periods spanned were discarded."""
+        """Fail the point when more than ``max_discarded_percent`` of the periods it spans were discarded: of the
+        periods spanned after ``whole`` whole ones once the rules have stopped, else of the most it may span before
+        that is judged (``max_periods``, or the periods spanned once they reach it)."""
         spanned = whole + self.discarded
-        if spanned and 100.0 * self.discarded > self.max_discarded_percent * spanned:
+        of = spanned if self._pending == 0 else max(spanned, self.max_periods)
+        if spanned and too_many_discarded(self.discarded, of, self.max_discarded_percent):
+            budget = f" of the {of} periods the point may span" if of != spanned else ""
             self.failure = (
                 f"{self.frequency_hz:g} Hz: {self.discarded} of {spanned} periods discarded for gaps in the samples "
                 f"longer than {self.max_gap_periods / self.frequency_hz * 1e3:.3g} ms ({self.max_gap_periods:.3g} "
-                f"of a period), more than max_discarded_percent = {self.max_discarded_percent:g} %")
+                f"of a period), more than max_discarded_percent = {self.max_discarded_percent:g} %{budget}")
 
     def feed(self, t: np.ndarray, y: np.ndarray) -> int:
         """Take samples (t in s, increasing; y shaped (n, channels)); returns the whole periods completed."""
@@ -587,7 +614,8 @@ class Autointegrator:
 
     def _feed_with_gaps(self, p: np.ndarray, q: np.ndarray, whole: np.ndarray) -> int:
         """Periods some of which a gap touched: each run of whole periods integrated, each discarded one counted
-        (until the rules stop) and judged."""
+        (until the rules stop) and judged (``_judge_gaps``: against the period budget until the periods spanned
+        reach it)."""
         m = int(whole.sum())
         edges = np.flatnonzero(np.diff(whole.astype(np.int8))) + 1
         for run in np.split(np.arange(whole.size), edges):
@@ -600,8 +628,7 @@ class Autointegrator:
             else:
                 for _ in run:
                     self.discarded += 1
-                    if self.periods + self.discarded >= self.max_periods:
-                        self._judge_gaps(self.periods)
+                    self._judge_gaps(self.periods)
                     if self.failure:
                         break
         return m

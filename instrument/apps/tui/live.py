@@ -48,7 +48,8 @@ class LivePanel(Vertical):
         self.stale = False
         f = model.frequencies_hz[model.current] if model.current is not None else None
         to_go = [model.series_to_go(t.channel, t.harmonic) for t in model.traces]
-        self.show_convergence(f, model.periods, model.traces, to_go, model.tolerance_percent, model.criterion)
+        gaps = latest.gaps() if latest is not None and latest.index == model.current_index else ""
+        self.show_convergence(f, model.periods, model.traces, to_go, model.tolerance_percent, model.criterion, gaps)
         # between points and at the end the latest samples stay, also those of a point that began and ended
         # between two refreshes
         if latest is not None and (model.current_index is None or latest.index == model.current_index):
@@ -58,14 +59,18 @@ class LivePanel(Vertical):
         self._scope_index = model.current_index
 
     def show_convergence(self, frequency_hz: float | None, periods: int, traces: Sequence[SeriesTrace],
-                         to_go: Sequence[float | None], tolerance_percent: float, criterion: str) -> None:
-        """The current point's figures; ``to_go``: per trace, the periods its rule still needs (None: unknown)."""
+                         to_go: Sequence[float | None], tolerance_percent: float, criterion: str,
+                         gaps: str = "") -> None:
+        """The current point's figures; ``to_go``: per trace, the periods its rule still needs (None: unknown);
+        ``gaps``: the periods it discarded for gaps in the feedback and the most allowed ("" for none)."""
         stats = Text()
         if frequency_hz is None:
             stats.append("no point being measured", style="bright_black")
         else:
             stats.append(f"{frequency_hz:g} Hz", style="bold")
             stats.append(f"  period {periods}  rule {criterion or '--'}  tolerance {tolerance_percent:g} %")
+            if gaps:
+                stats.append(f"  {gaps}", style="yellow")
         plot_traces: list[Trace] = []
         values: list[np.ndarray] = []
         xs: list[np.ndarray] = []
