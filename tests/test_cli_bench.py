@@ -6,6 +6,7 @@ import os
 import re
 import shutil
 import signal
+import json
 import subprocess
 import sys
 import time
@@ -170,6 +171,24 @@ def test_a_canopen_drive_that_falls_silent_is_one_line(tmp_path: Path) -> None:
     assert "no heartbeat" in errors[0] and "NOT seen disabled" in errors[0]
     assert "no SDO answer writing controlword (0x6040:00): No SDO response received" in errors[0]
     assert (tmp_path / "out" / "response.json").exists()
+
+
+def test_a_run_whose_every_point_is_refused_ends_in_its_lines_with_its_record_and_no_plot(tmp_path: Path) -> None:
+    """The drive stalls 10 ms in every 100 ms: each period of the 10 Hz point has a gap, the point is refused once
+    its discarded periods exceed half of the 30 it may span (16), and the run ends without a plot to draw: exit
+    status 1, no traceback, the record on disk."""
+    cfg = Path(__file__).resolve().parents[1] / "configs" / "sim_can.toml"
+    out = tmp_path / "out"
+    proc = subprocess.run(command() + ["run", str(cfg), "--out", str(out), "--set", "excitation.frequencies_hz=[10]",
+                                       "--set", "simulator.faults.stall_every_s=0.1",
+                                       "--set", "simulator.faults.stall_s=0.01", "--set", "analysis.max_periods=30"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert "10 Hz REFUSED, not written: 10 Hz: 16 of 16 periods discarded" in proc.stderr
+    assert "0 points, 0 not converged, 1 frequencies refused" in proc.stdout + proc.stderr
+    record = json.loads((out / "response.json").read_text())["runs"][-1]
+    assert record["refused"][0]["frequency_hz"] == 10.0
+    assert not list(out.glob("bode*")) and not list(out.glob("periods*"))
 
 
 def test_results_that_cannot_be_written_are_found_before_the_first_setpoint(tmp_path: Path) -> None:

@@ -526,9 +526,7 @@ class SweepProcedure:
         pool the last case's figures are drawn side by side ([]: drawn here, now, or no plots wanted, or no point
         to draw)."""
         executor = self.drawer or self.executor
-        if not len(outcome.response):
-            return []
-        if self.plots is None or executor is None:
+        if self.plots is None or executor is None or not len(outcome.response):
             self._draw(outcome)
             return []
         plots, title = self.plots, self._title(outcome)
@@ -536,8 +534,9 @@ class SweepProcedure:
                                 figures=(figure,)) for figure in PLOT_FIGURES]
 
     def _draw(self, outcome: CaseOutcome) -> None:
-        """``outcome``'s plots drawn here; SessionError (output) where they cannot be written."""
-        if self.plots is not None:
+        """``outcome``'s plots drawn here (none without a point); SessionError (output) where they cannot be
+        written."""
+        if self.plots is not None and len(outcome.response):
             try:
                 outcome.files = tuple(self.plots(outcome.response, outcome.directory, self._title(outcome),
                                                  summary=outcome.summary))
