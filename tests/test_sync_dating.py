@@ -544,7 +544,7 @@ def test_a_tpdo_within_the_sync_period_is_timed_and_its_samples_keep_their_syncs
     The bus log holds the timing SYNCs `bodebench check` lists, between NMT operational and the first
     controlword."""
     config = realtime_case(0.002)
-    lines = check_lines(config)
+    lines = list(check_lines(config))
     said = [line for line in lines if "x SYNC (id 0x80) one at a time" in line]
     assert len(said) == 1
     assert sum("after a gap in the TPDOs, one SYNC left out to check the answer time" in line for line in lines) == 1
