@@ -14,8 +14,9 @@ them unchanged. ``CanopenDriver`` adds the device's life cycle:
   0x6043, each read back); NMT operational, then the profile's enable steps (CiA 402: shutdown, switch on, enable
   operation; CiA 408: DISABLED, HOLD, ACTIVE), each checked in the statusword;
 - ``send_setpoint()``: the RPDO, then SYNC (when the host produces it; on the realtime clock with ``timebase``
-  "sync", after a gap dated by rhythm, one SYNC is left out at a tick where the setpoint hardly moves, to check
-  that the drive still answers within a SYNC period: ``drivers.sync_dating``);
+  "sync", after a gap dated by rhythm, one SYNC is left out, or sent late where the drive watches its SYNC period,
+  at a tick where the setpoint hardly moves, to check that the drive still answers within a SYNC period:
+  ``drivers.sync_dating``);
 - ``receive()``: TPDO samples, dated by the host tick of the SYNC they answer when the host produces SYNC: by the
   drive's sample counter (``timebase`` "counter") or, without one, by the order and receive times of the frames
   (``timebase`` "sync", ``drivers.sync_dating``); an EMCY, a statusword that leaves the running state ("operation
@@ -92,13 +93,20 @@ ANSWER_QUANTILE = 0.9
 hiccups)."""
 
 CHECK_STEP = 0.2
-"""After a gap dated by rhythm, a SYNC is left out to check the answer time (``SyncMatcher.skip``) at the first tick
-whose setpoint step is at most this fraction of the largest of the last ``CHECK_MEMORY`` steps (near a peak of the
-sine or a ramp's start, so the setpoint the drive holds one tick longer is close to the one it misses): an idle tick
-(a ramp, between points: ``Driver.send_setpoint``), or any after a gap whose answer times shifted
-(``SyncMatcher.shifted``), where a drive fallen behind is likely."""
+"""After a gap dated by rhythm, a SYNC is left out to check the answer time (``SyncMatcher.skip``) at the first idle
+tick (a ramp, between points: ``Driver.send_setpoint``) whose setpoint step is at most this fraction of the largest
+of the last ``CHECK_MEMORY`` steps, so that the setpoint the drive holds one tick longer is close to the one it
+misses."""
 CHECK_MEMORY = 256
 """Setpoint steps remembered for ``CHECK_STEP``."""
+CHECK_SPIN_S = 2e-4
+"""The last part of the wait for a check's late SYNC spent awake (s): a sleep ends late by about that much."""
+SYNC_PERIOD = 0x1006
+"""Communication cycle period (UNSIGNED32, us; CiA 301): where the drive has it set, it watches its SYNC by it."""
+CHECK_WATCHED = 1.2
+"""The longest time between two SYNCs a check makes, as a multiple of the drive's communication cycle period where
+it has one set (a CANopen stack that watches its SYNC reports a timeout at 1.5 times it): the check's SYNC is sent
+late, not left out, when two SYNC periods would be longer."""
 
 # CANopen data types (CiA 301) -> signal types of drivers.codec
 _SIGNAL_TYPES = {0x2: "int8", 0x3: "int16", 0x4: "int32", 0x5: "uint8", 0x6: "uint16", 0x7: "uint32",
@@ -350,14 +358,13 @@ class CanopenDriver(Driver):
         self._first_counter: int | None = None
         self._matcher: SyncMatcher[FeedbackSample] = SyncMatcher(_SYNC_MEMORY, same=_same_values)
         self._answer_times: queue.Queue[float] | None = None  # receive times of TPDOs while their answer is timed
-        # a gap was dated by rhythm (or a check left undecided): leave a SYNC out "soon" (the answer times shifted)
-        # or on an "idle" tick; "" while no check is wanted (CHECK_STEP)
-        self._check_wanted = ""
-        self._gaps_checked = (0, 0)  # the matcher's (shifted, by_rhythm + checks_undecided) when last looked at
+        self._check_wanted = False  # a gap was dated by rhythm (or a check left undecided): leave a SYNC out
+        self._gaps_checked = 0  # the matcher's by_rhythm + checks_undecided when last looked at
         self._steps: deque[float] = deque(maxlen=CHECK_MEMORY)  # the latest setpoint steps (setpoint units)
         self._last_setpoint = 0.0
         self._taken: list[FeedbackSample] = []  # samples dated while a check was being decided, for ``receive``
-        self._answer_s: float | None = None  # s, the TPDO's median time after its SYNC before enabling (timed)
+        self._check_window = 0.0  # s, the time from a SYNC to the next a check makes (0: two SYNC periods)
+        self._last_sync = 0.0  # time.perf_counter() when the latest SYNC was sent
         self.protection = ""
         """What the start did so that the drive stops itself if the host dies, or why it could not (empty before)."""
         self._unprotected = ""  # why the drive cannot protect itself (said again in shutdown_account)
@@ -562,6 +569,7 @@ class CanopenDriver(Driver):
             steps.append("NMT operational")
             if s.times_answers:
                 steps.append(self._time_answers())
+                steps.append(self._size_checks())
             for step in p.enable:
                 word, state = self._command(step, s.state_timeout_s)
                 if state is not step.targets[0]:
@@ -574,9 +582,9 @@ class CanopenDriver(Driver):
         self._left = None
         self._first_counter = None
         self._syncs_sent = 0
-        self._matcher = SyncMatcher(_SYNC_MEMORY, same=_same_values, answer_s=self._answer_s)
-        self._check_wanted = ""
-        self._gaps_checked = (0, 0)
+        self._matcher = SyncMatcher(_SYNC_MEMORY, same=_same_values)
+        self._check_wanted = False
+        self._gaps_checked = 0
         self._cyclic = True
 
     def _time_answers(self) -> str:
@@ -612,7 +620,6 @@ class CanopenDriver(Driver):
             return f"TPDO answer time not measured (no answer to {ANSWER_PROBES} SYNCs before enabling)"
         times.sort()
         median, most, longest = times[len(times) // 2], times[math.ceil(ANSWER_QUANTILE * len(times)) - 1], times[-1]
-        self._answer_s = median
         measured = (f"TPDO answers its SYNC in {median * 1e3:.3g} ms (median of {len(times)}; "
                     f"{ANSWER_QUANTILE:.0%} within {most * 1e3:.3g} ms, longest {longest * 1e3:.3g} ms) {rate}")
         if times[0] < 0:
@@ -626,6 +633,20 @@ class CanopenDriver(Driver):
                                   f"dated by the next SYNC; lower bench.rate_hz to {slower} Hz or less, or date by "
                                   f'a sample counter the drive sends (timebase = "counter")')
         return measured
+
+    def _size_checks(self) -> str:
+        """How a check of the answer time after a gap will delay its SYNC (``_check_window``): left out (two SYNC
+        periods between SYNCs), or sent late where the drive watches its SYNC by a communication cycle period
+        (0x1006) that two periods would exceed (``CHECK_WATCHED``); for the start's account."""
+        period = self.setup.sync_period_s
+        watched = self._sdo_read(SYNC_PERIOD, 0, "communication cycle period") * 1e-6 \
+            if self._has_variable(SYNC_PERIOD, 0) else 0.0
+        if not watched or CHECK_WATCHED * watched >= 2 * period:
+            self._check_window = 0.0
+            return "answer checks after a gap: one SYNC left out"
+        self._check_window = max(CHECK_WATCHED * watched, period)
+        return (f"answer checks after a gap: one SYNC sent {(self._check_window - period) * 1e3:.3g} ms late "
+                f"(communication cycle period 0x{SYNC_PERIOD:04X} = {watched * 1e6:.0f} us)")
 
     # ----------------------------------------------------------------------------------------------------------
     # the lost-host protection
@@ -815,12 +836,15 @@ class CanopenDriver(Driver):
     def send_setpoint(self, value: float, counter: int = 0, idle: bool = False) -> None:
         """The setpoint RPDO, then SYNC when the host produces it (the drive applies the setpoint on SYNC).
         ``counter``: the host's tick of this setpoint; a sample is dated by the SYNC it answers (below). ``idle``:
-        the tick may be spent checking the answer time (``_leaves_sync_out``)."""
+        the tick may be spent checking the answer time (``_checks_answer``)."""
         super().send_setpoint(value, counter)
         if self.setup.sync == "produce":
-            if self._leaves_sync_out(value, idle):
-                return
+            if self._checks_answer(value, idle):
+                if not self._check_window:
+                    return  # the SYNC left out
+                self._wait_until(self._last_sync + self._check_window)  # the SYNC sent late
             sent = time.time()  # before the send: the clock python-can stamps received frames with
+            self._last_sync = time.perf_counter()
             self.port.send(Frame(SYNC_COB_ID, b""))
             self._sync_ticks[self._syncs_sent % _SYNC_MEMORY] = counter
             self._syncs_sent += 1
@@ -828,22 +852,32 @@ class CanopenDriver(Driver):
                 self._matcher.sent(counter, sent)
             self._update_health()
 
-    def _leaves_sync_out(self, value: float, idle: bool) -> bool:
-        """Whether this tick's SYNC is left out to check the drive's answer time (``SyncMatcher.skip``): wanted after
-        a gap dated by rhythm on the realtime clock, made once the latest SYNC has its answer at a tick where the
-        setpoint hardly moves (``CHECK_STEP``): an ``idle`` one, or any after a gap whose answer times shifted."""
+    @staticmethod
+    def _wait_until(target: float) -> None:
+        """Until ``time.perf_counter()`` reaches ``target``: asleep (other threads, a simulated drive's included,
+        run meanwhile, even beside a pacing loop that has the CPU to itself), then ``CHECK_SPIN_S`` awake."""
+        wait = target - time.perf_counter()
+        if wait > CHECK_SPIN_S:
+            time.sleep(wait - CHECK_SPIN_S)
+        while time.perf_counter() < target:
+            pass
+
+    def _checks_answer(self, value: float, idle: bool) -> bool:
+        """Whether this tick's SYNC is left out, or sent late, to check the drive's answer time
+        (``SyncMatcher.skip``, ``_size_checks``): wanted after a gap dated by rhythm on the realtime clock, made once
+        the latest SYNC has its answer, on an ``idle`` tick where the setpoint hardly moves (``CHECK_STEP``)."""
         if not self.setup.times_answers:
             return False
         step = abs(value - self._last_setpoint)  # the drive holds the last setpoint one tick longer without a SYNC
         self._last_setpoint = value
         self._steps.append(step)
-        if not (self._check_wanted == "soon" or self._check_wanted and idle) or step > CHECK_STEP * max(self._steps):
+        if not (self._check_wanted and idle) or step > CHECK_STEP * max(self._steps):
             return False
         for frame in self.port.recv(0.0):  # the answer to the latest SYNC may be in: dated now, returned next
             self._taken.extend(self._dispatch(frame))
         if not self._matcher.settled:
             return False
-        self._check_wanted = ""
+        self._check_wanted = False
         self._matcher.skip()
         self.health.answer_checks = self._matcher.checks
         return True
@@ -851,7 +885,7 @@ class CanopenDriver(Driver):
     @property
     def dating_unchecked(self) -> bool:
         """A gap dated by rhythm (or an undecided check) waits for its check, or a check is under way."""
-        return bool(self._check_wanted) or self._matcher.checking
+        return self._check_wanted or self._matcher.checking
 
     @property
     def _by_sync(self) -> bool:
@@ -879,11 +913,10 @@ class CanopenDriver(Driver):
             self.health.duplicates = m.repeats
             self.health.lost_samples = m.lost
             self.health.dated_by_rhythm = m.by_rhythm
-            gaps = (m.shifted, m.by_rhythm + m.checks_undecided)
+            gaps = m.by_rhythm + m.checks_undecided
             if gaps != self._gaps_checked and self.setup.times_answers:
-                soon = gaps[0] > self._gaps_checked[0] or self._check_wanted == "soon"
                 self._gaps_checked = gaps
-                self._check_wanted = "soon" if soon else "idle"
+                self._check_wanted = True
             return dated
         out = []
         for sample in samples:
@@ -926,14 +959,8 @@ class CanopenDriver(Driver):
                                   f"error register 0x{e.register:02X}")
         if self._left is not None:
             raise DriveFaultError(f"{self._where()} left {self.profile.running}: {self._left}")
-        if self._matcher.late:
-            period = self.setup.sync_period_s
-            raise DriveFaultError(
-                f"{self._where()}: its TPDO came while no SYNC was out for it (a SYNC left out to check the answer "
-                f"time after a gap in the TPDOs): it answers more than a SYNC period ({period * 1e3:.3g} ms) late, "
-                f"or sends TPDOs unasked, and the samples dated by SYNC since tick {self._matcher.rhythm_tick} are "
-                f"a SYNC off; lower bench.rate_hz, or date by a sample counter the drive sends "
-                f'(timebase = "counter")')
+        if self._matcher.extra:
+            raise DriveFaultError(self._extra_tpdo())
         limit = self.setup.heartbeat_timeout_s
         with self._lock:
             seen, state = self._last_heartbeat, self._nmt_state
@@ -948,6 +975,18 @@ class CanopenDriver(Driver):
                                       f"(canopen.heartbeat_timeout_s = {limit:g} s)")
         if state is not None and state != NMT_OPERATIONAL:
             raise DriveFaultError(f"{self._where()} reports NMT state {NMT_STATES.get(state, state)} in its heartbeat")
+
+    def _extra_tpdo(self) -> str:
+        """The line for a TPDO that came when every SYNC before it had its answer (``SyncMatcher.extra``)."""
+        m = self._matcher
+        since = (f"the samples dated by SYNC since tick {m.rhythm_tick} (a gap dated by rhythm) may be a SYNC off"
+                 if m.rhythm_tick is not None else "its samples cannot be dated by SYNC")
+        period = self.setup.sync_period_s
+        late = f"later than a SYNC period ({period * 1e3:.3g} ms)" if period else "after the next SYNC"
+        slower = ", or lower bench.rate_hz if its answers are often that slow" if period else ""
+        return (f"{self._where()}: a TPDO came when every SYNC sent before it had its answer: the drive answers "
+                f"{late} at times, or sends TPDOs unasked; {since}; date by a sample counter the drive sends "
+                f'(timebase = "counter"){slower}')
 
     def disable(self) -> bool:
         """Quick stop, disable voltage, NMT pre-operational (each tried even when an earlier one failed); True when

@@ -22,23 +22,21 @@ the SYNCs sent before t that no earlier TPDO answered. The rules, with L the lat
   from a guess while a burst is still arriving; what this rule assumes is that a drive which sends one TPDO a
   SYNC, ``steady`` times in a row, is not behind.
 - A TPDO with no SYNC left to answer (received before any SYNC, or a second answer to a decided SYNC) is dropped
-  and counted (``unmatched``).
+  and counted (``unmatched``; the second kind also in ``extra``, below).
 - A TPDO the same as the one before it (``same``, where given), with no SYNC sent between the two or received
   within a quarter of the time between the latest SYNCs after it, is dropped as a repeat (a frame received twice)
   and counted (``repeats``): counted as an answer it could fill the place of a lost one and date the TPDOs
   between a SYNC off. A drive's own answers to two SYNCs that happen to be equal, in a burst, are dropped with
   it: a gap, never a shift.
 
-A gap dated by rhythm assumes the drive is not behind. A drive whose answer time grew past the SYNC period looks
-like one that lost a TPDO, except that its answers then seem to come sooner after their SYNC: where the newest
-TPDOs' time after their SYNCs moved by more than ``SHIFT`` of the SYNC interval from before the gap (the median of
-the latest TPDOs that came alone after their SYNC, else the time measured before, ``answer_s``), the gap is counted
-in ``shifted``. Either way the host can check (``skip``): it sends no SYNC for one
-tick just after a SYNC whose answer has come. Until the next SYNC a drive that keeps up sends nothing; one that
-answers more than a SYNC period late sends the answer to that SYNC now, a second TPDO after it (counted in
-``late``: every sample dated by rhythm since is a SYNC off). A repeat of the TPDO before (the same data) there leaves
-the check undecided (``checks_undecided``): a frame received twice and a late answer with the same values look
-alike.
+A gap dated by rhythm assumes the drive is not behind. A drive that is behind shows it the moment it catches up,
+or a TPDO comes unasked: a TPDO received when every SYNC sent before it has its answer (counted in ``extra``)
+contradicts the rule's guess, and the samples dated since the latest gap dated by rhythm (``rhythm_tick``) may be a
+SYNC off. A drive that stays behind never catches up, so the host checks (``skip``): it sends no SYNC for one tick
+(or sends it late) just after a SYNC whose answer has come. Until the next SYNC a drive that keeps up sends nothing;
+one that answers more than a SYNC period late sends the answer to that SYNC now: an ``extra`` TPDO. A repeat of the
+TPDO before (the same data) there leaves the check undecided (``checks_undecided``): a frame received twice and a
+late answer with the same values look alike.
 
 The SYNCs remembered are the latest ``memory``; a TPDO older than all of them is unmatched, and undecided TPDOs
 whose pending SYNCs are forgotten are dropped.
@@ -46,35 +44,26 @@ whose pending SYNCs are forgotten are dropped.
 
 from __future__ import annotations
 
-import statistics
 from collections import deque
 from collections.abc import Callable
 from typing import Generic, TypeVar
 
-__all__ = ["SHIFT", "STEADY", "SyncMatcher"]
+__all__ = ["STEADY", "SyncMatcher"]
 
 T = TypeVar("T")
 
 STEADY = 3
 """TPDOs in a row, one after each of consecutive SYNCs, that date the newest of them after a gap (the default)."""
-SHIFT = 0.5
-"""The change in the TPDOs' time after their SYNC across a gap, as a fraction of the SYNC interval, beyond which the
-gap counts in ``SyncMatcher.shifted``: a drive that answers a period later than before its answers' jitter."""
-TIMED = 16
-"""The latest answer times (TPDOs alone after their SYNC) whose median is the reference for ``SHIFT``."""
 
 
 class SyncMatcher(Generic[T]):
     """Matches TPDOs (any item, with its receive time) to host-produced SYNCs (module docstring). Pure: no I/O, no
     clock of its own; feed ``sent`` and ``received`` in the order the host sent and read the frames."""
 
-    def __init__(self, memory: int = 4096, steady: int = STEADY, same: Callable[[T, T], bool] | None = None,
-                 answer_s: float | None = None) -> None:
+    def __init__(self, memory: int = 4096, steady: int = STEADY, same: Callable[[T, T], bool] | None = None) -> None:
         """``memory``: how many of the latest SYNCs are remembered (at least 2). ``steady``: how many TPDOs in a
         row, one after each SYNC, date the newest of them after a gap (at least 2). ``same``: whether two TPDOs
-        carry the same data (None: repeats are not looked for). ``answer_s``: the TPDO's time after its SYNC
-        measured before (s), the reference for ``shifted`` until TPDOs have been timed (None: unknown, so a gap
-        before any is shifted)."""
+        carry the same data (None: repeats are not looked for)."""
         if memory < 2:
             raise ValueError(f"SyncMatcher memory must be at least 2 SYNCs, got {memory!r}")
         if steady < 2:
@@ -87,9 +76,6 @@ class SyncMatcher(Generic[T]):
         self._done = -1  # the latest SYNC answered or given up: later TPDOs answer only later ones
         self._held: list[T] = []  # TPDOs received since then, undecided, oldest first
         self._after: deque[int] = deque(maxlen=steady + 1)  # the latest SYNC before each of the last TPDOs taken
-        self._after_s: deque[float] = deque(maxlen=steady)  # and the time each came after it, s
-        self._timed: deque[float] = deque(maxlen=TIMED)  # times after their SYNC of TPDOs that came alone, s
-        self._answer_s = answer_s
         self.matched = 0
         """TPDOs given a SYNC."""
         self.lost = 0
@@ -103,22 +89,20 @@ class SyncMatcher(Generic[T]):
         rule cannot tell them apart)."""
         self.repeats = 0
         """TPDOs dropped as repeats of the one before (the same data, no SYNC sent between them)."""
-        self.shifted = 0
-        """Gaps dated by rhythm after which the TPDOs' time after their SYNC moved by more than ``SHIFT`` of the
-        SYNC interval (module docstring)."""
         self.rhythm_tick: int | None = None
         """The tick of the SYNC the latest gap dated by rhythm ended at (None before the first)."""
         self.checks = 0
         """Checks made (``skip``): ticks the host sent no SYNC for, after a SYNC answered."""
         self.checks_undecided = 0
         """Checks in which a repeat of the TPDO before came (a frame received twice, or a late answer: ``skip``)."""
-        self.late = 0
-        """TPDOs received in a check while no SYNC was left to answer: a drive answering more than a period late."""
+        self.extra = 0
+        """TPDOs received when every SYNC sent before them had its answer: a drive that answered late (behind, and
+        caught up, or found by a check), or a TPDO sent unasked (module docstring)."""
         self._same = same
         self._previous: tuple[int | None, float, T] | None = None  # (latest SYNC before, time, item): the last TPDO
         self._checking: int | None = None  # the SYNC after which the host sent none for a tick, while checked
         self._check_repeats = 0  # repeats received in the current check
-        self._late_before = 0  # ``late`` when the current check began
+        self._extra_before = 0  # ``extra`` when the current check began
 
     def sent(self, tick: int, time_s: float) -> None:
         """A SYNC went out for host tick ``tick`` at ``time_s`` (s, the clock received frames are stamped with,
@@ -146,24 +130,17 @@ class SyncMatcher(Generic[T]):
             self._give_up(self._oldest - 1)
         if latest is None or latest <= self._done:
             self.unmatched += 1
-            self.late += checked
+            self.extra += latest is not None
             return []
         self._held.append(item)
         self._after.append(latest)
-        since = time_s - self._times[latest % self.memory]
-        self._after_s.append(since)
         if len(self._held) == latest - self._done:
             held, self._held = self._held, []
-            if len(held) == 1:
-                self._timed.append(since)
             return [self._give(self._done + 1, each) for each in held]
         if self._in_rhythm():
             self._held.pop()
             self._drop_held()
             self.by_rhythm += 1
-            before = statistics.median(self._timed) if self._timed else self._answer_s
-            if before is None or abs(statistics.median(self._after_s) - before) > SHIFT * self._interval():
-                self.shifted += 1
             self.rhythm_tick = self._ticks[latest % self.memory]
             return [self._give(latest, item)]
         return []
@@ -177,13 +154,13 @@ class SyncMatcher(Generic[T]):
         self._end_check()
         self._checking = self._sent - 1
         self._check_repeats = 0
-        self._late_before = self.late
+        self._extra_before = self.extra
         self.checks += 1
 
     def _end_check(self) -> None:
         """The check under way (if any) is over: a TPDO after a later SYNC came, or another check begins."""
         if self._checking is not None:
-            self.checks_undecided += self._check_repeats > 0 and self.late == self._late_before
+            self.checks_undecided += self._check_repeats > 0 and self.extra == self._extra_before
             self._checking = None
 
     @property

@@ -76,6 +76,8 @@ DEVICE_MODE = 0x6042
 CONTROL_MODE = 0x6043
 HEARTBEAT_ERROR = 0x8130
 """EMCY error code of a heartbeat event (CiA 301: life guard error or heartbeat error)."""
+SYNC_PERIOD = 0x1006
+"""Communication cycle period (UNSIGNED32, us; CiA 301): ``sync_period_us``."""
 _ABORT_NAMES = {0: "no action", **{code: name for name, code in ABORT_CONNECTION_OPTIONS.items()}}
 
 
@@ -127,6 +129,8 @@ class SimulatedCia402Drive:
         self.late_tpdos = 0
         self.stalls = 0
         self.repeated_tpdos = 0
+        self.sync_period_us = self.faults.sync_period_us if self.faults is not None else 0
+        """The communication cycle period the drive holds (0x1006, us; 0: none)."""
 
     # ----------------------------------------------------------------------------------------------------------
     def attach(self, network: canopen.Network) -> None:
@@ -257,6 +261,8 @@ class SimulatedCia402Drive:
             return self.error_code
         if index == SAMPLE_COUNTER:
             return self.controller.tick_count % (1 << 16)
+        if index == SYNC_PERIOD:
+            return self.sync_period_us
         return None
 
     def _on_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
@@ -281,6 +287,8 @@ class SimulatedCia402Drive:
             pass
         elif (index, subindex) == self._setpoint_key:
             self._setpoint_raw = od.decode_raw(data)
+        elif index == SYNC_PERIOD:
+            self.sync_period_us = int.from_bytes(data, "little")
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if self.silent or len(data) < 2 or data[1] not in (0, self.setup.node_id):

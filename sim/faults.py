@@ -230,7 +230,8 @@ class CanopenFaults:
     adapter delays it), every one or this share of them at random (later ones wait for it: none overtakes), from
     controller time tpdo_delay_at_s on (0: from the start, before the drive is enabled).
     tpdo_repeat: probability per TPDO that it goes out twice (as a frame received twice). fixed_tpdo_mapping: the
-    drive's TPDO mapping is its EDS's whatever the host writes.
+    drive's TPDO mapping is its EDS's whatever the host writes. sync_period_us: the communication cycle period
+    0x1006 the drive holds (us), as one that watches its SYNC by it does (this one does not watch).
     """
 
     refuse_enable: bool = field(default=False, metadata={"doc": "never reach operation enabled (CiA 408: ACTIVE)"})
@@ -263,6 +264,8 @@ class CanopenFaults:
                                                                                 "host receives it twice"})
     seed: int = field(default=0, metadata={"min": 0, "doc": "random seed of the draws above (sync_miss to "
                                                             "tpdo_repeat)"})
+    sync_period_us: int = field(default=0, metadata={"min": 0, "max": 10_000_000, "doc": "the communication "
+                                                     "cycle period 0x1006 the drive holds, us (not watched)"})
     fixed_tpdo_mapping: bool = field(default=False, metadata={
         "doc": "the drive acknowledges writes to its TPDO mapping (0x1A00..0x1A03) but reads back, and keeps, the "
                "mapping its EDS gives"})
@@ -270,6 +273,6 @@ class CanopenFaults:
     @property
     def any(self) -> bool:
         """True when any fault is configured."""
-        return self.refuse_enable or not self.enable_input or self.fixed_tpdo_mapping or bool(
+        return self.refuse_enable or not self.enable_input or self.fixed_tpdo_mapping or bool(self.sync_period_us or
             self.emcy_at_s or self.heartbeat_stops_at_s or self.silent_at_s or self.sync_miss or self.tpdo_drop
             or self.tpdo_late or self.tpdo_stall or self.tpdo_delay_s or self.tpdo_repeat)

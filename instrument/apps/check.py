@@ -343,8 +343,8 @@ def _canopen_lines(case: CaseConfig) -> Iterator[str]:
     sync = (f", then SYNC (id 0x{SYNC_COB_ID:X})" if setup.sync == "produce" else " (SYNC from another node)")
     start.append(f"at {_number(case.bench.rate_hz)} Hz: RPDO{setup.rpdo} id 0x{setup.rpdo_cob_id:X} setpoint in counts "
                  f"of {setup.setpoint_scale:g} ({setup.setpoint.type}){sync}"
-                 + (": after a gap in the TPDOs, one SYNC left out to check the answer time"
-                    if setup.times_answers else ""))
+                 + (": after a gap in the TPDOs, one SYNC left out to check the answer time (sent late instead "
+                    "where the drive watches its SYNC by 0x1006)" if setup.times_answers else ""))
     yield "sent to the drive, on start:"
     for i, text in enumerate(start, 1):
         yield f"{INDENT}{i}. {text}"

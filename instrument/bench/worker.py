@@ -812,9 +812,11 @@ class BusWorker:
             self._report(Fault(trip.kind, str(trip)))
         except DriveFaultError as exc:
             reason = f"drive: {exc}"
+            self._last_health()
             self._report(Fault("drive", str(exc)))
         except DriverError as exc:
             reason = f"bus: {exc}"
+            self._last_health()
             self._report(Fault("bus", str(exc)))
         except KeyboardInterrupt as exc:
             reason = f"interrupted ({exc.signame})" if isinstance(exc, StopSignal) else "interrupted"
@@ -835,6 +837,12 @@ class BusWorker:
                 log_failure = self.driver.port.log_failure
             self._report(Stopped(reason, self.last_sent, disabled, zero_sent, frames_out, shutdown, log_failure))
             self._close()
+
+    def _last_health(self) -> None:
+        """The bus health as the fault left it, for the run's record (nothing where the session is gone)."""
+        if self.driver is not None:
+            with contextlib.suppress(_Trip):
+                self._health()
 
     def _report(self, message: object) -> None:
         with contextlib.suppress(OSError, EOFError, BrokenPipeError, ValueError):

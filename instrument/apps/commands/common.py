@@ -109,7 +109,10 @@ def _bench_sweeps(config: ExperimentConfig, out: Path, *, direct: bool, quiet: b
         if not isinstance(exc, (SessionError, KeyboardInterrupt, SimulatorStartError, DriverError)):
             traceback.print_exc()
         kept = len(current.response.points)  # each of them saved when it was measured
-        where = f"{kept} points kept in {current.directory}" if kept else "no point measured"
+        unwritten = len(session.refused) if session is not None else 0  # frequencies measured, not written
+        where = (f"{kept} points kept in {current.directory}" if kept else
+                 f"no point kept ({unwritten} frequencies refused, in the run's record)" if unwritten else
+                 "no point measured")
         drive = current.ended.drive_state() if current.ended is not None else "nothing was sent to the drive"
         print(f"bodebench: {current.case.name}: stopped: {_cause(exc)}; {where}; {drive}", file=sys.stderr)
         return 128 + exc.signum if isinstance(exc, StopSignal) else 130 if isinstance(exc, KeyboardInterrupt) \
