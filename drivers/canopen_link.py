@@ -639,8 +639,12 @@ class CanopenDriver(Driver):
         periods between SYNCs), or sent late where the drive watches its SYNC by a communication cycle period
         (0x1006) that two periods would exceed (``CHECK_WATCHED``); for the start's account."""
         period = self.setup.sync_period_s
-        watched = self._sdo_read(SYNC_PERIOD, 0, "communication cycle period") * 1e-6 \
-            if self._has_variable(SYNC_PERIOD, 0) else 0.0
+        watched = 0.0
+        if self._has_variable(SYNC_PERIOD, 0):
+            try:
+                watched = self._sdo_read(SYNC_PERIOD, 0, "communication cycle period") * 1e-6
+            except DriveFaultError as exc:  # the EDS has it, the device does not answer for it: taken as unset
+                log.warning("%s", exc)
         if not watched or CHECK_WATCHED * watched >= 2 * period:
             self._check_window = 0.0
             return "answer checks after a gap: one SYNC left out"

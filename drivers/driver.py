@@ -106,7 +106,8 @@ class BusHealth:
     told (``drivers.sync_dating``; the SYNCs left without an answer count in ``lost_samples``); ``dated_by_rhythm``:
     there too, the gaps after which TPDOs were dated by their rhythm alone (a lost TPDO, or a drive fallen a SYNC
     behind, which the host cannot tell apart: 0 on a bus that loses no frame); ``answer_checks``: there too, on the
-    realtime clock, the SYNCs left out after such gaps to check that the drive still answers within a SYNC period."""
+    realtime clock, the SYNCs left out (or sent late) after such gaps to check that the drive still answers within
+    a SYNC period."""
 
     frames_in: int = 0
     frames_out: int = 0
