@@ -535,11 +535,13 @@ def test_a_tpdo_that_answers_after_the_next_sync_is_refused_before_the_drive_is_
         SweepProcedure(realtime_case(0.006, share), tmp_path / "out", log_bus=log).run()
     message = str(info.value)
     assert info.value.kind is FaultKind.DRIVE and "\n" not in message
-    found = re.search(r"TPDO answers its SYNC in ([\d.]+) ms \(median of 64; 90% within ([\d.]+) ms.*4 ms between "
-                      r"SYNCs .* lower bench\.rate_hz to (\d+) Hz", message)
+    found = re.search(r"TPDO answers its SYNC in (?P<median>[\d.]+) ms \(median of (?P<timed>\d+); 90% within "
+                      r"(?P<most>[\d.]+) ms.*4 ms between SYNCs .* lower bench\.rate_hz to (?P<rate>\d+) Hz", message)
     assert found is not None, message
-    assert float(found[2]) >= 6.0 and int(found[3]) <= 0.75 / 0.006
-    assert float(found[1]) >= 6.0 if share == 1.0 else float(found[1]) < 4.0
+    # an answer that reaches a busy host more than 80 ms late is not timed (and not taken for the next SYNC's)
+    assert ANSWER_PROBES - 8 <= int(found["timed"]) <= ANSWER_PROBES
+    assert float(found["most"]) >= 6.0 and int(found["rate"]) <= 0.75 / 0.006
+    assert float(found["median"]) >= 6.0 if share == 1.0 else float(found["median"]) < 4.0
     assert not load_response(tmp_path / "out").points
     sent = [(m.arbitration_id, bytes(m.data)) for m in can.LogReader(log) if not m.is_rx]
     controlwords = [(i, int.from_bytes(data[4:6], "little")) for i, (fid, data) in enumerate(sent)
