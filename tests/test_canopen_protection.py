@@ -184,7 +184,8 @@ def test_a_host_that_falls_silent_is_met_with_the_abort_connection_option(option
     within its consumer time, with no SYNC to wake it."""
     name = channel()
     recorder = FrameRecorder(name)
-    serving, host, setup = _served(name, host_heartbeat_ms=50, drive_heartbeat_timeout_ms=250,
+    # a consumer time 20 host heartbeats long: a busy machine may hold the heartbeat's thread back for 250 ms
+    serving, host, setup = _served(name, host_heartbeat_ms=50, drive_heartbeat_timeout_ms=1000,
                                    abort_connection=option)
     drive = serving.drive
     events: list[str] = []
@@ -192,9 +193,9 @@ def test_a_host_that_falls_silent_is_met_with_the_abort_connection_option(option
     try:
         host.enable()
         assert drive.state is State.OPERATION_ENABLED
-        assert drive.consumers == {1: (HOST, 0.25)} and drive.abort_option == code
+        assert drive.consumers == {1: (HOST, 1.0)} and drive.abort_option == code
         watching = next(i for i, e in enumerate(events) if e.startswith("watching the heartbeat of node 127 "
-                                                                         "(consumer time 0.25 s"))
+                                                                         "(consumer time 1 s"))
         assert watching < next(i for i, e in enumerate(events) if _state_of(e) is not None), events  # before enabling
         for k in range(20):
             host.send_setpoint(0.005, k)
@@ -207,10 +208,11 @@ def test_a_host_that_falls_silent_is_met_with_the_abort_connection_option(option
             time.sleep(0.01)
         reacted = time.monotonic() - stopped
         assert drive.heartbeat_events == 1 and drive.state is state, events
-        assert 0.25 - 0.06 < reacted < 0.25 + 0.3  # the last heartbeat came up to a period before the stop
+        # the last heartbeat came up to a period before the stop; a busy machine may run the drive's timer late
+        assert 1.0 - 0.06 < reacted < 1.0 + 1.0
         assert drive.controller.setpoint == 0.0 and not drive.controller.enabled
         lost = next(e for e in events if e.startswith("heartbeat of node 127 lost"))
-        assert lost.endswith(f"(consumer time 0.25 s): abort connection option {code} ({option})")
+        assert lost.endswith(f"(consumer time 1 s): abort connection option {code} ({option})")
         if state is not State.QUICK_STOP_ACTIVE:
             assert f"{state} (heartbeat of node 127 lost)" in events
         time.sleep(0.3)
