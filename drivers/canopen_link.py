@@ -58,6 +58,7 @@ from .driver import Driver, FeedbackSample
 from .errors import DriveFaultError, DriverOperationError, LayoutError
 from .layout import Layout
 from .ports import Frame, FramePort
+from .scheduling import sleep_until
 from .sync_dating import SyncMatcher
 
 if TYPE_CHECKING:
@@ -99,8 +100,6 @@ of the last ``CHECK_MEMORY`` steps, so that the setpoint the drive holds one tic
 misses."""
 CHECK_MEMORY = 256
 """Setpoint steps remembered for ``CHECK_STEP``."""
-CHECK_SPIN_S = 2e-4
-"""The last part of the wait for a check's late SYNC spent awake (s): a sleep ends late by about that much."""
 SYNC_PERIOD = 0x1006
 """Communication cycle period (UNSIGNED32, us; CiA 301): where the drive has it set, it watches its SYNC by it."""
 CHECK_WATCHED = 1.2
@@ -846,7 +845,7 @@ class CanopenDriver(Driver):
             if self._checks_answer(value, idle):
                 if not self._check_window:
                     return  # the SYNC left out
-                self._wait_until(self._last_sync + self._check_window)  # the SYNC sent late
+                sleep_until(self._last_sync + self._check_window)  # the SYNC sent late
             sent = time.time()  # before the send: the clock python-can stamps received frames with
             self._last_sync = time.perf_counter()
             self.port.send(Frame(SYNC_COB_ID, b""))
@@ -855,16 +854,6 @@ class CanopenDriver(Driver):
             if self._by_sync:
                 self._matcher.sent(counter, sent)
             self._update_health()
-
-    @staticmethod
-    def _wait_until(target: float) -> None:
-        """Until ``time.perf_counter()`` reaches ``target``: asleep (other threads, a simulated drive's included,
-        run meanwhile, even beside a pacing loop that has the CPU to itself), then ``CHECK_SPIN_S`` awake."""
-        wait = target - time.perf_counter()
-        if wait > CHECK_SPIN_S:
-            time.sleep(wait - CHECK_SPIN_S)
-        while time.perf_counter() < target:
-            pass
 
     def _checks_answer(self, value: float, idle: bool) -> bool:
         """Whether this tick's SYNC is left out, or sent late, to check the drive's answer time
@@ -883,7 +872,6 @@ class CanopenDriver(Driver):
             return False
         self._check_wanted = False
         self._matcher.skip()
-        self.health.answer_checks = self._matcher.checks
         return True
 
     @property
@@ -917,6 +905,7 @@ class CanopenDriver(Driver):
             self.health.duplicates = m.repeats
             self.health.lost_samples = m.lost
             self.health.dated_by_rhythm = m.by_rhythm
+            self.health.answer_checks = m.checks
             gaps = m.by_rhythm + m.checks_undecided
             if gaps != self._gaps_checked and self.setup.times_answers:
                 self._gaps_checked = gaps

@@ -1,21 +1,39 @@
 """OS scheduling of loops paced on the wall clock (Linux): SCHED_FIFO priority where permitted, 1 ns timer slack,
 and CPU pinning (the pacing loop keeps a CPU to itself, and every other thread keeps off it).
 
-The paced sleeps themselves are in the loops that use these: the bus worker's pacing loop (bench.worker) and the
-simulated drive's realtime clock (sim.controller). All but ``pacing_cpu_left_alone`` act on the calling thread only.
-On other systems they do nothing (and report False where they report).
+``sleep_until`` waits for a deadline as the paced loops need it (asleep most of the way, awake for the end): the bus
+worker's ticks (bench.worker) and a CANopen check's late SYNC (drivers.canopen_link). All but
+``pacing_cpu_left_alone`` act on the calling thread only. On other systems they do nothing (and report False where
+they report).
 """
 
 from __future__ import annotations
 
 import ctypes
 import os
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 
-__all__ = ["keep_to", "lower_timer_slack", "pacing_cpu", "pacing_cpu_left_alone", "request_fifo"]
+__all__ = ["SPIN_S", "keep_to", "lower_timer_slack", "pacing_cpu", "pacing_cpu_left_alone", "request_fifo",
+           "sleep_until"]
 
 _PR_SET_TIMERSLACK = 29
+
+SPIN_S = 2e-4
+"""How long before a deadline ``sleep_until`` stops sleeping and busy-waits (s), since a sleep can end this late."""
+MIN_SLEEP_S = 2e-5
+"""Shorter sleeps are not worth their wake-up delay (s)."""
+
+
+def sleep_until(deadline: float, spin_s: float = SPIN_S) -> None:
+    """Return at ``time.perf_counter()`` = ``deadline``: asleep until ``spin_s`` before it (other threads run
+    meanwhile, even beside a loop that has its CPU to itself under SCHED_FIFO), then busy-waiting the rest."""
+    wait = deadline - time.perf_counter()
+    if wait > spin_s + MIN_SLEEP_S:
+        time.sleep(wait - spin_s)
+    while time.perf_counter() < deadline:
+        pass
 
 
 def lower_timer_slack() -> None:

@@ -576,9 +576,7 @@ def test_a_tpdo_within_the_sync_period_is_timed_and_its_samples_keep_their_syncs
     found = re.search(r"TPDO answers its SYNC in ([\d.]+) ms \(median of (\d+)", record["drive_start"])
     assert found is not None and float(found[1]) >= 2.0 and int(found[2]) >= 8, record["drive_start"]
     (point,) = outcome.response.points
-    z = np.exp(2j * np.pi * point.frequency_hz / 250.0)
-    a = np.exp(-1.0 / (250.0 * PLANT["time_constant"]))
-    expected = np.degrees(np.angle((1 - a) / (z - a)))
+    expected = np.degrees(np.angle(lag_response(point.frequency_hz)))
     assert point.converged and abs(np.degrees(np.arctan2(point.q, point.p)) - expected) < 1.0
 
 

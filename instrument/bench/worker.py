@@ -31,7 +31,7 @@ from bodebench.core.autointegration import MAX_COEFFICIENT
 from bodebench.drivers.driver import Driver, FeedbackSample
 from bodebench.drivers.errors import DriveFaultError, DriverError
 from bodebench.drivers.layout import SETPOINT_ECHO
-from bodebench.drivers.scheduling import keep_to, lower_timer_slack, pacing_cpu, request_fifo
+from bodebench.drivers.scheduling import SPIN_S, keep_to, lower_timer_slack, pacing_cpu, request_fifo, sleep_until
 from bodebench.drivers.stop_signals import StopSignal, signals_held, stop_on_signals
 
 if TYPE_CHECKING:
@@ -279,12 +279,6 @@ class TableProgram(SineProgram):
 # ------------------------------------------------------------------------------------------------------ the loop
 
 
-SPIN_S = 2e-4
-"""Realtime clock: the worker sleeps until this long (at most 0.4 periods) before a tick's deadline and
-busy-waits the rest, since a sleep can end this late. Some sleep every period matters under SCHED_FIFO: a task
-that never sleeps is stopped for 50 ms a second by the kernel's realtime throttling."""
-MIN_SLEEP_S = 2e-5
-"""Realtime clock: shorter sleeps are not worth their wake-up delay."""
 
 COMMAND_POLL_S = 1e-3
 """The pacing loop looks for the session's commands (credit, a new sine, stop) at most this often (s): a look at
@@ -407,7 +401,9 @@ class BusWorker:
         self._sent_order: deque[float] = deque()
         self.send_errors = SendErrorHistogram()
         self.overruns = 0
-        self.spin_s = min(SPIN_S, 0.4 * self.h)  # realtime: busy-wait this long before each tick
+        # realtime: busy-wait this long before each tick (scheduling.SPIN_S, at most 0.4 periods: some sleep every
+        # period matters under SCHED_FIFO, where a task that never sleeps is stopped 50 ms a second by the kernel)
+        self.spin_s = min(SPIN_S, 0.4 * self.h)
         self.scheduling = "normal priority"  # realtime: what the OS granted the loop
         self._t: list[float] = []
         self._v: list[tuple[float, ...]] = []
@@ -709,11 +705,7 @@ class BusWorker:
     def _realtime_tick(self, scheduled: float) -> None:
         assert self.driver is not None
         u = self._limit(self._next_setpoint())  # ready before the deadline: only the send is left at it
-        wait = scheduled - time.perf_counter()
-        if wait > self.spin_s + MIN_SLEEP_S:  # sleep most of the way, busy-wait the rest (sleeps end late)
-            time.sleep(wait - self.spin_s)
-        while time.perf_counter() < scheduled:
-            pass
+        sleep_until(scheduled, self.spin_s)
         actual = time.perf_counter()
         self._send(u)
         if self._echo_index is not None:
