@@ -1,6 +1,6 @@
 """Does a point that says `converged` hold its eps, and does its interval mean 95 %? A battery against exact answers.
 
-Run: python benchmarks/bench_accuracy.py [--quick] [--bench [--folds bound|keep|move]]
+Run: python benchmarks/bench_accuracy.py [--quick] [--bench [--folds bound|keep|move] [--coverage N]]
 
 Battery (noise-free), every case simulated from rest exactly as the offline experiment does (step 1/(K_f f),
 K_f = 200), harmonics 1 to 3, the default rule replayed period by period through the Autointegrator's own order
@@ -687,8 +687,12 @@ def report_causes(rows: list[BenchRow]) -> None:
                   f"before: {len(conv) - len(after)}, > 2 eps {before_failed}; statuses of the failures {statuses}")
 
 
-def main_bench(quick: bool, jobs: int, folds: str) -> None:
+def main_bench(quick: bool, jobs: int, folds: str, coverage_cases: int = 0) -> None:
+    """The bench battery; ``coverage_cases`` > 0: the noisy kinds alone, that many cases each (the first ones
+    the same as the full battery's)."""
     plain, noisy = BENCH_CASES[quick]
+    if coverage_cases:
+        plain, noisy = 0, coverage_cases
     tasks = [(kind, i, eps, folds) for kind in BENCH_KINDS for i in range(noisy if kind in NOISY_KINDS else plain)
              for eps in BENCH_EPS]
     started = time.perf_counter()
@@ -708,9 +712,12 @@ def main() -> None:
     parser.add_argument("--folds", choices=FOLD_POLICIES, default=FOLD_POLICIES[0],
                         help="bench battery: [analysis] folds (default bound: each interval carries the fold "
                              "bound; keep: none; move: each frequency moved off folds)")
+    parser.add_argument("--coverage", type=int, default=0, metavar="N",
+                        help="bench battery: only the noisy kinds, N cases each (coverage with a narrower "
+                             f"binomial interval; the full battery has {BENCH_CASES[False][1]})")
     args = parser.parse_args()
     if args.bench:
-        main_bench(args.quick, args.jobs, args.folds)
+        main_bench(args.quick, args.jobs, args.folds, args.coverage)
         return
     cases = battery()
     if args.quick:

@@ -20,6 +20,7 @@ import pytest
 from bodebench.apps.check import check_lines
 from bodebench.bench.connection import plan_link
 from bodebench.bench.events import SessionError
+from bodebench.bench.overview import measure_overview_on_bench
 from bodebench.bench.procedure import SweepProcedure
 from bodebench.bench.session import BenchSession
 from bodebench.drivers.canopen_link import ANSWER_PROBES, CanopenDriver
@@ -520,11 +521,11 @@ def test_a_missed_sync_holds_the_setpoint_and_biases_the_response_as_the_held_in
 
 
 def realtime_case(delay_s: float, share: float = 1.0, frequencies_hz: tuple[float, ...] = (10.0,),
-                  rate_hz: float = 250.0, **faults: float) -> Any:
+                  rate_hz: float = 250.0, overview: dict[str, Any] | None = None, **faults: float) -> Any:
     """The lag on the simulated drive, SYNC every 4 ms (``rate_hz``) on the host's clock, its TPDOs (all, or
     ``share`` of them) reaching the bus ``delay_s`` after each SYNC (as a gateway or a USB adapter delays them); more
-    ``[simulator.canopen]`` faults in ``faults``."""
-    data = {**BASE, "excitation": {"amplitude": 0.01, "frequencies_hz": list(frequencies_hz)},
+    ``[simulator.canopen]`` faults in ``faults``; an ``[overview]`` table where given."""
+    data = {**BASE, **({"overview": overview} if overview else {}), "excitation": {"amplitude": 0.01, "frequencies_hz": list(frequencies_hz)},
             "bench": {"transport": "canopen", "rate_hz": rate_hz, "clock": "realtime", "worker": "process"},
             "can": {"interface": "virtual", "channel": f"sync-{uuid.uuid4().hex[:8]}"},
             "canopen": {"node_id": 9, "setpoint_scale": 1e-9, "actual": {"position": "0x6064"},
@@ -634,6 +635,35 @@ def test_gaps_of_a_drive_that_loses_tpdos_are_checked_on_idle_ticks_and_its_poin
         expected = lag_response(point.frequency_hz)
         measured = complex(point.p, point.q) / 0.01
         assert point.converged and abs(measured - expected) <= 1e-3 * abs(expected)
+
+
+OVERVIEW = {"start_hz": 10.0, "stop_hz": 30.0, "amplitude": 0.01, "lines_per_decade": 2}
+"""A multisine of lines 10 and 30 Hz, a period of 0.3 s (75 samples at 250 Hz)."""
+
+
+def test_an_overview_whose_drive_grows_late_ends_in_one_line_not_with_its_lines_a_sync_off() -> None:
+    """The drive answers 4.6 ms (1.15 SYNC periods) after its SYNC from controller time 3 s, mid-multisine: its
+    lines would be dated a SYNC off (14.4 degrees at 10 Hz) with intervals of 1e-17. The overview holds its result
+    until the driver has checked the gap on the ramp out, and ends with the driver's line instead."""
+    case = realtime_case(0.0046, overview=OVERVIEW, tpdo_delay_at_s=3.0).cases[0]
+    with pytest.raises(SessionError) as info:
+        measure_overview_on_bench(case, plan_link(case))
+    assert info.value.kind is FaultKind.DRIVE and "\n" not in str(info.value)
+    assert "a TPDO came when every SYNC sent before it had its answer" in str(info.value)
+
+
+def test_an_overview_with_lost_tpdos_waits_for_the_check_and_its_lines_are_the_lag() -> None:
+    """0.3 % of the TPDOs lost: the periods with a gap are left out, the gaps dated by rhythm are checked on the
+    ramp out (no idle tick comes before), and every line is G_d's within 1e-6 (the setpoint goes in counts of 1e-9)."""
+    case = realtime_case(0.0, overview=OVERVIEW, tpdo_drop=0.003).cases[0]
+    result = measure_overview_on_bench(case, plan_link(case))
+    assert result.discarded >= 1 and result.ended is not None and result.ended.completed
+    lines = [line.point for line in result.lines]
+    assert [p.frequency_hz for p in lines] == [10.0, 30.0]
+    for point in lines:
+        expected = lag_response(point.frequency_hz)
+        measured = complex(point.p, point.q) / point.amplitude
+        assert point.converged and abs(measured - expected) <= 1e-6 * abs(expected), (point, expected)
 
 
 def test_a_drive_that_watches_its_sync_period_gets_its_check_sync_late_not_missing(tmp_path: Path) -> None:

@@ -17,8 +17,10 @@ from bodebench.bench.events import SessionEnded, SessionError
 from bodebench.bench.worker import (
     MAX_SLEW_STEPS,
     Fault,
+    FinishSine,
     Health,
     MessagePipe,
+    Samples,
     Stop,
     Stopped,
     session_ended,
@@ -42,6 +44,9 @@ STOP_WAIT_S = 10.0
 end (s). While it ramps out it reports its health, and each report gives it this long again; the slew to zero
 under safety.max_rate, which reports nothing, is allowed for on top (two ticks' time a step: on the realtime clock
 each step's sleep oversleeps)."""
+
+DATING_WAIT_S = 5.0
+"""How long after its ramp out a measured program waits for the driver to check the dating of its samples (s)."""
 
 
 def ending_reason(exc: BaseException) -> str:
@@ -150,6 +155,19 @@ class WorkerConversation:
             if isinstance(message, kind):
                 return message
         raise SessionError(FaultKind.TIMEOUT, f"no {kind.__name__} from the bus worker within {timeout:g} s")
+
+    def dating_checked(self, ramp_out_s: float) -> bool:
+        """Ramp the running program out and wait for a batch whose samples' dating the driver has checked on the
+        idle ticks (``Samples.dating_unchecked`` false): True when one came within ``ramp_out_s`` (s) +
+        :data:`DATING_WAIT_S`. SessionError where the check fails (the driver's fault)."""
+        self.send(FinishSine())
+        deadline = time.monotonic() + ramp_out_s + DATING_WAIT_S
+        while time.monotonic() < deadline:
+            self.before_wait()
+            message = self.receive(0.1)
+            if isinstance(message, Samples) and not message.dating_unchecked:
+                return True
+        return False
 
     def shutdown(self, reason: str, abort: bool) -> Stopped | None:
         """Ask the worker to stop (``abort``: slew straight to zero rather than ramp out) and wait for its report

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bodebench.bench.connection import LinkPlan
-from bodebench.bench.conversation import WorkerConversation
+from bodebench.bench.conversation import DATING_WAIT_S, WorkerConversation
 from bodebench.bench.events import SessionEnded, SessionError
 from bodebench.bench.offline import OUTPUT_CHANNEL, build_plant
 from bodebench.bench.worker import Credit, Ready, Samples, SineStarted, StartTable
@@ -113,7 +113,9 @@ def measure_overview_on_bench(case: CaseConfig, plan: LinkPlan, on_period: Calla
     error, a stop signal), the worker ramps out or slews to zero, sends zero setpoints and the disable frame;
     ``on_end`` (and the result's ``ended``) gets what the drive was last sent; ``before_wait`` is called before
     each wait for the worker (at least once a second) and may raise to end the run (an abort). SessionError on a
-    trip, or where more than :data:`MAX_DISCARDED_SHARE` of the periods missed samples."""
+    trip, where more than :data:`MAX_DISCARDED_SHARE` of the periods missed samples, or where the driver had a gap
+    in the samples' dating to check and its check failed or did not come (a result is returned only once the
+    samples' dating is checked)."""
     tables = case.on_bench
     bench = tables.bench
     design = case.multisine()
@@ -130,11 +132,13 @@ def measure_overview_on_bench(case: CaseConfig, plan: LinkPlan, on_period: Calla
         started = worker.expect(SineStarted, 60.0)
         periods = _PeriodAssembler(started.tick + bench.ramp_in_periods * design.samples, design.samples,
                                    1.0 / bench.rate_hz)
+        unchecked = False  # the latest batch's samples may be dated wrongly until the driver checks its link
         while not integrator.done:
             worker.before_wait()
             message = worker.receive(1.0)
             if not isinstance(message, Samples):
                 continue
+            unchecked = message.dating_unchecked
             for output in periods.add(message.t, message.values[:, column]):
                 if integrator.done:
                     break
@@ -150,4 +154,8 @@ def measure_overview_on_bench(case: CaseConfig, plan: LinkPlan, on_period: Calla
                     on_period(integrator.periods)
             if bench.clock == "lockstep" and not integrator.done:
                 worker.send(Credit(message.last_tick + design.samples))
+        if unchecked and not worker.dating_checked(bench.ramp_out_periods * design.period_s):
+            raise SessionError(FaultKind.BUS, f"the overview's multisine: the dating of the samples by SYNC was not "
+                                              f"checked within {DATING_WAIT_S:g} s of the ramp out (a gap in the "
+                                              "TPDOs, and no SYNC answered since): no overview")
     return OverviewResult(design, tuple(integrator.result()), integrator.periods, discarded, worker.ended)

@@ -19,7 +19,7 @@ import numpy as np
 from bodebench.bench.adaptive import GrowingPlan, extra_periods
 from bodebench.bench.connection import LinkPlan
 from bodebench.bench.controls import ABORTED, SweepControls
-from bodebench.bench.conversation import WorkerConversation
+from bodebench.bench.conversation import DATING_WAIT_S, WorkerConversation
 from bodebench.bench.events import (
     BusStatus,
     Listener,
@@ -35,7 +35,6 @@ from bodebench.bench.events import (
 from bodebench.bench.window import PointWindow
 from bodebench.bench.worker import (
     Credit,
-    FinishSine,
     Health,
     Ready,
     Samples,
@@ -53,9 +52,6 @@ from bodebench.io.config import AnalysisConfig, BenchConfig, CaseConfig
 from bodebench.io.results import CSV_NAME, ResultsWriter, RowsOnDiskError, check_output
 from bodebench.io.samples import PointSamples
 from bodebench.status import FaultKind
-
-DATING_WAIT_S = 5.0
-"""How long after its ramp out a measured point waits for the driver to check the dating of its samples (s)."""
 
 
 @dataclass
@@ -369,21 +365,16 @@ class BenchSession:
         point is written once the driver has checked its link on the idle ticks (a failed check ends the sweep with
         the driver's fault, the point unwritten); SessionError when no check comes within ``DATING_WAIT_S`` after
         the ramp."""
-        self._worker.send(FinishSine())
-        deadline = time.monotonic() + self.bench.ramp_out_periods / f + DATING_WAIT_S
-        while time.monotonic() < deadline:
-            self._check_abort()
-            try:
-                message = self._worker.receive(0.1)
-            except SessionError as exc:
-                self.refused.append((f, f"{f:g} Hz: measured, not written: {exc}"))
-                raise
-            if isinstance(message, Samples) and not message.dating_unchecked:
-                return
-        why = (f"{f:g} Hz: the dating of the samples by SYNC was not checked within {DATING_WAIT_S:g} s of the "
-               "ramp out (a gap in the TPDOs, and no SYNC answered since): no point at this frequency")
-        self.refused.append((f, why))
-        raise SessionError(FaultKind.BUS, why)
+        try:
+            checked = self._worker.dating_checked(self.bench.ramp_out_periods / f)
+        except SessionError as exc:
+            self.refused.append((f, f"{f:g} Hz: measured, not written: {exc}"))
+            raise
+        if not checked:
+            why = (f"{f:g} Hz: the dating of the samples by SYNC was not checked within {DATING_WAIT_S:g} s of the "
+                   "ramp out (a gap in the TPDOs, and no SYNC answered since): no point at this frequency")
+            self.refused.append((f, why))
+            raise SessionError(FaultKind.BUS, why)
 
 
 def sine_dating(bench: BenchConfig, channels: tuple[str, ...], frequency_hz: float) -> tuple[str, float, bool]:
