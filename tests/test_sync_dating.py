@@ -525,7 +525,8 @@ def realtime_case(delay_s: float, share: float = 1.0, frequencies_hz: tuple[floa
     """The lag on the simulated drive, SYNC every 4 ms (``rate_hz``) on the host's clock, its TPDOs (all, or
     ``share`` of them) reaching the bus ``delay_s`` after each SYNC (as a gateway or a USB adapter delays them); more
     ``[simulator.canopen]`` faults in ``faults``; an ``[overview]`` table where given."""
-    data = {**BASE, **({"overview": overview} if overview else {}), "excitation": {"amplitude": 0.01, "frequencies_hz": list(frequencies_hz)},
+    data = {**BASE, **({"overview": overview} if overview else {}),
+            "excitation": {"amplitude": 0.01, "frequencies_hz": list(frequencies_hz)},
             "bench": {"transport": "canopen", "rate_hz": rate_hz, "clock": "realtime", "worker": "process"},
             "can": {"interface": "virtual", "channel": f"sync-{uuid.uuid4().hex[:8]}"},
             "canopen": {"node_id": 9, "setpoint_scale": 1e-9, "actual": {"position": "0x6064"},
