@@ -415,6 +415,38 @@ def test_the_settled_estimate_is_purely_statistical_when_no_drift_is_seen() -> N
     assert est.uncertainty_1d == pytest.approx(1.96 * 0.01 / math.sqrt(3000), rel=0.1)
 
 
+def test_a_point_ended_by_its_budget_states_the_periods_own_spread_and_one_that_stops_the_larger() -> None:
+    """White periods whose eight batch means a block happen to scatter more than the periods predict (within the
+    white test's factor 2). A point that stops on its spread states the batch means' spread with its 42 degrees of
+    freedom (at the stop a spread is more often low than high), the stop's own; one that ends for its budget
+    (noise-limited, capped) was not chosen by its spread and states the periods' own with their 6 (L - 1), which
+    the larger of the two overstates. Both worked out here from the definitions with scipy's quantiles."""
+    from scipy import stats
+
+    length = 64
+    for seed in range(50):
+        rng = np.random.default_rng(seed)
+        z = 1.0 + 0.01 * (rng.normal(size=1 + 4 * length) + 1j * rng.normal(size=1 + 4 * length))
+        blocks = z[1 + length:].reshape(3, length)
+        period_var = np.sum(np.abs(blocks - blocks.mean(axis=1, keepdims=True)) ** 2) / (6 * (length - 1))
+        batches = blocks.reshape(3, 8, length // 8).mean(axis=2)
+        batch_var = np.sum(np.abs(batches - blocks.mean(axis=1, keepdims=True)) ** 2) * (length // 8) / 42
+        if period_var < batch_var < 1.5 * period_var:
+            break
+    assert period_var < batch_var  # a seed found where the two differ
+    hist = SeriesHistory()
+    hist.extend(z)
+    assert hist.lag_correlation(1 + length, 1 + 4 * length) <= 2.0 / math.sqrt(3 * length)  # no inflation
+    for ended_by_budget, var, dof in ((False, batch_var, 42), (True, period_var, 6 * (length - 1))):
+        est = settled_estimate(hist, 1, 1 + 4 * length, ended_by_budget)
+        assert est.white and est.bias == 0.0 and est.value == pytest.approx(blocks.mean(), rel=1e-12)
+        sigma = math.sqrt(var / (3 * length))
+        assert est.uncertainty == pytest.approx(math.sqrt(2 * stats.f.ppf(0.95, 2, dof)) * sigma, rel=1e-9)
+        assert est.uncertainty_1d == pytest.approx(stats.t.ppf(0.975, dof) * sigma, rel=1e-9)
+        stop = math.sqrt(2 * stats.f.ppf(0.98, 2, 42) * batch_var / (3 * length))
+        assert est.stop_statistical == pytest.approx(stop, rel=1e-9)
+
+
 def test_printed_rules_carry_the_honest_uncertainty_and_flag_a_stop_outside_their_eps() -> None:
     """Full averaging from n_k = 1 on a decaying transient: it stops with an error far above eps; the verdict's
     uncertainty, taken from the same history, covers that error and says it is outside eps."""

@@ -181,7 +181,7 @@ class AdaptiveRule(StoppingRule):
         needed = _periods_needed(n, settled.stop_statistical, settled.bias, tol)
         if _hopeless(settled.white, needed, self.max_periods, n - self.skip):
             # the noise alone keeps eps out of reach within the budget: say so now, not at max_periods
-            return self._noise_limited(n, settled.estimate(), needed)
+            return self._noise_limited(n, settled.estimate(ended_by_budget=True), needed)
         return None
 
     def _fit_verdict(self, n: int, fit: tuple[complex, float] | None, channel_scale: float) -> Verdict | None:
@@ -312,7 +312,7 @@ class AdaptiveRule(StoppingRule):
 
     def capped(self, hist: SeriesHistory, n: int, channel_scale: float) -> Verdict:
         """At max_periods: noise-limited (with the periods eps would need) when only the statistics are too wide."""
-        est = settled_estimate(hist, self.skip, n)
+        est = settled_estimate(hist, self.skip, n, ended_by_budget=True)
         tol = self.tolerance(est.value, channel_scale)
         needed = _periods_needed(n, est.stop_statistical, est.bias, tol) if est.bounded and est.white else 0
         if needed:

@@ -197,17 +197,23 @@ def _batch_offsets(length: int, batches: int) -> tuple[int, ...]:
 class _Settled:
     """The settled estimate before its one-direction half-width, which costs a quantile, is worked out.
 
-    value (output units); statistical: 95 % disc radius from the noise; bias: bound on the transient left
-    (both output units); bounded, white: as :class:`Estimate`; dof: degrees of freedom of the noise estimate;
-    sigma_mean: standard deviation per component of the estimate (output units).
+    value (output units); bias: bound on the transient left (output units); bounded, white: as :class:`Estimate`;
+    dof, sigma_mean: degrees of freedom of the noise estimate (the larger of the batch means' and the periods'
+    spread) and the standard deviation per component of the estimate from it (output units); period_dof,
+    period_sigma: the same from the periods' own spread alone.
     """
 
-    __slots__ = ("value", "statistical", "bias", "bounded", "white", "dof", "sigma_mean")
+    __slots__ = ("value", "bias", "bounded", "white", "dof", "sigma_mean", "period_dof", "period_sigma")
 
-    def __init__(self, value: complex, statistical: float, bias: float, bounded: bool, white: bool, dof: int,
-                 sigma_mean: float) -> None:
-        self.value, self.statistical, self.bias = value, statistical, bias
-        self.bounded, self.white, self.dof, self.sigma_mean = bounded, white, dof, sigma_mean
+    def __init__(self, value: complex, bias: float, bounded: bool, white: bool, dof: int, sigma_mean: float,
+                 period_dof: int, period_sigma: float) -> None:
+        self.value, self.bias, self.bounded, self.white = value, bias, bounded, white
+        self.dof, self.sigma_mean, self.period_dof, self.period_sigma = dof, sigma_mean, period_dof, period_sigma
+
+    @property
+    def statistical(self) -> float:
+        """The 95 % disc radius from the noise (output units)."""
+        return _disc_factor(self.dof) * self.sigma_mean
 
     @property
     def uncertainty(self) -> float:
@@ -228,9 +234,16 @@ class _Settled:
         """Whether the estimate may stop: its :attr:`stop_width` within ``tolerance`` (output units)."""
         return self.stop_width <= tolerance
 
-    def estimate(self) -> Estimate:
-        line = _line_factor(self.dof) * self.sigma_mean
-        return Estimate(self.value, self.statistical + self.bias, line + self.bias, self.statistical, self.bounded,
+    def estimate(self, ended_by_budget: bool = False) -> Estimate:
+        """The estimate with its stated intervals. A point that stops because its spread is small states the larger
+        noise estimate (at the stop, the spread is more often low than high); one that ends for its budget
+        (``ended_by_budget``: noise-limited, capped) was not chosen by its spread, and where its periods scatter
+        like independent noise states their own spread, which the larger of two estimates overstates."""
+        dof, sigma = (self.period_dof, self.period_sigma) if ended_by_budget and self.white else (self.dof,
+                                                                                                 self.sigma_mean)
+        statistical = _disc_factor(dof) * sigma
+        line = _line_factor(dof) * sigma
+        return Estimate(self.value, statistical + self.bias, line + self.bias, statistical, self.bounded,
                         self.white, self.stop_statistical)
 
 
@@ -280,18 +293,19 @@ def _settle(hist: SeriesHistory, q: _QuarterStats, lag: float | None = None) -> 
         bounded = d3 <= max(_MAX_RATIO * d2, visible) and d2 <= max(_MAX_RATIO * d1, visible)
         value = (block[2] + block[3]) / 2
     sigma_mean = math.sqrt(var1 / (used * length))  # per component
-    statistical = _disc_factor(dof) * sigma_mean
     # with fewer batches than _SUB_BATCHES a smooth drift looks like noise: no bound from so short a record
     bounded = bounded and batches == _SUB_BATCHES
-    return _Settled(value, statistical, bias, bounded, white, dof, sigma_mean)
+    return _Settled(value, bias, bounded, white, dof, sigma_mean, period_dof, math.sqrt(var_periods / (used * length)))
 
 
-def settled_estimate(hist: SeriesHistory, skip: int, n: int) -> Estimate:
+def settled_estimate(hist: SeriesHistory, skip: int, n: int, ended_by_budget: bool = False) -> Estimate:
     """The mean of the settled part of periods skip+1..n, with its 95 % bounds (output units).
 
     The analysed record is cut into four equal blocks, each into up to eight batches. Noise: the
     pooled spread of the batch means about their own block's mean in the last three blocks (between-block
-    drift excluded), with 3 blocks x (batches - 1) x 2 degrees of freedom. Drift: the changes d2, d3 between
+    drift excluded), with 3 blocks x (batches - 1) x 2 degrees of freedom, or of the periods themselves where
+    larger (``ended_by_budget``: the periods' own where they scatter like independent noise, see
+    :meth:`_Settled.estimate`). Drift: the changes d2, d3 between
     the means of blocks 2-3 and 3-4. A drift the noise cannot explain must shrink geometrically, |d3| <= |d2| / 2,
     before the transient is bounded (and so must d2 against d1); the transient left in the mean of
     blocks 3-4 is then at most 1.5 |d3| (the tail of a geometric sequence of ratio <= 1/2). Only where
@@ -303,4 +317,4 @@ def settled_estimate(hist: SeriesHistory, skip: int, n: int) -> Estimate:
     if (n - skip) // _BLOCKS < 2:
         z = hist.at(n)
         return Estimate(z, math.nan, math.nan, math.nan, False, False)
-    return _settle(hist, _quarters(hist, skip, n)).estimate()
+    return _settle(hist, _quarters(hist, skip, n)).estimate(ended_by_budget)
