@@ -49,6 +49,14 @@ DATING_WAIT_S = 5.0
 """How long after its ramp out a measured program waits for the driver to check the dating of its samples (s)."""
 
 
+def dating_not_checked(what: str) -> SessionError:
+    """The error where no check of the samples' dating came within :data:`DATING_WAIT_S` of the ramp out of
+    ``what`` (a point's frequency, the overview)."""
+    return SessionError(FaultKind.BUS, f"{what}: the dating of the samples by SYNC was not checked within "
+                                       f"{DATING_WAIT_S:g} s of the ramp out (a gap in the TPDOs, and no SYNC "
+                                       "answered since): nothing written from it")
+
+
 def ending_reason(exc: BaseException) -> str:
     """The reason a run that ``exc`` ended gives: a trip's own text, the stop signal, or the error."""
     if isinstance(exc, SessionError):
@@ -159,7 +167,8 @@ class WorkerConversation:
     def dating_checked(self, ramp_out_s: float) -> bool:
         """Ramp the running program out and wait for a batch whose samples' dating the driver has checked on the
         idle ticks (``Samples.dating_unchecked`` false): True when one came within ``ramp_out_s`` (s) +
-        :data:`DATING_WAIT_S`. SessionError where the check fails (the driver's fault)."""
+        :data:`DATING_WAIT_S` (else :func:`dating_not_checked` is the error to raise). SessionError where the check
+        fails (the driver's fault)."""
         self.send(FinishSine())
         deadline = time.monotonic() + ramp_out_s + DATING_WAIT_S
         while time.monotonic() < deadline:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bodebench.bench.connection import LinkPlan
-from bodebench.bench.conversation import DATING_WAIT_S, WorkerConversation
+from bodebench.bench.conversation import WorkerConversation, dating_not_checked
 from bodebench.bench.events import SessionEnded, SessionError
 from bodebench.bench.offline import OUTPUT_CHANNEL, build_plant
 from bodebench.bench.worker import Credit, Ready, Samples, SineStarted, StartTable
@@ -155,7 +155,5 @@ def measure_overview_on_bench(case: CaseConfig, plan: LinkPlan, on_period: Calla
             if bench.clock == "lockstep" and not integrator.done:
                 worker.send(Credit(message.last_tick + design.samples))
         if unchecked and not worker.dating_checked(bench.ramp_out_periods * design.period_s):
-            raise SessionError(FaultKind.BUS, f"the overview's multisine: the dating of the samples by SYNC was not "
-                                              f"checked within {DATING_WAIT_S:g} s of the ramp out (a gap in the "
-                                              "TPDOs, and no SYNC answered since): no overview")
+            raise dating_not_checked("the overview's multisine")
     return OverviewResult(design, tuple(integrator.result()), integrator.periods, discarded, worker.ended)

@@ -19,7 +19,7 @@ import numpy as np
 from bodebench.bench.adaptive import GrowingPlan, extra_periods
 from bodebench.bench.connection import LinkPlan
 from bodebench.bench.controls import ABORTED, SweepControls
-from bodebench.bench.conversation import DATING_WAIT_S, WorkerConversation
+from bodebench.bench.conversation import WorkerConversation, dating_not_checked
 from bodebench.bench.events import (
     BusStatus,
     Listener,
@@ -364,17 +364,16 @@ class BenchSession:
         """The point at ``f`` Hz is measured but its samples' dating is not checked yet: the sine ramps out, and the
         point is written once the driver has checked its link on the idle ticks (a failed check ends the sweep with
         the driver's fault, the point unwritten); SessionError when no check comes within ``DATING_WAIT_S`` after
-        the ramp."""
+        the ramp (:func:`dating_not_checked`)."""
         try:
             checked = self._worker.dating_checked(self.bench.ramp_out_periods / f)
         except SessionError as exc:
             self.refused.append((f, f"{f:g} Hz: measured, not written: {exc}"))
             raise
         if not checked:
-            why = (f"{f:g} Hz: the dating of the samples by SYNC was not checked within {DATING_WAIT_S:g} s of the "
-                   "ramp out (a gap in the TPDOs, and no SYNC answered since): no point at this frequency")
-            self.refused.append((f, why))
-            raise SessionError(FaultKind.BUS, why)
+            error = dating_not_checked(f"{f:g} Hz")
+            self.refused.append((f, str(error)))
+            raise error
 
 
 def sine_dating(bench: BenchConfig, channels: tuple[str, ...], frequency_hz: float) -> tuple[str, float, bool]:

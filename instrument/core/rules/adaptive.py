@@ -304,7 +304,7 @@ class AdaptiveRule(StoppingRule):
         if (n - self.skip) // _BLOCKS < 2:
             return hist.at(n), math.nan, math.nan
         settled = _settle(hist, _quarters(hist, self.skip, n))
-        return settled.value, settled.uncertainty, settled.stop_width
+        return settled.value, settled.estimate().uncertainty, settled.stop_width
 
     def _noise_limited(self, n: int, est: Estimate, needed: int) -> Verdict:
         return Verdict(n, est.value.real, est.value.imag, est.uncertainty, NOISE_LIMITED, "settled mean",

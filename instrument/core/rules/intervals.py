@@ -211,15 +211,6 @@ class _Settled:
         self.dof, self.sigma_mean, self.period_dof, self.period_sigma = dof, sigma_mean, period_dof, period_sigma
 
     @property
-    def statistical(self) -> float:
-        """The 95 % disc radius from the noise (output units)."""
-        return _disc_factor(self.dof) * self.sigma_mean
-
-    @property
-    def uncertainty(self) -> float:
-        return self.statistical + self.bias
-
-    @property
     def stop_statistical(self) -> float:
         """The noise disc radius at :data:`STOP_CONFIDENCE` (output units)."""
         return _disc_factor(self.dof, STOP_CONFIDENCE) * self.sigma_mean
