@@ -45,6 +45,7 @@ from bodebench.drivers.canopen_link import (
     MODES_OF_OPERATION,
     STATUSWORD,
     SYNC_COB_ID,
+    SYNC_PERIOD,
     CanopenSetup,
     load_od,
 )
@@ -76,8 +77,6 @@ DEVICE_MODE = 0x6042
 CONTROL_MODE = 0x6043
 HEARTBEAT_ERROR = 0x8130
 """EMCY error code of a heartbeat event (CiA 301: life guard error or heartbeat error)."""
-SYNC_PERIOD = 0x1006
-"""Communication cycle period (UNSIGNED32, us; CiA 301): ``sync_period_us``."""
 _ABORT_NAMES = {0: "no action", **{code: name for name, code in ABORT_CONNECTION_OPTIONS.items()}}
 
 

@@ -279,7 +279,6 @@ class TableProgram(SineProgram):
 # ------------------------------------------------------------------------------------------------------ the loop
 
 
-
 COMMAND_POLL_S = 1e-3
 """The pacing loop looks for the session's commands (credit, a new sine, stop) at most this often (s): a look at
 the pipe costs more than a tick's own work, and a stop waits at most this long for it."""
